@@ -1,0 +1,258 @@
+"""In-memory description of an adjustment project: plain numpy arrays, no file I/O.
+
+These containers are what the numerical pipeline (:mod:`vectoradjust.pipeline`)
+consumes. The file readers (:mod:`vectoradjust.io`), the simulator
+(:mod:`vectoradjust.simulate`) and the QGIS plugin all produce them, so the same
+numbers come out whichever way the data arrived.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+import numpy as np
+
+__all__ = [
+    "Camera",
+    "ImageSpec",
+    "Measurements",
+    "ControlPoints",
+    "LineLayer",
+    "VectorSpec",
+    "AdjustmentSettings",
+    "ProjectData",
+]
+
+
+@dataclass
+class Camera:
+    """Interior orientation used by the collinearity equations.
+
+    Attributes
+    ----------
+    focal_length : float
+        Calibrated focal length (mm).
+    principal_point : tuple of float
+        ``x0, y0`` (mm).
+    calibration : object, optional
+        A full calibration (fiducials, distortion, pixel size) for image coordinate
+        refinement, when the project gives one.
+    """
+
+    focal_length: float
+    principal_point: tuple[float, float] = (0.0, 0.0)
+    calibration: Any = None
+
+
+@dataclass
+class ImageSpec:
+    """One image: approximate exterior orientation and its optional priors.
+
+    Attributes
+    ----------
+    id : str
+    position : numpy.ndarray, shape (3,)
+        Approximate (or prior) exposure station XL, YL, ZL (m).
+    attitude : numpy.ndarray, shape (3,)
+        Approximate omega, phi, kappa in **degrees**.
+    sigma_position : float or None
+        Prior sigma of the position (m); ``None`` = free parameter.
+    sigma_attitude : float or None
+        Prior sigma of the angles (degrees); ``None`` = free parameter.
+    date : str or None
+        Acquisition date (ISO 8601) for provenance.
+    """
+
+    id: str
+    position: np.ndarray
+    attitude: np.ndarray
+    sigma_position: Optional[float] = None
+    sigma_attitude: Optional[float] = None
+    date: Optional[str] = None
+
+
+@dataclass
+class Measurements:
+    """Image coordinate measurements, one row per (point, image).
+
+    Attributes
+    ----------
+    point_id, image_id : numpy.ndarray of str, shape (k,)
+    xy : numpy.ndarray, shape (k, 2)
+        Photo coordinates (mm), refined (interior orientation applied).
+    sigma : numpy.ndarray, shape (k, 2)
+        Standard deviations (mm).
+    source : str
+        File (or layer) name, for error messages.
+    rows : numpy.ndarray of int, shape (k,)
+        1-based line numbers in the source (header = line 1), for error messages.
+    """
+
+    point_id: np.ndarray
+    image_id: np.ndarray
+    xy: np.ndarray
+    sigma: np.ndarray
+    source: str = "<measurements>"
+    rows: Optional[np.ndarray] = None
+
+    def __post_init__(self) -> None:
+        self.point_id = np.asarray(self.point_id, dtype=object).astype(str)
+        self.image_id = np.asarray(self.image_id, dtype=object).astype(str)
+        self.xy = np.asarray(self.xy, float).reshape(-1, 2)
+        self.sigma = np.broadcast_to(np.asarray(self.sigma, float), self.xy.shape).copy()
+        if self.rows is None:
+            self.rows = np.arange(2, len(self.point_id) + 2)
+
+
+@dataclass
+class ControlPoints:
+    """Surveyed ground points.
+
+    Attributes
+    ----------
+    point_id : numpy.ndarray of str, shape (n,)
+    xyz : numpy.ndarray, shape (n, 3)
+        Surveyed coordinates in the project CRS (m).
+    sigma : numpy.ndarray, shape (n, 3)
+        Standard deviations (m).
+    role : numpy.ndarray of str, shape (n,)
+        ``"control"`` (in the adjustment) or ``"check"`` (independent check).
+    cov : numpy.ndarray, shape (n, 3, 3), optional
+        Full covariance where given; overrides ``sigma``.
+    source : str
+    rows : numpy.ndarray of int, optional
+    """
+
+    point_id: np.ndarray
+    xyz: np.ndarray
+    sigma: np.ndarray
+    role: np.ndarray
+    cov: Optional[np.ndarray] = None
+    source: str = "<control>"
+    rows: Optional[np.ndarray] = None
+
+    def __post_init__(self) -> None:
+        self.point_id = np.asarray(self.point_id, dtype=object).astype(str)
+        self.xyz = np.asarray(self.xyz, float).reshape(-1, 3)
+        self.sigma = np.broadcast_to(np.asarray(self.sigma, float), self.xyz.shape).copy()
+        self.role = np.asarray(self.role, dtype=object).astype(str)
+        if self.rows is None:
+            self.rows = np.arange(2, len(self.point_id) + 2)
+
+
+@dataclass
+class LineLayer:
+    """A road line layer flattened to vertex arrays, attributes kept verbatim.
+
+    Attributes
+    ----------
+    name : str
+        The database name (``[[vectors]] name``).
+    feature_ids : numpy.ndarray of str, shape (nf,)
+        Feature ids (the id field's values, or the 0-based feature index).
+    attributes : dict of str to list
+        Every input attribute column, in input order, ``nf`` values each.
+    coords : numpy.ndarray, shape (nv, 3)
+        All vertices of all features, in the project CRS; Z is NaN where the layer had
+        none and no DEM was sampled yet.
+    vertex_feature : numpy.ndarray of int, shape (nv,)
+        Index of the feature each vertex belongs to.
+    vertex_index : numpy.ndarray of int, shape (nv,)
+        0-based vertex index along its feature, continuing across parts.
+    vertex_part : numpy.ndarray of int, shape (nv,)
+        Part number within the feature (0 for single LineStrings).
+    problems : dict of int to str
+        Features that cannot be adjusted (empty/null geometry, ...) and why; they are
+        carried to the outputs flagged, never dropped.
+    crs : str or None
+        CRS of ``coords`` (WKT or authority string).
+    source : str
+        File path, for error messages.
+    geometry_type : str
+        Geometry type as read (for messages).
+    """
+
+    name: str
+    feature_ids: np.ndarray
+    attributes: dict[str, list]
+    coords: np.ndarray
+    vertex_feature: np.ndarray
+    vertex_index: np.ndarray
+    vertex_part: np.ndarray
+    problems: dict[int, str] = field(default_factory=dict)
+    crs: Optional[str] = None
+    source: str = "<layer>"
+    geometry_type: str = "LineString"
+
+    def __post_init__(self) -> None:
+        self.feature_ids = np.asarray(self.feature_ids, dtype=object).astype(str)
+        self.coords = np.asarray(self.coords, float).reshape(-1, 3)
+        self.vertex_feature = np.asarray(self.vertex_feature, dtype=np.int64)
+        self.vertex_index = np.asarray(self.vertex_index, dtype=np.int64)
+        self.vertex_part = np.asarray(self.vertex_part, dtype=np.int64)
+
+    @property
+    def n_features(self) -> int:
+        """Number of features (including unadjustable ones)."""
+        return len(self.feature_ids)
+
+
+@dataclass
+class VectorSpec:
+    """One ``[[vectors]]`` entry of the project (a road database)."""
+
+    name: str
+    path: Optional[str] = None
+    id_field: Optional[str] = None
+    sigma: tuple[float, float, float] = (10.0, 10.0, 10.0)
+    dem: Optional[str] = None
+    truth: Optional[str] = None
+    layer: Optional[str] = None
+
+
+@dataclass
+class AdjustmentSettings:
+    """``[adjustment]`` settings."""
+
+    max_iterations: int = 20
+    reweight: str = "none"
+    alpha: float = 0.05
+    tolerance_position: float = 1e-4
+    tolerance_angle: float = 1e-8
+    merge_tolerance: float = 0.001
+
+
+@dataclass
+class ProjectData:
+    """Everything the adjustment needs, as arrays.
+
+    Attributes
+    ----------
+    crs : str
+        Ground CRS (projected, metres).
+    camera : Camera
+    images : list of ImageSpec
+    measurements : Measurements
+    control : ControlPoints
+    vectors : list of tuple (VectorSpec, LineLayer)
+        Road databases with Z already filled (from DEM or geometry).
+    settings : AdjustmentSettings
+    truth : dict of str to (numpy.ndarray of str, numpy.ndarray (n, 3)), optional
+        Per database name: shape point ids and their true coordinates (simulations).
+    corrections : dict
+        ``[corrections]`` switches.
+    source : str
+        Project file path, for messages.
+    """
+
+    crs: str
+    camera: Camera
+    images: list[ImageSpec]
+    measurements: Measurements
+    control: ControlPoints
+    vectors: list = field(default_factory=list)
+    settings: AdjustmentSettings = field(default_factory=AdjustmentSettings)
+    truth: dict = field(default_factory=dict)
+    corrections: dict = field(default_factory=dict)
+    source: str = "<project>"
