@@ -53,7 +53,8 @@ def inv3x3(a: np.ndarray) -> np.ndarray:
     c22 = a[..., 0, 0] * a[..., 1, 1] - a[..., 0, 1] * a[..., 1, 0]
     det = a[..., 0, 0] * c00 + a[..., 0, 1] * c10 + a[..., 0, 2] * c20
     out = np.stack(
-        [np.stack([c00, c01, c02], -1), np.stack([c10, c11, c12], -1), np.stack([c20, c21, c22], -1)],
+        [np.stack([c00, c01, c02], -1), np.stack([c10, c11, c12], -1),
+         np.stack([c20, c21, c22], -1)],
         -2,
     )
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -120,11 +120,12 @@ def partials(eo, xyz, focal_length: float):
     fq2 = f / (q * q)
     fq = f / q
 
-    b11 = fq2 * (r * (-m[..., 2, 2] * dY + m[..., 2, 1] * dZ) - q * (-m[..., 0, 2] * dY + m[..., 0, 1] * dZ))
+    dq_dom = -m[..., 2, 2] * dY + m[..., 2, 1] * dZ
+    b11 = fq2 * (r * dq_dom - q * (-m[..., 0, 2] * dY + m[..., 0, 1] * dZ))
     dq_dphi = cp * dX + so * sp * dY - co * sp * dZ
     b12 = fq2 * (r * dq_dphi - q * (-sp * ck * dX + so * cp * ck * dY - co * cp * ck * dZ))
     b13 = -fq * s
-    b21 = fq2 * (s * (-m[..., 2, 2] * dY + m[..., 2, 1] * dZ) - q * (-m[..., 1, 2] * dY + m[..., 1, 1] * dZ))
+    b21 = fq2 * (s * dq_dom - q * (-m[..., 1, 2] * dY + m[..., 1, 1] * dZ))
     b22 = fq2 * (s * dq_dphi - q * (sp * sk * dX - so * cp * sk * dY + co * cp * sk * dZ))
     b23 = fq * r
     # b14..b16 and b24..b26: f/q^2 (r m3j - q m1j) and f/q^2 (s m3j - q m2j)

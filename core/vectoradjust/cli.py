@@ -1,0 +1,281 @@
+"""The ``vectoradjust`` command line.
+
+Subcommands (``DESIGN.md`` section 9): ``demo``, ``adjust``, ``compare``. User errors
+print one clear message and exit with status 1; usage errors exit with 2; an
+interrupted run exits with 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Optional
+
+from vectoradjust import __version__
+from vectoradjust.errors import CancelledError, VectorAdjustError
+
+__all__ = ["main", "ProgressBar", "sample_project_dir"]
+
+
+class ProgressBar:
+    """A one-line progress bar on stderr (plain lines when stderr is not a terminal)."""
+
+    def __init__(self, label: str, enabled: bool = True, stream=None, width: int = 30) -> None:
+        self.label = label
+        self.enabled = enabled
+        self.stream = stream or sys.stderr
+        self.width = width
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self._last_msg = None
+        self.t0 = time.perf_counter()
+
+    def __call__(self, fraction: float, message: str = "") -> None:
+        if not self.enabled:
+            return
+        fraction = min(max(float(fraction), 0.0), 1.0)
+        filled = int(round(fraction * self.width))
+        bar = "#" * filled + "-" * (self.width - filled)
+        elapsed = time.perf_counter() - self.t0
+        line = f"{self.label} [{bar}] {fraction * 100:5.1f}% {elapsed:6.1f}s {message}"
+        if self.tty:
+            self.stream.write("\r" + line[:120].ljust(120))
+            if fraction >= 1.0:
+                self.stream.write("\n")
+        elif message != self._last_msg:
+            self.stream.write(line + "\n")
+        self._last_msg = message
+        self.stream.flush()
+
+
+def sample_project_dir() -> Path:
+    """Directory of the embedded sample project."""
+    try:
+        from importlib.resources import files
+
+        p = Path(str(files("vectoradjust.resources"))) / "sample"
+        if (p / "project.toml").is_file():
+            return p
+    except (ModuleNotFoundError, TypeError):
+        pass
+    p = Path(__file__).resolve().parents[2] / "resources" / "sample"
+    if (p / "project.toml").is_file():
+        return p
+    raise VectorAdjustError("The sample project is not installed (resources/sample/project.toml "
+                            "is missing)", "Reinstall vectoradjust with 'pip install .'")
+
+
+def _fmt(v, nd=3) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, (int,)):
+        return str(v)
+    try:
+        return f"{float(v):.{nd}f}"
+    except (TypeError, ValueError):
+        return str(v)
+
+
+def _print_summary(summary: dict, out=sys.stdout) -> None:
+    chi = summary["chi_square"]
+    print(f"  sigma0^2 = {_fmt(summary['sigma0_squared'], 4)} with {summary['degrees_of_freedom']}"
+          f" degrees of freedom, {summary['iterations']} iterations", file=out)
+    if chi.get("lower") is not None:
+        print(f"  chi-square test (alpha = {chi['alpha']}): v'Pv = {_fmt(chi['statistic'], 2)} in "
+              f"[{_fmt(chi['lower'], 2)}, {_fmt(chi['upper'], 2)}]: "
+              f"{'passed' if chi['passed'] else 'FAILED'}", file=out)
+    for key, label in (("shape_points", "shape points (residuals)"),
+                       ("control_points", "control points"),
+                       ("check_points", "check points")):
+        s = summary.get(key) or {}
+        if s.get("count"):
+            print(f"  {label:26s} n = {s['count']:5d}  RMSE x {_fmt(s['rmse_x'])}  y "
+                  f"{_fmt(s['rmse_y'])}  z {_fmt(s['rmse_z'])}  horizontal "
+                  f"{_fmt(s['rmse_horizontal'])} m", file=out)
+    if summary.get("mean_ce90") is not None:
+        print(f"  mean CE90 {_fmt(summary['mean_ce90'])} m, mean LE90 "
+              f"{_fmt(summary['mean_le90'])} m", file=out)
+    for w in summary.get("warnings", []):
+        print(f"  warning: {w}", file=out)
+
+
+COMPARE_COLUMNS = [
+    ("database", "database"), ("adjusted", "adjusted"), ("rmse_x", "RMSE x"),
+    ("rmse_y", "RMSE y"), ("rmse_z", "RMSE z"), ("rmse_horizontal", "RMSE h"),
+    ("mean_ce90", "CE90"), ("mean_le90", "LE90"), ("sigma0_squared", "s0^2"),
+    ("chi_square_passed", "chi2 ok"), ("check_rmse_horizontal", "check h"),
+    ("true_rmse", "true RMSE"), ("recovery", "recovery"), ("adjusted_truth_rmse", "adj-truth"),
+    ("improvement", "improve"),
+]
+
+
+def _compare_row(summary: dict) -> dict:
+    db = summary["databases"][0] if summary["databases"] else {}
+    res = db.get("residuals", {})
+    truth = db.get("truth") or {}
+    return {
+        "database": db.get("name"), "adjusted": db.get("adjusted_vertices"),
+        "rmse_x": res.get("rmse_x"), "rmse_y": res.get("rmse_y"), "rmse_z": res.get("rmse_z"),
+        "rmse_horizontal": res.get("rmse_horizontal"), "mean_ce90": db.get("mean_ce90"),
+        "mean_le90": db.get("mean_le90"), "sigma0_squared": summary.get("sigma0_squared"),
+        "chi_square_passed": summary["chi_square"].get("passed"),
+        "check_rmse_horizontal": summary["check_points"].get("rmse_horizontal"),
+        "true_rmse": truth.get("rmse_database_truth_horizontal"),
+        "recovery": truth.get("recovery_rate"),
+        "adjusted_truth_rmse": truth.get("rmse_adjusted_truth_horizontal"),
+        "improvement": truth.get("improvement"),
+    }
+
+
+def print_table(rows: list, out=sys.stdout) -> None:
+    """Print the side-by-side comparison table."""
+    heads = [h for _, h in COMPARE_COLUMNS]
+    cells = [[_fmt(r.get(k)) if k != "database" else str(r.get(k)) for k, _ in COMPARE_COLUMNS]
+             for r in rows]
+    widths = [max(len(h), *(len(c[i]) for c in cells)) for i, h in enumerate(heads)]
+    print("  ".join(h.rjust(w) for h, w in zip(heads, widths)), file=out)
+    for c in cells:
+        print("  ".join(v.rjust(w) for v, w in zip(c, widths)), file=out)
+
+
+def cmd_adjust(args) -> int:
+    from vectoradjust.io import load_project_data
+    from vectoradjust.outputs import write_outputs
+    from vectoradjust.pipeline import run
+
+    bar = ProgressBar("adjust", enabled=not args.quiet)
+    bar(0.0, "reading inputs")
+    data = load_project_data(args.project, vectors=args.vectors)
+    result = run(data, vectors=args.vectors, progress=bar)
+    written = write_outputs(result, args.out, fmt=args.format)
+    if not args.quiet:
+        print(f"vectoradjust adjust: {args.project}")
+        _print_summary(result.summary)
+        for name in written.values():
+            print(f"  wrote {name}")
+    return 0
+
+
+def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
+    """Adjust every ``[[vectors]]`` entry alone and tabulate the results.
+
+    Returns
+    -------
+    list of dict
+        One row per database (the columns of ``compare.csv``).
+    """
+    from vectoradjust.io import load_project_data
+    from vectoradjust.outputs import write_outputs
+    from vectoradjust.pipeline import run
+    from vectoradjust.project import load_project
+
+    spec = load_project(project)
+    if not spec.vectors:
+        raise VectorAdjustError(f"{project}: there are no [[vectors]] entries to compare",
+                                "Add [[vectors]] entries (one per road database)")
+    data = load_project_data(spec)
+    rows = []
+    out = Path(out_dir)
+    for i, v in enumerate(spec.vectors):
+        bar = ProgressBar(f"{v.name:>8s} ({i + 1}/{len(spec.vectors)})", enabled=not quiet)
+        result = run(data, vectors=[v.name], progress=bar)
+        write_outputs(result, out / v.name, fmt=fmt)
+        rows.append(_compare_row(result.summary))
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "compare.csv", "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=[k for k, _ in COMPARE_COLUMNS])
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k, _ in COMPARE_COLUMNS})
+    with open(out / "compare.json", "w", encoding="utf-8") as fh:
+        json.dump(rows, fh, indent=2)
+    return rows
+
+
+def cmd_compare(args) -> int:
+    rows = compare(args.project, args.out, fmt=args.format, quiet=args.quiet)
+    print(f"vectoradjust compare: {args.project} (each database adjusted alone)")
+    print_table(rows)
+    print(f"  wrote {Path(args.out) / 'compare.csv'}")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    project = sample_project_dir() / "project.toml"
+    out = Path(args.out)
+    print(f"vectoradjust demo: sample project {project}")
+    print("  all road databases adjusted together ->", out / "all")
+    ns = argparse.Namespace(project=str(project), out=str(out / "all"), format=args.format,
+                            vectors=None, quiet=args.quiet)
+    cmd_adjust(ns)
+    print("\n  each database alone (compare) ->", out / "compare")
+    rows = compare(project, out / "compare", fmt=args.format, quiet=args.quiet)
+    print_table(rows)
+    print("\n  (recovery = RMSE of residuals / RMSE of database - truth; improvement = 1 - "
+          "RMSE(adjusted - truth) / RMSE(database - truth))")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``vectoradjust`` command."""
+    p = argparse.ArgumentParser(
+        prog="vectoradjust",
+        description="Photogrammetric adjustment of road vectors: how far each vertex is from "
+                    "the truth, where it belongs, and how sure that is.",
+    )
+    p.add_argument("--version", action="version", version=f"vectoradjust {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    def common(sp):
+        sp.add_argument("--format", choices=("gpkg", "shp"), default="gpkg",
+                        help="output format (default gpkg)")
+        sp.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+
+    d = sub.add_parser("demo", help="run the embedded sample project end to end")
+    d.add_argument("--out", default="vectoradjust-demo", help="output directory "
+                   "(default ./vectoradjust-demo)")
+    common(d)
+    d.set_defaults(func=cmd_demo)
+
+    a = sub.add_parser("adjust", help="adjust the road vectors of a project")
+    a.add_argument("project", help="project file (TOML)")
+    a.add_argument("--out", required=True, help="output directory")
+    a.add_argument("--vectors", action="append", metavar="NAME",
+                   help="adjust only this [[vectors]] entry (repeatable)")
+    common(a)
+    a.set_defaults(func=cmd_adjust)
+
+    c = sub.add_parser("compare", help="adjust each road database alone and compare")
+    c.add_argument("project", help="project file (TOML)")
+    c.add_argument("--out", required=True, help="output directory")
+    common(c)
+    c.set_defaults(func=cmd_compare)
+    return p
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Entry point of the ``vectoradjust`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except CancelledError as exc:
+        print(f"\nvectoradjust: cancelled: {exc}", file=sys.stderr)
+        return 130
+    except VectorAdjustError as exc:
+        print(f"\nvectoradjust: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("\nvectoradjust: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

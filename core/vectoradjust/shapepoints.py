@@ -1,0 +1,109 @@
+"""Shape points: the vertices of road features as object points.
+
+Ids follow the contract: ``<feature id>_<vertex index>``, the vertex index 0-based
+along the feature and continuing across parts. Vertices at the same XY (within the
+merge tolerance, 1 mm by default) are one object point; any of their ids may be
+measured.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from vectoradjust.model import LineLayer
+
+__all__ = ["ShapePoints", "extract_shape_points", "lookup"]
+
+
+@dataclass
+class ShapePoints:
+    """Vertices of one road layer and the object points they form.
+
+    Attributes
+    ----------
+    layer : LineLayer
+    vertex_ids : numpy.ndarray of str, shape (nv,)
+    vertex_object : numpy.ndarray of int, shape (nv,)
+        Object point of each vertex.
+    object_xyz : numpy.ndarray, shape (no, 3)
+        Database coordinates of each object point (those of its first vertex).
+    object_vertex : numpy.ndarray of int, shape (no,)
+        First vertex of each object point (its canonical id).
+    """
+
+    layer: LineLayer
+    vertex_ids: np.ndarray
+    vertex_object: np.ndarray
+    object_xyz: np.ndarray
+    object_vertex: np.ndarray
+
+    @property
+    def n_objects(self) -> int:
+        """Number of distinct object points."""
+        return len(self.object_xyz)
+
+    @property
+    def object_ids(self) -> np.ndarray:
+        """Canonical id (first vertex's) of every object point."""
+        return self.vertex_ids[self.object_vertex]
+
+
+def vertex_ids(layer: LineLayer) -> np.ndarray:
+    """Contract ids ``<feature id>_<vertex index>`` of all vertices of ``layer``."""
+    fid = layer.feature_ids[layer.vertex_feature].astype(str)
+    return np.char.add(np.char.add(fid, "_"), layer.vertex_index.astype(str))
+
+
+def extract_shape_points(layer: LineLayer, tolerance: float = 0.001) -> ShapePoints:
+    """Build shape points from a line layer.
+
+    Parameters
+    ----------
+    layer : LineLayer
+    tolerance : float
+        Vertices closer than this in XY (m) are merged into one object point.
+
+    Returns
+    -------
+    ShapePoints
+    """
+    ids = vertex_ids(layer)
+    nv = len(ids)
+    xy = layer.coords[:, :2]
+    if nv:
+        tree = cKDTree(xy)
+        pairs = tree.query_pairs(r=tolerance, output_type="ndarray")
+    else:
+        pairs = np.zeros((0, 2), np.int64)
+    if len(pairs):
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(nv, nv))
+        _, labels = connected_components(graph, directed=False)
+    else:
+        labels = np.arange(nv)
+    # number components in the order of their first vertex
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    vertex_object = rank[np.asarray(inverse).reshape(-1)]
+    object_vertex = first[order]
+    return ShapePoints(layer, ids, vertex_object, layer.coords[object_vertex].copy(), object_vertex)
+
+
+def lookup(keys: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Index of each of ``ids`` in ``keys`` (unique), -1 where absent; vectorised."""
+    keys = np.asarray(keys).astype(str)
+    ids = np.asarray(ids).astype(str)
+    if len(keys) == 0:
+        return np.full(len(ids), -1, np.int64)
+    order = np.argsort(keys, kind="stable")
+    sk = keys[order]
+    pos = np.searchsorted(sk, ids)
+    pos = np.clip(pos, 0, len(sk) - 1)
+    found = sk[pos] == ids
+    return np.where(found, order[pos], -1).astype(np.int64)

@@ -1,0 +1,242 @@
+"""Reading the measurement and control CSV tables with row-precise errors.
+
+Only the standard library and numpy: the QGIS plugin uses these readers too.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from vectoradjust.errors import CSVError, InputFileError
+from vectoradjust.model import ControlPoints, Measurements
+
+__all__ = ["read_measurements", "read_control", "read_truth_points", "parse_table"]
+
+MEASUREMENT_COLUMNS = ("point_id", "image_id", "x", "y")
+MEASUREMENT_OPTIONAL = ("sigma_x", "sigma_y")
+CONTROL_COLUMNS = ("point_id", "X", "Y", "Z", "sigma_x", "sigma_y", "sigma_z")
+CONTROL_OPTIONAL = ("role",)
+ROLES = ("control", "check")
+
+
+def _read_rows(path: str) -> tuple[list[str], list[list[str]]]:
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(f"File {str(p)!r} does not exist",
+                             "Check the path in the project file (relative to the project file)",
+                             path=str(p))
+    try:
+        with open(p, newline="", encoding="utf-8-sig") as fh:
+            rows = [r for r in csv.reader(fh)]
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise CSVError(f"{p}: cannot be read as a UTF-8 CSV file ({exc})",
+                       "Save it as comma-separated UTF-8 text", path=str(p)) from exc
+    rows = [r for r in rows if any(c.strip() for c in r)]
+    if not rows:
+        raise CSVError(f"{p}: the file is empty", "Add a header line and data rows", path=str(p))
+    header = [h.strip() for h in rows[0]]
+    return header, rows[1:]
+
+
+def parse_table(
+    path: str,
+    header: Sequence[str],
+    rows: Sequence[Sequence[str]],
+    required: Sequence[str],
+    optional: Sequence[str] = (),
+    numeric: Sequence[str] = (),
+    allow_extra: bool = False,
+) -> dict[str, np.ndarray]:
+    """Check the columns and convert a CSV's rows to column arrays.
+
+    Parameters
+    ----------
+    path : str
+        File name for messages.
+    header : sequence of str
+    rows : sequence of sequence of str
+        Data rows (the header excluded); row ``i`` is line ``i + 2`` of the file.
+    required, optional : sequence of str
+        Column names (case-sensitive as in the contract; a case-insensitive match is
+        accepted).
+    numeric : sequence of str
+        Columns converted to float; empty, non-numeric or non-finite values are errors.
+    allow_extra : bool
+        Whether unknown columns are allowed (ignored) or an error.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        One array per present column (strings stripped; floats for ``numeric``), plus
+        ``"_line"`` with the 1-based line numbers.
+    """
+    lookup = {h.lower(): i for i, h in enumerate(header)}
+    if len(lookup) != len(header):
+        dup = sorted({h for h in header if header.count(h) > 1})
+        raise CSVError(f"{path}: column(s) {', '.join(dup)} appear more than once in the header",
+                       "Keep each column once", path=path)
+    missing = [c for c in required if c.lower() not in lookup]
+    if missing:
+        raise CSVError(
+            f"{path}: missing column(s) {', '.join(missing)} (header is: {', '.join(header)})",
+            f"The header must be {','.join(required)}"
+            + (f"[,{','.join(optional)}]" if optional else ""),
+            path=path, details={"missing": missing},
+        )
+    known = {c.lower() for c in (*required, *optional)}
+    extra = [h for h in header if h.lower() not in known]
+    if extra and not allow_extra:
+        raise CSVError(
+            f"{path}: unexpected column(s) {', '.join(extra)}",
+            f"Remove them or rename them; allowed columns are {', '.join((*required, *optional))}",
+            path=path, details={"extra": extra},
+        )
+    out: dict[str, np.ndarray] = {}
+    ncol = len(header)
+    for i, r in enumerate(rows):
+        if len(r) != ncol:
+            raise CSVError(
+                f"{path}, line {i + 2}: {len(r)} values where the header has {ncol} columns",
+                "Give every row one value per column", path=path, details={"line": i + 2},
+            )
+    out["_line"] = np.arange(2, len(rows) + 2)
+    for col in (*required, *optional):
+        if col.lower() not in lookup:
+            continue
+        j = lookup[col.lower()]
+        values = [r[j].strip() for r in rows]
+        if col in numeric:
+            arr = np.empty(len(values))
+            for i, v in enumerate(values):
+                try:
+                    arr[i] = float(v)
+                except ValueError:
+                    arr[i] = np.nan
+                if not np.isfinite(arr[i]):
+                    raise CSVError(
+                        f"{path}, line {i + 2}: column {col} is {v!r}, not a finite number",
+                        "Enter a number (use '.' as the decimal separator)",
+                        path=path, details={"line": i + 2, "column": col},
+                    )
+            out[col] = arr
+        else:
+            for i, v in enumerate(values):
+                if col in required and not v:
+                    raise CSVError(f"{path}, line {i + 2}: column {col} is empty",
+                                   f"Fill in {col}", path=path,
+                                   details={"line": i + 2, "column": col})
+            out[col] = np.array(values, dtype=object)
+    return out
+
+
+def read_measurements(path: str, default_sigma: Optional[float] = None) -> Measurements:
+    """Read ``point_id,image_id,x,y[,sigma_x,sigma_y]`` (mm).
+
+    Parameters
+    ----------
+    path : str
+    default_sigma : float, optional
+        Sigma (mm) for rows without sigma columns (``[measurements] sigma``).
+
+    Raises
+    ------
+    CSVError
+        Missing/extra columns, bad numbers, non-positive sigmas, duplicate
+        (point, image) pairs; the line is named.
+    """
+    header, rows = _read_rows(path)
+    cols = parse_table(path, header, rows, MEASUREMENT_COLUMNS, MEASUREMENT_OPTIONAL,
+                       numeric=("x", "y", "sigma_x", "sigma_y"))
+    k = len(cols["_line"])
+    has = ("sigma_x" in cols, "sigma_y" in cols)
+    if has[0] != has[1]:
+        raise CSVError(f"{path}: only one of sigma_x, sigma_y is given",
+                       "Give both columns or neither", path=path)
+    if has[0]:
+        sigma = np.column_stack([cols["sigma_x"], cols["sigma_y"]])
+    else:
+        if default_sigma is None:
+            raise CSVError(f"{path}: no sigma_x, sigma_y columns and no [measurements] sigma",
+                           "Add sigma = 0.015 (mm) to [measurements] in the project file",
+                           path=path)
+        sigma = np.full((k, 2), float(default_sigma))
+    bad = np.flatnonzero(~(sigma > 0).all(axis=1))
+    if bad.size:
+        i = int(bad[0])
+        raise CSVError(f"{path}, line {i + 2}: sigma must be positive, got {sigma[i].tolist()}",
+                       "Enter the standard deviation of the image coordinates in mm",
+                       path=path, details={"line": i + 2})
+    pid = cols["point_id"].astype(str)
+    iid = cols["image_id"].astype(str)
+    key = np.char.add(np.char.add(pid.astype(str), "\x00"), iid.astype(str))
+    _, first, counts = np.unique(key, return_index=True, return_counts=True)
+    if np.any(counts > 1):
+        dup_key = key[first[counts > 1][0]]
+        lines = cols["_line"][key == dup_key].tolist()
+        p, im = str(dup_key).split("\x00")
+        raise CSVError(
+            f"{path}: point {p!r} is measured on image {im!r} more than once (lines "
+            f"{', '.join(map(str, lines))})",
+            "Keep one measurement per point and image", path=path,
+            details={"lines": lines, "point_id": p, "image_id": im},
+        )
+    return Measurements(pid, iid, np.column_stack([cols["x"], cols["y"]]), sigma,
+                        source=str(path), rows=cols["_line"])
+
+
+def read_control(path: str) -> ControlPoints:
+    """Read ``point_id,X,Y,Z,sigma_x,sigma_y,sigma_z[,role]`` (m).
+
+    Raises
+    ------
+    CSVError
+        Missing/extra columns, bad numbers, non-positive sigmas, unknown role,
+        duplicate point ids; the line is named.
+    """
+    header, rows = _read_rows(path)
+    cols = parse_table(path, header, rows, CONTROL_COLUMNS, CONTROL_OPTIONAL,
+                       numeric=("X", "Y", "Z", "sigma_x", "sigma_y", "sigma_z"))
+    n = len(cols["_line"])
+    sigma = np.column_stack([cols["sigma_x"], cols["sigma_y"], cols["sigma_z"]])
+    bad = np.flatnonzero(~(sigma > 0).all(axis=1))
+    if bad.size:
+        i = int(bad[0])
+        raise CSVError(f"{path}, line {i + 2}: sigma must be positive, got {sigma[i].tolist()}",
+                       "Enter the survey's standard deviations in metres", path=path,
+                       details={"line": i + 2})
+    role = cols.get("role", np.array(["control"] * n, dtype=object))
+    role = np.array([r.lower() if r else "control" for r in role], dtype=object)
+    badr = [i for i, r in enumerate(role) if r not in ROLES]
+    if badr:
+        i = badr[0]
+        raise CSVError(f"{path}, line {i + 2}: role {role[i]!r} is not known",
+                       "Use role = control or check", path=path, details={"line": i + 2})
+    pid = cols["point_id"].astype(str)
+    uniq, counts = np.unique(pid, return_counts=True)
+    if np.any(counts > 1):
+        d = uniq[counts > 1][0]
+        lines = cols["_line"][pid == d].tolist()
+        raise CSVError(f"{path}: point id {d!r} appears more than once (lines "
+                       f"{', '.join(map(str, lines))})",
+                       "Give every control and check point a unique id", path=path,
+                       details={"lines": lines, "point_id": str(d)})
+    xyz = np.column_stack([cols["X"], cols["Y"], cols["Z"]])
+    return ControlPoints(pid, xyz, sigma, role.astype(str), source=str(path), rows=cols["_line"])
+
+
+def read_truth_points(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """Read a truth table ``point_id,X,Y,Z`` (simulations, validation).
+
+    Returns
+    -------
+    ids : numpy.ndarray of str
+    xyz : numpy.ndarray, shape (n, 3)
+    """
+    header, rows = _read_rows(path)
+    cols = parse_table(path, header, rows, ("point_id", "X", "Y", "Z"), numeric=("X", "Y", "Z"))
+    return cols["point_id"].astype(str), np.column_stack([cols["X"], cols["Y"], cols["Z"]])

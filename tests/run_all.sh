@@ -1,0 +1,53 @@
+#!/usr/bin/env bash
+# The whole vectoradjust test suite, on a fresh machine.
+#
+# Installs what it needs, then runs
+#   1. the core suite with pytest in a virtual environment (current numpy/scipy/geopandas),
+#   2. the numerical core again under Debian's system Python (numpy 1.24 / scipy 1.10, what
+#      QGIS uses) together with the QGIS plugin tests inside a real, offscreen QGIS 3.22.
+# Needs root (or sudo) once, for `apt-get install python3-qgis qgis`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+VENV=${VECTORADJUST_TEST_VENV:-.venv-test}
+PY=${PYTHON:-python3}
+SUDO=""
+if [ "$(id -u)" != 0 ] && command -v sudo >/dev/null 2>&1; then SUDO="sudo"; fi
+
+echo "== installing Debian packages (QGIS for the plugin tests)"
+need_apt=0
+for pkg in python3-qgis qgis python3-pytest python3-scipy xvfb xauth; do
+  dpkg -s "$pkg" >/dev/null 2>&1 || need_apt=1
+done
+if [ "$need_apt" = 1 ]; then
+  $SUDO apt-get update -q
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends \
+    python3-qgis qgis qgis-providers python3-pytest python3-scipy xvfb xauth
+fi
+
+echo "== creating $VENV and installing vectoradjust[test]"
+"$PY" -m venv "$VENV"
+"$VENV/bin/python" -m pip install -q --upgrade pip
+"$VENV/bin/python" -m pip install -q ".[test]"
+
+status=0
+run_pytest() {  # pytest exit 5 (no tests collected) is a failure too
+  set +e
+  "$@"
+  local rc=$?
+  set -e
+  if [ "$rc" = 5 ]; then echo "pytest collected no tests: failing" >&2; rc=1; fi
+  [ "$rc" = 0 ] || status=$rc
+}
+
+echo "== ruff"
+"$VENV/bin/ruff" check core tests qgis_plugin benchmarks || status=1
+
+echo "== core suite ($("$VENV/bin/python" -c 'import numpy, scipy; print("numpy", numpy.__version__, "scipy", scipy.__version__)'))"
+run_pytest "$VENV/bin/python" -m pytest -q -p no:cacheprovider tests
+
+echo "== numerical core and QGIS plugin under Debian's Python ($(/usr/bin/python3 -c 'import numpy, scipy; print("numpy", numpy.__version__, "scipy", scipy.__version__)'))"
+QT_QPA_PLATFORM=offscreen PYTHONPATH="$PWD/core:$PWD" \
+  run_pytest /usr/bin/python3 -m pytest -q -p no:cacheprovider -m "not io" tests qgis_plugin/tests
+
+exit $status

@@ -1,0 +1,243 @@
+"""The vector adjustment on simulated scenarios with known truth (in memory, no files)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from vectoradjust.errors import (
+    ControlError,
+    MeasurementError,
+    NonConvergenceError,
+    ProjectError,
+    VectorAdjustError,
+)
+from vectoradjust.model import ControlPoints, Measurements
+from vectoradjust.pipeline import run
+from vectoradjust.simulate import DatabaseModel, make_scenario
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return make_scenario(0)
+
+
+@pytest.fixture(scope="module")
+def two_pass_run(scenario):
+    data = scenario.to_project_data()
+    data.settings.reweight = "two-pass"
+    return run(data)
+
+
+def test_every_database_recovers_its_displacement(two_pass_run, scenario):
+    """Recovery (DESIGN 4) near 100 %, improvement > 90 % for OSM-, TNM- and TIGER-like data."""
+    for d in two_pass_run.summary["databases"]:
+        t = d["truth"]
+        # the truth comparison itself, recomputed here from the scenario's arrays
+        db = two_pass_run.databases[[x.name for x in two_pass_run.databases].index(d["name"])]
+        adj = db.vertices["Adjusted"] == 1
+        true_xyz = scenario.truth[d["name"]][1][adj]
+        db_err = np.hypot(*(scenario.layers[d["name"]].coords[adj, :2] - true_xyz[:, :2]).T)
+        assert t["rmse_database_truth_horizontal"] == pytest.approx(np.sqrt(np.mean(db_err**2)))
+        assert 0.95 < t["recovery_rate"] < 1.05, d["name"]
+        assert t["improvement"] > 0.9, d["name"]
+        adj_err = np.hypot(db.vertices["AdjX"][adj] - true_xyz[:, 0],
+                           db.vertices["AdjY"][adj] - true_xyz[:, 1])
+        # adjusted positions within a few image-measurement sigmas (0.015 mm = 6 cm on the ground)
+        assert np.sqrt(np.mean(adj_err**2)) < 0.25
+
+
+def test_databases_have_the_intended_quality(two_pass_run):
+    rm = {d["name"]: d["truth"]["rmse_database_truth_horizontal"]
+          for d in two_pass_run.summary["databases"]}
+    assert rm["TNM"] < rm["OSM"] < rm["TIGER"]
+
+
+def test_residuals_are_adjusted_minus_database(two_pass_run):
+    for d in two_pass_run.databases:
+        v = d.vertices
+        adj = v["Adjusted"] == 1
+        assert np.allclose(v["Vx"][adj], v["AdjX"][adj] - v["X"][adj])
+        assert np.allclose(v["Vz"][adj], v["AdjZ"][adj] - v["Z"][adj])
+        # unmeasured vertices: carried through, not adjusted
+        assert np.all(np.isnan(v["Vx"][~adj]))
+        assert np.array_equal(v["AdjX"][~adj], v["X"][~adj])
+        assert (~adj).sum() > 0  # the scenario has vertices outside the stereo model
+
+
+def test_feature_rmse_matches_its_vertices(two_pass_run):
+    d = two_pass_run.databases[0]
+    layer = d.shape.layer
+    adj = d.vertices["Adjusted"] == 1
+    for f in range(layer.n_features):
+        m = (layer.vertex_feature == f) & adj
+        if m.sum() == 0:
+            assert np.isnan(d.features["RMSE_X"][f])
+            continue
+        rx = np.sqrt(np.mean(d.vertices["Vx"][m] ** 2))
+        ry = np.sqrt(np.mean(d.vertices["Vy"][m] ** 2))
+        assert d.features["RMSE_X"][f] == pytest.approx(rx)
+        assert d.features["RMSE"][f] == pytest.approx(np.hypot(rx, ry))
+        assert d.features["NAdj"][f] == m.sum()
+
+
+def test_two_pass_sets_sigma_to_residual_rms(two_pass_run):
+    p1, p2 = two_pass_run.passes
+    assert p1["sigma"]["OSM"] == [10.0, 10.0, 10.0]
+    d = two_pass_run.databases[0]
+    # pass-2 sigma of OSM is the RMS of the pass-1 residuals: a few metres, not 10
+    assert 1.0 < p2["sigma"]["OSM"][0] < 6.0
+    assert two_pass_run.summary["passes"][1]["sigma0_squared"] == pytest.approx(
+        two_pass_run.summary["sigma0_squared"])
+    assert d.sigma_used == tuple(p2["sigma"]["OSM"])
+
+
+def test_degrees_of_freedom_count(two_pass_run):
+    s = two_pass_run.summary
+    obs = s["observations"]
+    n = obs["image_coordinates"] + obs["point_priors"] + obs["eo_priors"]
+    u = 6 * len(two_pass_run.image_ids) + 3 * (obs["control_points"] + obs["shape_points"]
+                                                + obs["tie_points"])
+    assert s["degrees_of_freedom"] == n - u
+
+
+def test_check_points_are_independent_and_accurate(scenario, two_pass_run):
+    cp = two_pass_run.control_points
+    chk = cp["role"] == "check"
+    assert chk.sum() == 6
+    assert np.all(cp["Used"][chk] == 1)
+    # check points are not bundle points
+    assert not set(cp["point_id"][chk]) & set(two_pass_run.point_ids)
+    true = scenario.control_true[chk]
+    err = np.hypot(cp["AdjX"][chk] - true[:, 0], cp["AdjY"][chk] - true[:, 1])
+    assert np.sqrt(np.mean(err**2)) < 0.3
+
+
+IID = DatabaseModel("IID", "iid_id", "iid", 20.0, 0.4, (0.0, 0.0), 0.0, 0.0, 3.0)
+
+
+def _coverage(seeds):
+    """Share of adjusted shape points whose true position lies within CE90 / LE90.
+
+    The database errors are drawn iid N(0, 3 m) per axis and the shape points' prior
+    sigma says so (Z: the RMS of DEM height minus true height of that run), so the
+    stochastic model is the simulation's and the a-posteriori CE90/LE90 must hold.
+    """
+    inside_h, inside_v, total, s0 = 0, 0, 0, []
+    for seed in seeds:
+        sc = make_scenario(seed, databases=(IID,))
+        data = sc.to_project_data()
+        spec, layer = data.vectors[0]
+        sz = float(np.sqrt(np.mean((layer.coords[:, 2] - sc.truth["IID"][1][:, 2]) ** 2)))
+        data.vectors[0] = (replace(spec, sigma=(3.0, 3.0, sz)), layer)
+        r = run(data)
+        d = r.databases[0]
+        adj = d.vertices["Adjusted"] == 1
+        t = sc.truth["IID"][1][adj]
+        eh = np.hypot(d.vertices["AdjX"][adj] - t[:, 0], d.vertices["AdjY"][adj] - t[:, 1])
+        ev = np.abs(d.vertices["AdjZ"][adj] - t[:, 2])
+        inside_h += int((eh <= d.vertices["CE90"][adj]).sum())
+        inside_v += int((ev <= d.vertices["LE90"][adj]).sum())
+        total += int(adj.sum())
+        s0.append(r.summary["sigma0_squared"])
+    return inside_h / total, inside_v / total, float(np.mean(s0))
+
+
+@pytest.mark.slow
+def test_ce90_and_le90_coverage_over_seeds():
+    ch, cv, s0 = _coverage(range(40))
+    assert abs(s0 - 1) < 0.05, s0
+    # points of one run share the cameras' errors, so the effective sample is smaller
+    # than the number of points: a tolerance of 2.5 points around 90 %
+    assert 0.875 < ch < 0.925, ch
+    assert 0.875 < cv < 0.925, cv
+
+
+# --------------------------------------------------------------------------- bad input
+def _data(scenario, **changes):
+    data = scenario.to_project_data()
+    for k, v in changes.items():
+        setattr(data, k, v)
+    return data
+
+
+def test_unknown_image_id_names_the_line(scenario):
+    data = scenario.to_project_data()
+    m = data.measurements
+    iid = m.image_id.astype(object)
+    iid[5] = "X9"
+    data.measurements = replace(m, image_id=iid)
+    with pytest.raises(MeasurementError, match=r"line 7: image 'X9' is not defined"):
+        run(data)
+
+
+def test_fewer_than_three_control_points(scenario):
+    data = scenario.to_project_data()
+    c = data.control
+    keep = (c.role == "check") | np.isin(np.arange(len(c.role)),
+                                         np.flatnonzero(c.role == "control")[:2])
+    data.control = ControlPoints(c.point_id[keep], c.xyz[keep], c.sigma[keep], c.role[keep])
+    with pytest.raises(ControlError, match="Only 2 control point"):
+        run(data)
+
+
+def test_collinear_control_points(scenario):
+    data = scenario.to_project_data()
+    c = data.control
+    xyz = c.xyz.copy()
+    ctrl = c.role == "control"
+    xyz[ctrl, 1] = xyz[ctrl, 1].mean()  # all on one east-west line
+    data.control = replace(c, xyz=xyz)
+    with pytest.raises(ControlError, match="lie on one line"):
+        run(data)
+
+
+def test_tie_point_on_one_image(scenario):
+    data = scenario.to_project_data()
+    m = data.measurements
+    add = Measurements(np.r_[m.point_id, ["LONELY"]], np.r_[m.image_id, ["L"]],
+                       np.vstack([m.xy, [[1.0, 2.0]]]), np.vstack([m.sigma, m.sigma[:1]]),
+                       source="pts.csv")
+    data.measurements = add
+    with pytest.raises(MeasurementError, match="'LONELY' is measured on only one image"):
+        run(data)
+
+
+def test_unmeasured_control_point_is_a_warning(scenario):
+    data = scenario.to_project_data()
+    c = data.control
+    data.control = ControlPoints(np.r_[c.point_id, ["GHOST"]], np.vstack([c.xyz, c.xyz[:1]]),
+                                 np.vstack([c.sigma, c.sigma[:1]]), np.r_[c.role, ["control"]])
+    r = run(data)
+    assert any("'GHOST'" in w and "not used" in w for w in r.summary["warnings"])
+    assert r.control_points["Used"][-1] == 0
+
+
+def test_non_convergence_is_a_clear_error(scenario):
+    data = scenario.to_project_data()
+    data.settings.max_iterations = 1
+    with pytest.raises(NonConvergenceError, match="did not converge in 1 iterations"):
+        run(data)
+
+
+def test_divergence_from_absurd_approximations(scenario):
+    data = scenario.to_project_data()
+    data.images[0].attitude = np.array([0.0, 0.0, 180.0])  # photo turned upside down
+    data.images[0].sigma_attitude = None
+    data.images[1].sigma_attitude = None
+    with pytest.raises(VectorAdjustError):
+        run(data)
+
+
+def test_unknown_vectors_name(scenario):
+    with pytest.raises(ProjectError, match="no \\[\\[vectors\\]\\] entry named 'OSMX'"):
+        run(scenario.to_project_data(), vectors=["OSMX"])
+
+
+def test_other_databases_measurements_do_not_become_tie_points(scenario):
+    r = run(scenario.to_project_data(), vectors=["TNM"])
+    assert set(r.point_kind) == {"control", "shape", "tie"}
+    assert (r.point_kind == "tie").sum() == len(scenario.tie_ids)
+    assert any("left out" in w for w in r.summary["warnings"])
