@@ -82,7 +82,8 @@ def _fmt(v, nd=3) -> str:
         return str(v)
 
 
-def _print_summary(summary: dict, out=sys.stdout) -> None:
+def _print_summary(summary: dict, out=None) -> None:
+    out = out or sys.stdout
     chi = summary["chi_square"]
     print(f"  sigma0^2 = {_fmt(summary['sigma0_squared'], 4)} with {summary['degrees_of_freedom']}"
           f" degrees of freedom, {summary['iterations']} iterations", file=out)
@@ -133,8 +134,9 @@ def _compare_row(summary: dict) -> dict:
     }
 
 
-def print_table(rows: list, out=sys.stdout) -> None:
+def print_table(rows: list, out=None) -> None:
     """Print the side-by-side comparison table."""
+    out = out or sys.stdout
     heads = [h for _, h in COMPARE_COLUMNS]
     cells = [[_fmt(r.get(k)) if k != "database" else str(r.get(k)) for k, _ in COMPARE_COLUMNS]
              for r in rows]

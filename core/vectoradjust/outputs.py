@@ -63,13 +63,21 @@ def _clean(obj):
 
 
 def _nullable(col: np.ndarray, mask: Optional[np.ndarray] = None):
-    """A column as a list with None for NaN (or where ``mask`` is False)."""
+    """A column for writing: floats as nullable ``Float64`` (NaN or ``~mask`` -> null)."""
+    import pandas as pd
+
     arr = np.asarray(col)
     if arr.dtype.kind == "f":
-        out = arr.astype(object)
-        out[~np.isfinite(arr)] = None
-    else:
-        out = arr.astype(object)
+        valid = np.isfinite(arr)
+        if mask is not None:
+            valid &= mask
+        return pd.arrays.FloatingArray(np.where(valid, arr, 0.0), ~valid)
+    if arr.dtype.kind in "iub":
+        out = pd.array(arr.astype(np.int64), dtype="Int64")
+        if mask is not None:
+            out[~mask] = pd.NA
+        return out
+    out = arr.astype(object)
     if mask is not None:
         out[~mask] = None
     return out
@@ -90,7 +98,7 @@ def shape_points_frame(run: AdjustmentRun):
             col = v[f]
             if f in ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90"):
                 col = _nullable(col, adj)
-            elif np.asarray(col).dtype.kind == "f":
+            else:
                 col = _nullable(col)
             cols[f] = col
         geom = shapely.points(np.column_stack([v["AdjX"], v["AdjY"],
@@ -172,7 +180,7 @@ def control_points_frame(run: AdjustmentRun):
     cols = {}
     for f in CONTROL_FIELDS:
         col = c[f]
-        cols[f] = _nullable(col) if np.asarray(col).dtype.kind == "f" else np.asarray(col, object)
+        cols[f] = _nullable(col)
     xyz = np.where(used[:, None], np.column_stack([c["AdjX"], c["AdjY"], c["AdjZ"]]),
                    np.column_stack([c["X"], c["Y"], c["Z"]]))
     geom = shapely.points(xyz) if len(xyz) else gpd.GeoSeries([], crs=run.data.crs)

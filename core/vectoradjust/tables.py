@@ -173,12 +173,12 @@ def read_measurements(path: str, default_sigma: Optional[float] = None) -> Measu
                        path=path, details={"line": i + 2})
     pid = cols["point_id"].astype(str)
     iid = cols["image_id"].astype(str)
-    key = np.char.add(np.char.add(pid.astype(str), "\x00"), iid.astype(str))
+    key = np.char.add(np.char.add(pid.astype(str), "\x1f"), iid.astype(str))
     _, first, counts = np.unique(key, return_index=True, return_counts=True)
     if np.any(counts > 1):
         dup_key = key[first[counts > 1][0]]
         lines = cols["_line"][key == dup_key].tolist()
-        p, im = str(dup_key).split("\x00")
+        p, im = str(dup_key).split("\x1f")
         raise CSVError(
             f"{path}: point {p!r} is measured on image {im!r} more than once (lines "
             f"{', '.join(map(str, lines))})",
@@ -214,14 +214,14 @@ def read_control(path: str) -> ControlPoints:
     badr = [i for i, r in enumerate(role) if r not in ROLES]
     if badr:
         i = badr[0]
-        raise CSVError(f"{path}, line {i + 2}: role {role[i]!r} is not known",
+        raise CSVError(f"{path}, line {i + 2}: role {str(role[i])!r} is not known",
                        "Use role = control or check", path=path, details={"line": i + 2})
     pid = cols["point_id"].astype(str)
     uniq, counts = np.unique(pid, return_counts=True)
     if np.any(counts > 1):
         d = uniq[counts > 1][0]
         lines = cols["_line"][pid == d].tolist()
-        raise CSVError(f"{path}: point id {d!r} appears more than once (lines "
+        raise CSVError(f"{path}: point id {str(d)!r} appears more than once (lines "
                        f"{', '.join(map(str, lines))})",
                        "Give every control and check point a unique id", path=path,
                        details={"lines": lines, "point_id": str(d)})
