@@ -244,6 +244,11 @@ class ProjectData:
         ``[corrections]`` switches.
     source : str
         Project file path, for messages.
+    interior : dict
+        Report of the image coordinate refinement (interior orientation), passed to
+        the summary as ``interior_orientation``.
+    qa : dict or None
+        The ``[qa]`` table (product specification for accuracy control).
     """
 
     crs: str
@@ -256,3 +261,5 @@ class ProjectData:
     truth: dict = field(default_factory=dict)
     corrections: dict = field(default_factory=dict)
     source: str = "<project>"
+    interior: dict = field(default_factory=dict)
+    qa: Optional[dict] = None

@@ -722,5 +722,6 @@ def _summary(out: AdjustmentRun) -> dict:
         "databases": dbs,
         "reweight": data.settings.reweight,
         "passes": out.passes,
+        "interior_orientation": data.interior or None,
         "warnings": list(out.warnings),
     }

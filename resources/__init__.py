@@ -1,0 +1,1 @@
+"""Data package: the sample project (sample/) and QGIS styles (styles/) of vectoradjust."""
