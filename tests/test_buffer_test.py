@@ -1,0 +1,113 @@
+"""Tests of vectoradjust.buffer_test against hand-computed geometry."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+shapely = pytest.importorskip("shapely")
+from shapely.geometry import LineString, MultiLineString, Point  # noqa: E402
+
+from vectoradjust.buffer_test import buffer_test  # noqa: E402
+from vectoradjust.errors import LayerError  # noqa: E402
+
+
+def _shares(res):
+    return [r["share"] for r in res]
+
+
+def test_parallel_offset_line_is_a_step_at_the_offset():
+    """A line offset by d from its reference: share 0 below d, 1 above."""
+    d = 2.5
+    ref = LineString([(0, 0), (100, 0)])
+    tst = LineString([(0, d), (100, d)])
+    res = buffer_test(tst, ref, [0.5, 1.0, 2.4, 2.6, 5.0])
+    assert _shares(res) == [0.0, 0.0, 0.0, 1.0, 1.0]
+    assert all(r["length_total"] == pytest.approx(100.0) for r in res)
+    assert res[3]["length_inside"] == pytest.approx(100.0)
+    assert [r["width"] for r in res] == [0.5, 1.0, 2.4, 2.6, 5.0]
+    json.dumps(res)
+
+
+def test_half_inside_flat_caps():
+    """Reference covers x in [0, 50] of a 100 m tested line 1 m away: share 0.5."""
+    ref = LineString([(0, 0), (50, 0)])
+    tst = LineString([(0, 1), (100, 1)])
+    res = buffer_test(tst, ref, [2.0], cap_style="flat")[0]
+    assert res["share"] == pytest.approx(0.5, abs=1e-12)
+    assert res["length_inside"] == pytest.approx(50.0, abs=1e-10)
+
+
+def test_half_inside_round_cap_hand_computed():
+    """With a round cap of radius x the inside part ends at 50 + sqrt(x^2 - 1)."""
+    ref = LineString([(0, 0), (50, 0)])
+    tst = LineString([(0, 1), (100, 1)])
+    x = 2.0
+    res = buffer_test(tst, ref, [x], quad_segs=64)[0]
+    expected = 50.0 + math.sqrt(x * x - 1.0)
+    # the polygonal cap lies inside the circle by at most x (1 - cos(pi / 256))
+    sagitta = x * (1 - math.cos(math.pi / (4 * 64)))
+    slack = sagitta * x / math.sqrt(x * x - 1.0) + 1e-9  # along the tested line
+    assert expected - slack <= res["length_inside"] <= expected + 1e-9
+
+
+def test_crossing_line_inside_length():
+    """A line crossing a long reference at angle a has 2 x / sin(a) inside."""
+    ref = LineString([(-1000, 0), (1000, 0)])
+    a = math.radians(30)
+    L = 200.0
+    half = (L / 2 * math.cos(a), L / 2 * math.sin(a))
+    tst = LineString([(-half[0], -half[1]), half])
+    widths = [1.0, 5.0, 20.0]
+    for r, x in zip(buffer_test(tst, ref, widths), widths):
+        assert r["length_inside"] == pytest.approx(2 * x / math.sin(a), rel=1e-9)
+        assert r["share"] == pytest.approx(2 * x / math.sin(a) / L, rel=1e-9)
+
+
+def test_overlapping_reference_buffers_count_once():
+    refs = [LineString([(0, 0), (10, 0)]), LineString([(0, 1), (10, 1)])]
+    tst = LineString([(0, 0.5), (10, 0.5)])
+    res = buffer_test(tst, refs, [1.0])[0]
+    assert res["share"] == pytest.approx(1.0) and res["length_inside"] == pytest.approx(10.0)
+
+
+def test_sequences_multilines_and_empties():
+    ref = MultiLineString([[(0, 0), (10, 0)], [(20, 0), (30, 0)]])
+    tst = [
+        LineString([(0, 0.5), (10, 0.5)]),  # inside at 1 m
+        None,
+        LineString(),  # empty: skipped
+        MultiLineString([[(20, 3), (30, 3)], [(40, 0), (50, 0)]]),  # outside at 1 m
+    ]
+    res = buffer_test(tst, ref, [1.0, 4.0], cap_style="flat")
+    assert res[0]["length_total"] == pytest.approx(30.0)
+    assert res[0]["share"] == pytest.approx(10.0 / 30.0)
+    assert res[1]["share"] == pytest.approx(20.0 / 30.0)
+
+
+def test_share_is_monotone_in_width():
+    rng = np.random.default_rng(3)
+    xs = np.linspace(0, 500, 60)
+    ref = LineString(np.column_stack([xs, np.zeros_like(xs)]))
+    tst = LineString(np.column_stack([xs, rng.normal(0, 3.0, xs.size)]))
+    shares = _shares(buffer_test(tst, ref, np.linspace(0.1, 15, 30)))
+    assert all(b >= a - 1e-12 for a, b in zip(shares, shares[1:]))
+    assert shares[-1] == pytest.approx(1.0)
+
+
+def test_degenerate_and_bad_inputs():
+    ref = LineString([(0, 0), (10, 0)])
+    assert buffer_test([], ref, [1.0])[0]["share"] is None
+    assert buffer_test(LineString([(0, 0), (10, 0)]), ref, 0.0)[0]["share"] == 0.0
+    assert buffer_test(LineString([(0, 0), (10, 0)]), [], 1.0)[0]["share"] == 0.0
+    with pytest.raises(ValueError):
+        buffer_test(ref, ref, [-1.0])
+    with pytest.raises(ValueError):
+        buffer_test(ref, ref, [np.nan])
+    with pytest.raises(LayerError):
+        buffer_test(Point(0, 0), ref, 1.0)
+    with pytest.raises(LayerError):
+        buffer_test(ref, Point(0, 0).buffer(1.0), 1.0)
