@@ -41,12 +41,13 @@ run_pytest() {  # pytest exit 5 (no tests collected) is a failure too
 }
 
 echo "== ruff"
-"$VENV/bin/ruff" check core tests qgis_plugin benchmarks || status=1
+"$VENV/bin/ruff" check core tests qgis_plugin benchmarks validation || status=1
 
 echo "== core suite ($("$VENV/bin/python" -c 'import numpy, scipy; print("numpy", numpy.__version__, "scipy", scipy.__version__)'))"
 run_pytest "$VENV/bin/python" -m pytest -q -p no:cacheprovider tests
 
 echo "== numerical core and QGIS plugin under Debian's Python ($(/usr/bin/python3 -c 'import numpy, scipy; print("numpy", numpy.__version__, "scipy", scipy.__version__)'))"
+export VECTORADJUST_VENV_PYTHON="$PWD/$VENV/bin/python"
 QT_QPA_PLATFORM=offscreen PYTHONPATH="$PWD/core:$PWD" \
   run_pytest /usr/bin/python3 -m pytest -q -p no:cacheprovider -m "not io" tests qgis_plugin/tests
 
