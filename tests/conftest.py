@@ -15,7 +15,7 @@ SHARED = ROOT.parent / "shared" / "data" / "dewitt"
 
 
 def _dewitt_dir() -> Path:
-    for cand in (SHARED, ROOT / "tests" / "data" / "dewitt"):
+    for cand in (ROOT / "tests" / "data" / "dewitt", SHARED):
         if (cand / "resect.dat").is_file():
             return cand
     pytest.skip("Dewitt sample data not found")

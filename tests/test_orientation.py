@@ -22,9 +22,7 @@ from vectoradjust.orientation import (
     two_step,
 )
 
-DATA = Path("/work/shared/data/dewitt")
-if not DATA.is_dir():  # pragma: no cover - repository layout fallback
-    DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "dewitt"
+DATA = Path(__file__).resolve().parent / "data" / "dewitt"  # B. Dewitt's public-domain samples
 
 
 def _read_relor():
