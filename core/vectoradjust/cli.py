@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
 
-from vectoradjust import __version__
+from vectoradjust import __version__, cli_qa
 from vectoradjust.errors import CancelledError, VectorAdjustError
 
 __all__ = ["main", "ProgressBar", "sample_project_dir"]
@@ -259,6 +259,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--out", required=True, help="output directory")
     common(c)
     c.set_defaults(func=cmd_compare)
+
+    cli_qa.add_parser(sub)
     return p
 
 

@@ -178,7 +178,7 @@ def control_points_frame(run: AdjustmentRun):
     c = run.control_points
     used = c["Used"] == 1
     cols = {}
-    for f in CONTROL_FIELDS:
+    for f in CONTROL_FIELDS + (["QA"] if "QA" in c else []):
         col = c[f]
         cols[f] = _nullable(col)
     xyz = np.where(used[:, None], np.column_stack([c["AdjX"], c["AdjY"], c["AdjZ"]]),

@@ -454,6 +454,12 @@ def run(
     _tabulate_control(out, ctrl_of_obs, is_check, img_of_obs, imap)
     for d in db_results:
         _tabulate_database(out, d)
+    if data.qa:
+        # production accuracy control: pass/fail of every control/check point
+        from vectoradjust.qa_run import control_qa_field, spec_from_table
+
+        spec = spec_from_table(data.qa, source=data.source)
+        out.control_points["QA"] = np.asarray(control_qa_field(out, spec), dtype=object)
     out.summary = _summary(out)
     report(1.0, "done")
     return out

@@ -81,7 +81,8 @@ TERRAINS = ("flat", "hilly", "mountainous")
 #: Allowed statistics of a stage.
 STATISTICS = ("mean", "rms", "max")
 
-_SPEC_KEYS = ("product", "map_scale", "contour_interval", "terrain", "orthophoto_scale")
+_SPEC_KEYS = ("product", "map_scale", "contour_interval", "terrain", "orthophoto_scale",
+              "pixel_size", "working_radius")
 
 # The published rules, in millimetres at the scale of the product (GKINP-02-036-02 as
 # quoted by the PHOTOMOD manual; DESIGN.md section 7).
@@ -184,6 +185,12 @@ class QASpec:
         ``"flat"``, ``"hilly"`` or ``"mountainous"`` (orthomosaic tolerances).
     orthophoto_scale : float or None
         Scale denominator of the orthophoto / orthomosaic, if it differs from the map.
+    pixel_size : float or None
+        Scanning / sensor pixel size (mm) for the pixel-based stages, when the camera
+        calibration does not give one (scanned film), e.g. 0.012 for 12 micrometres.
+    working_radius : float or None
+        Radius ``r`` of the working area on the image (mm) for the orthophoto height
+        tolerance ``dh_DTM``; by default the caller derives it from the measurements.
 
     Raises
     ------
@@ -197,6 +204,8 @@ class QASpec:
     contour_interval: float | None = None
     terrain: str = "flat"
     orthophoto_scale: float | None = None
+    pixel_size: float | None = None
+    working_radius: float | None = None
 
     def __post_init__(self) -> None:
         self.product = _canonical_product(self.product)
@@ -204,6 +213,12 @@ class QASpec:
         self.map_scale = _scale_denominator("map_scale", self.map_scale)
         self.orthophoto_scale = _scale_denominator("orthophoto_scale", self.orthophoto_scale)
         self.contour_interval = _positive("contour_interval", self.contour_interval, "metres")
+        self.pixel_size = _positive("pixel_size", self.pixel_size, "millimetres (0.012 = 12 um)")
+        if self.pixel_size is not None and self.pixel_size > 1.0:
+            raise ProjectError(f"[qa] pixel_size = {self.pixel_size!r} mm is implausibly large",
+                               "give pixel_size in millimetres: 12 micrometres is 0.012",
+                               details={"key": "pixel_size"})
+        self.working_radius = _positive("working_radius", self.working_radius, "millimetres")
         if self.product == "topographic map":
             for key in ("map_scale", "contour_interval"):
                 if getattr(self, key) is None:
@@ -236,7 +251,8 @@ class QASpec:
         ----------
         d : dict
             Keys ``product`` (required), ``map_scale``, ``contour_interval``,
-            ``terrain``, ``orthophoto_scale``.
+            ``terrain``, ``orthophoto_scale``, ``pixel_size`` (mm), ``working_radius``
+            (mm).
 
         Returns
         -------
@@ -269,6 +285,8 @@ class QASpec:
             contour_interval=d.get("contour_interval"),
             terrain=d.get("terrain", "flat"),
             orthophoto_scale=d.get("orthophoto_scale"),
+            pixel_size=d.get("pixel_size"),
+            working_radius=d.get("working_radius"),
         )
 
     def as_dict(self) -> dict:
@@ -279,6 +297,8 @@ class QASpec:
             "contour_interval": self.contour_interval,
             "terrain": self.terrain,
             "orthophoto_scale": self.orthophoto_scale,
+            "pixel_size": self.pixel_size,
+            "working_radius": self.working_radius,
         }
 
 
