@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 
 from vectoradjust import simulate
+from vectoradjust.camera import CameraCalibration
 from vectoradjust.collinearity import project
 from vectoradjust.dem import bilinear
-from vectoradjust.simulate import make_scenario, terrain_height, write_project
+from vectoradjust.simulate import EFFECTS, make_scenario, terrain_height, write_project
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -418,7 +419,13 @@ def test_sample_project_is_small_and_consistent():
     with open(root / "project.toml", "rb") as fh:
         proj = tomllib.load(fh)
     seed = int(proj["name"].rsplit(" ", 1)[1])
-    sc = make_scenario(seed)
+    # the sample's camera file and the effects its [corrections] undo
+    cal = CameraCalibration.from_dict(proj["camera"], root) if "path" in proj["camera"] else None
+    effects = [e for e in EFFECTS if proj.get("corrections", {}).get(e)] if cal else []
+    scan = proj["measurements"].get("unit", "mm") == "pixel"
+    sc = make_scenario(seed, calibration=cal, effects=effects, scan=scan)
     rows = _read_csv(root / "image_points.csv")
     np.testing.assert_allclose([float(r["x"]) for r in rows], sc.measurements.xy[:, 0],
+                               atol=5e-7)
+    np.testing.assert_allclose([float(r["y"]) for r in rows], sc.measurements.xy[:, 1],
                                atol=5e-7)

@@ -102,6 +102,12 @@ def _print_summary(summary: dict, out=None) -> None:
     if summary.get("mean_ce90") is not None:
         print(f"  mean CE90 {_fmt(summary['mean_ce90'])} m, mean LE90 "
               f"{_fmt(summary['mean_le90'])} m", file=out)
+    interior = summary.get("interior_orientation")
+    if interior:
+        from vectoradjust.interior import describe_interior
+
+        for line in describe_interior(interior):
+            print(f"  {line}", file=out)
     for w in summary.get("warnings", []):
         print(f"  warning: {w}", file=out)
 

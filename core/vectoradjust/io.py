@@ -263,16 +263,39 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
     Returns
     -------
     ProjectData
+        The image measurements are already refined
+        (:func:`vectoradjust.interior.refine_measurements`: fiducial affine or pixel
+        size, principal point, lens distortion, refraction, earth curvature as switched
+        in ``[corrections]``): ``measurements`` are photo mm with sigmas in mm,
+        ``camera.principal_point`` is the one the collinearity equations must use with
+        them (``(0, 0)`` once reduced), ``camera.calibration`` the
+        :class:`~vectoradjust.camera.CameraCalibration` and ``interior`` the report.
     """
+    from vectoradjust.interior import refine_measurements
+    from vectoradjust.model import Camera
+    from vectoradjust.tables import read_fiducials
+
     spec = project if isinstance(project, ProjectSpec) else load_project(project)
     where = str(spec.path) if spec.path else "<project>"
     crs = check_projected_crs(spec.crs, f"{where}: crs")
-    meas = read_measurements(spec.measurements["path"], spec.measurements.get("sigma"))
+    unit = spec.measurements.get("unit", "mm")
+    raw_meas = read_measurements(spec.measurements["path"], spec.measurements.get("sigma"),
+                                 unit=unit)
     if spec.control is not None:
         control = read_control(spec.control["path"])
     else:
         control = ControlPoints(np.zeros(0, str), np.zeros((0, 3)), np.zeros((0, 3)),
                                 np.zeros(0, str), source=f"{where} [control]")
+    # image coordinate refinement (DESIGN 5): pixels/comparator -> refined photo mm
+    fid_path = spec.measurements.get("fiducials")
+    fiducials = read_fiducials(fid_path, unit) if fid_path else None
+    # the project CRS is projected (checked above): earth curvature applies when asked
+    interior = refine_measurements(
+        raw_meas, spec.images, spec.camera, spec.corrections, unit=unit, fiducials=fiducials,
+        control=control, map_projection=bool(crs.is_projected))
+    meas = interior.measurements
+    camera = Camera(spec.camera.focal_length, interior.principal_point,
+                    calibration=spec.camera.calibration)
     layers = []
     truth = {}
     names = vectors or [v.name for v in spec.vectors]
@@ -289,7 +312,8 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
     for n in names:
         spec.vector(n)  # raises a clear error for an unknown name
     return ProjectData(
-        crs=crs.to_string(), camera=spec.camera, images=spec.images, measurements=meas,
+        crs=crs.to_string(), camera=camera, images=spec.images, measurements=meas,
         control=control, vectors=layers, settings=spec.settings, truth=truth,
-        corrections=spec.corrections, source=where,
+        corrections=spec.corrections, source=where, qa=spec.raw.get("qa"),
+        interior=interior.report,
     )

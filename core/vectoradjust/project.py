@@ -14,7 +14,9 @@ from typing import Any, Optional
 
 import numpy as np
 
+from vectoradjust.camera import CameraCalibration
 from vectoradjust.errors import ProjectError
+from vectoradjust.interior import normalize_unit, parse_corrections
 from vectoradjust.model import AdjustmentSettings, Camera, ImageSpec, VectorSpec
 
 if sys.version_info >= (3, 11):
@@ -29,6 +31,7 @@ _TOP_KEYS = {
     "adjustment", "qa", "truth", "name", "description", "report",
 }
 _REWEIGHT = ("none", "two-pass", "vce")
+_MEASUREMENT_KEYS = ("path", "sigma", "unit", "fiducials")
 
 
 @dataclass
@@ -43,12 +46,16 @@ class ProjectSpec:
         Directory that relative paths are resolved against.
     crs : str
     camera : Camera
+        ``focal_length`` and ``principal_point`` of the calibration, which is in
+        ``camera.calibration`` (a :class:`vectoradjust.camera.CameraCalibration`).
     camera_table : dict
-        The raw ``[camera]`` table (for calibration models).
+        The raw ``[camera]`` table as written in the project file.
     corrections : dict
+        The ``[corrections]`` table as written (validated).
     images : list of ImageSpec
     measurements : dict
-        ``path`` (resolved), ``sigma`` (mm) and further keys as given.
+        ``path`` (resolved), ``unit`` (``"mm"`` or ``"pixel"``), ``sigma`` (in that
+        unit) when given, ``fiducials`` (resolved path) when given.
     control : dict or None
         ``path`` (resolved) and further keys.
     vectors : list of VectorSpec
@@ -172,6 +179,7 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
     corrections = raw.get("corrections", {}) or {}
     if not isinstance(corrections, dict):
         raise _err(where, "[corrections] must be a table", "Write [corrections] refraction = true")
+    parse_corrections(corrections, f"{where} [corrections]")  # validates keys and values
 
     images_raw = raw.get("images")
     if not isinstance(images_raw, list) or not images_raw:
@@ -198,14 +206,7 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
         date = im.get("date")
         images.append(ImageSpec(iid, pos, att, sp, sa, None if date is None else str(date)))
 
-    meas = raw.get("measurements")
-    if not isinstance(meas, dict) or "path" not in meas:
-        raise _err(where, "[measurements] path is missing",
-                   'Add [measurements] path = "image_points.csv"')
-    meas = dict(meas)
-    meas["path"] = _resolve(base_dir, meas["path"], where, "[measurements] path")
-    if "sigma" in meas:
-        meas["sigma"] = _number(where, "[measurements] sigma", meas["sigma"], positive=True)
+    meas = _parse_measurements(raw.get("measurements"), base_dir, where)
 
     control = raw.get("control")
     if control is not None:
@@ -268,29 +269,36 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
     )
 
 
+def _parse_measurements(meas: Any, base_dir: Path, where: str) -> dict:
+    """``[measurements]``: path, sigma and unit of the image measurements, fiducials."""
+    if not isinstance(meas, dict) or "path" not in meas:
+        raise _err(where, "[measurements] path is missing",
+                   'Add [measurements] path = "image_points.csv"')
+    unknown = sorted(set(meas) - set(_MEASUREMENT_KEYS))
+    if unknown:
+        raise _err(where, f"[measurements] has unknown key(s) {', '.join(unknown)}",
+                   f"Accepted keys: {', '.join(_MEASUREMENT_KEYS)}")
+    meas = dict(meas)
+    meas["path"] = _resolve(base_dir, meas["path"], where, "[measurements] path")
+    meas["unit"] = normalize_unit(meas.get("unit", "mm"), f"{where} [measurements]")
+    if "sigma" in meas:
+        meas["sigma"] = _number(where, f"[measurements] sigma ({meas['unit']})", meas["sigma"],
+                                positive=True)
+    if meas.get("fiducials") is not None:
+        meas["fiducials"] = _resolve(base_dir, meas["fiducials"], where,
+                                     "[measurements] fiducials")
+    return meas
+
+
 def _parse_camera(cam: dict, base_dir: Path, where: str) -> Camera:
-    w = f"{where} [camera]"
-    table = dict(cam)
-    if "path" in table:
-        # a calibration file shared by many projects; inline keys override it
-        cpath = Path(_resolve(base_dir, table["path"], w, "path"))
-        if not cpath.is_file():
-            raise _err(w, f"camera file {str(cpath)!r} does not exist", "Correct [camera] path")
-        try:
-            with open(cpath, "rb") as fh:
-                loaded = tomllib.load(fh)
-        except tomllib.TOMLDecodeError as exc:
-            raise _err(str(cpath), f"not valid TOML ({exc})", "Fix the camera file") from exc
-        loaded = loaded.get("camera", loaded)
-        merged = dict(loaded)
-        merged.update({k: v for k, v in table.items() if k != "path"})
-        table = merged
-    if "focal_length" not in table:
-        raise _err(w, "focal_length is missing", "Add focal_length = 152.4 (mm)")
-    f = _number(w, "focal_length", table["focal_length"], positive=True)
-    pp = table.get("principal_point", [0.0, 0.0])
-    if not isinstance(pp, (list, tuple)) or len(pp) != 2:
-        raise _err(w, f"principal_point must be [x0, y0] in mm, not {pp!r}",
-                   "Write principal_point = [0.0, 0.0]")
-    pp = (_number(w, "principal_point", pp[0]), _number(w, "principal_point", pp[1]))
-    return Camera(focal_length=f, principal_point=pp, calibration=table)
+    """``[camera]``, inline or ``path = "camera.toml"``, read by :class:`CameraCalibration`.
+
+    Raises
+    ------
+    CameraError
+        Whatever :meth:`CameraCalibration.from_dict` finds wrong (missing
+        ``focal_length``, unknown keys or distortion model, a missing camera file ...).
+    """
+    cal = CameraCalibration.from_dict(cam, base_dir, where=f"{where} [camera]")
+    return Camera(focal_length=cal.focal_length, principal_point=tuple(cal.principal_point),
+                  calibration=cal)

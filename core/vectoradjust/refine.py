@@ -54,6 +54,7 @@ __all__ = [
     "distort",
     "sigma_pixels_to_mm",
     "interior_orientation_check",
+    "as_calibration",
 ]
 
 #: Mean earth radius (m) used by the earth curvature correction.
@@ -1100,7 +1101,20 @@ def _switches(corrections: Mapping[str, bool] | None, img: str) -> dict[str, boo
     return sw
 
 
-def _as_calibration(camera: Any) -> CameraCalibration:
+def as_calibration(camera: Any) -> CameraCalibration:
+    """The :class:`CameraCalibration` of a camera given in any accepted form.
+
+    Parameters
+    ----------
+    camera : CameraCalibration, vectoradjust.model.Camera or mapping
+        A ``Camera``'s ``calibration`` (a CameraCalibration or the raw ``[camera]``
+        table) is used when present, else its ``focal_length`` and
+        ``principal_point``; a mapping is read as a ``[camera]`` table.
+
+    Returns
+    -------
+    CameraCalibration
+    """
     if isinstance(camera, CameraCalibration):
         return camera
     cal = getattr(camera, "calibration", None)
@@ -1116,3 +1130,6 @@ def _as_calibration(camera: Any) -> CameraCalibration:
     if isinstance(camera, Mapping):
         return CameraCalibration.from_dict(camera)
     raise TypeError(f"not a camera: {camera!r}")
+
+
+_as_calibration = as_calibration

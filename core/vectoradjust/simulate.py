@@ -8,7 +8,11 @@ terrain and its DEM, true road centrelines (a street grid split at intersections
 curved residential street, a two-part feature), three road databases that sample the
 same roads with their own vertices and positional errors (OSM, TNM, TIGER), surveyed
 control and check points, tie points, and the image measurements (projections of the
-TRUE points plus noise). :func:`write_project` writes the scenario as a project that
+TRUE points plus noise). Optionally (``calibration=``, ``effects=``, ``scan=``) the
+image coordinates carry the principal point, lens distortion, atmospheric refraction
+and earth curvature of a calibrated camera and are measured in scanner pixels with
+fiducials, so that the refinement chain (:mod:`vectoradjust.interior`) has something
+to undo. :func:`write_project` writes the scenario as a project that
 follows the file contract; ``python -m vectoradjust.simulate OUT_DIR`` does it from
 the command line.
 
@@ -34,9 +38,11 @@ from typing import Callable
 
 import numpy as np
 
+from vectoradjust.camera import CameraCalibration
 from vectoradjust.collinearity import project
 from vectoradjust.dem import bilinear
-from vectoradjust.errors import ProjectError
+from vectoradjust.errors import ProjectError, VectorAdjustError
+from vectoradjust.interior import FiducialMeasurements, refine_measurements
 from vectoradjust.model import (
     AdjustmentSettings,
     Camera,
@@ -47,10 +53,12 @@ from vectoradjust.model import (
     ProjectData,
     VectorSpec,
 )
+from vectoradjust.refine import distort
 
 __all__ = [
     "DatabaseModel",
     "DATABASES",
+    "EFFECTS",
     "Scenario",
     "make_scenario",
     "terrain_height",
@@ -75,6 +83,10 @@ DEM_NODATA = -9999.0
 CONTROL_SIGMA = (0.05, 0.05, 0.08)  # m, surveyed GCPs
 DEFAULT_DATE = "1999-10-05"  # acquisition date written for provenance (simulated)
 _INSET = 30.0  # m kept free inside the stereo overlap for control, ties and dense roads
+#: Physical effects :func:`make_scenario` can put into the image coordinates (the
+#: ``[corrections]`` switches that undo them).
+EFFECTS = ("distortion", "refraction", "earth_curvature")
+FIDUCIAL_SIGMA = 0.002  # mm, default pointing precision of a fiducial measurement
 
 
 @dataclass(frozen=True)
@@ -227,6 +239,16 @@ class Scenario:
         Standard deviation of the image measurements (mm).
     options : dict
         The arguments of :func:`make_scenario` (for the README).
+    unit : str
+        Unit of ``measurements``: ``"mm"`` (photo coordinates in the fiducial frame) or
+        ``"pixel"`` (scanner column, row; ``scan=True``).
+    fiducials : FiducialMeasurements or None
+        Measured fiducials (pixels) of every image when ``scan=True``.
+    scan_affine : numpy.ndarray, shape (n_images, 6), or None
+        True scanner affine of every image, pixels -> photo mm, as
+        ``a0, a1, a2, b0, b1, b2`` (``x = a0 + a1 col + a2 row``, ``y = b0 + ...``).
+    effects : tuple of str
+        Physical effects in the image coordinates (subset of :data:`EFFECTS`).
     """
 
     seed: int
@@ -252,8 +274,24 @@ class Scenario:
     databases: dict
     sigma_image: float
     options: dict = field(default_factory=dict)
+    unit: str = "mm"
+    fiducials: FiducialMeasurements | None = None
+    scan_affine: np.ndarray | None = None
+    effects: tuple = ()
 
-    def to_project_data(self, vectors: Sequence[str] | None = None) -> ProjectData:
+    @property
+    def calibration(self) -> CameraCalibration | None:
+        """The camera calibration the image coordinates were made with, if any."""
+        return self.camera.calibration
+
+    def default_corrections(self) -> dict:
+        """``[corrections]`` that undo exactly the simulated effects."""
+        if self.calibration is None:
+            return {"refraction": False, "earth_curvature": False}
+        return {e: e in self.effects for e in EFFECTS}
+
+    def to_project_data(self, vectors: Sequence[str] | None = None,
+                        corrections: dict | None = None) -> ProjectData:
         """The scenario as in-memory project data (no files), Z of shape points from the DEM.
 
         Parameters
@@ -262,12 +300,19 @@ class Scenario:
             Database names to include (default: all). Measurements of the shape points
             of the databases left out are dropped, so that they do not turn into tie
             points.
+        corrections : dict, optional
+            ``[corrections]`` switches for the image coordinate refinement; keys not
+            given take :meth:`default_corrections` (which undo the simulated effects).
+            Only used when the scenario has a calibration (``calibration=``).
 
         Returns
         -------
         vectoradjust.model.ProjectData
             Each layer's Z is ``vectoradjust.dem.bilinear`` of the DEM at the stored XY;
-            ``truth`` holds the selected databases' truth.
+            ``truth`` holds the selected databases' truth. With a calibration, the
+            measurements are refined by :func:`vectoradjust.interior.refine_measurements`
+            exactly as ``load_project_data`` would do from the written files, and
+            ``interior`` holds its report.
         """
         names = list(self.layers) if vectors is None else [str(v) for v in vectors]
         unknown = [n for n in names if n not in self.layers]
@@ -294,9 +339,21 @@ class Scenario:
             meas = replace(meas, xy=meas.xy.copy(), sigma=meas.sigma.copy())
         images = [replace(im, position=im.position.copy(), attitude=im.attitude.copy())
                   for im in self.images]
+        camera = replace(self.camera)
+        corr = {"refraction": False, "earth_curvature": False}
+        interior: dict = {}
+        if self.calibration is not None:
+            corr = self.default_corrections()
+            corr.update(corrections or {})
+            res = refine_measurements(meas, images, self.camera, corr, unit=self.unit,
+                                      fiducials=self.fiducials, control=self.control)
+            meas = res.measurements
+            camera = Camera(self.camera.focal_length, res.principal_point,
+                            calibration=self.calibration)
+            interior = res.report
         return ProjectData(
             crs=self.crs,
-            camera=replace(self.camera),
+            camera=camera,
             images=images,
             measurements=meas,
             control=replace(self.control, xyz=self.control.xyz.copy(),
@@ -304,8 +361,9 @@ class Scenario:
             vectors=pairs,
             settings=AdjustmentSettings(),
             truth={n: (self.truth[n][0].copy(), self.truth[n][1].copy()) for n in names},
-            corrections={"refraction": False, "earth_curvature": False},
+            corrections=corr,
             source=f"<simulated scenario, seed {self.seed}>",
+            interior=interior,
         )
 
     def database_errors(self, name: str, measured_only: bool = False) -> dict:
@@ -608,8 +666,14 @@ def _make_database(model: DatabaseModel, roads: _TrueRoads, seed: int, spacing, 
 
 
 # --- images and measurements ---------------------------------------------------------
-def _observe(xyz, true_eo, camera: Camera, sigma, rng, distortion, min_images=2):
+def _observe(xyz, true_eo, camera: Camera, sigma, rng, distortion, min_images=2,
+             physics=None):
     """Image measurements of points seen (inside the format) on >= ``min_images`` images.
+
+    ``physics(xy, xyz, pi, ii)`` (optional) turns the ideal coordinates of the seen
+    measurements into what the camera records (principal point, distortion,
+    refraction, earth curvature); it is applied after the format test and before the
+    noise, so that neither the points selected nor the noise drawn depend on it.
 
     Returns point index, image index and measured xy (mm) per measurement, plus the
     per-point "measured" flag.
@@ -626,7 +690,10 @@ def _observe(xyz, true_eo, camera: Camera, sigma, rng, distortion, min_images=2)
     inside = np.all(np.abs(xy) < FORMAT_HALF, axis=2)
     seen = inside.sum(axis=1) >= min_images
     pi, ii = np.nonzero(inside & seen[:, None])
-    obs = xy[pi, ii] + rng.normal(0.0, sigma, (len(pi), 2))
+    xy_seen = xy[pi, ii]
+    if physics is not None:
+        xy_seen = physics(xy_seen, xyz, pi, ii)
+    obs = xy_seen + rng.normal(0.0, sigma, (len(pi), 2))
     return pi, ii, obs, seen
 
 
@@ -686,6 +753,10 @@ def make_scenario(
     image_distortion: Callable[[np.ndarray], np.ndarray] | None = None,
     pointing_sigma: float = 0.0,
     center: tuple[float, float] = CENTER,
+    calibration: CameraCalibration | None = None,
+    effects: Sequence[str] = (),
+    scan: bool = False,
+    fiducial_sigma: float = FIDUCIAL_SIGMA,
 ) -> Scenario:
     """Simulate the dissertation's set-up, deterministically from ``seed``.
 
@@ -735,6 +806,30 @@ def make_scenario(
         images show exactly the true point. Control and tie points are unaffected.
     center : (float, float)
         Model centre (UTM 16N).
+    calibration : vectoradjust.camera.CameraCalibration, optional
+        The camera: its focal length and principal point make the image coordinates
+        (photo coordinates in the fiducial frame = ideal coordinates about the
+        principal point + the principal point); its distortion model, fiducials and
+        pixel size serve ``effects`` and ``scan``. Default: f = 152.4 mm, principal
+        point (0, 0), nothing else (the image coordinates are exactly as without it).
+    effects : sequence of str
+        Physical effects put into the image coordinates, a subset of :data:`EFFECTS`:
+        ``"distortion"`` (the calibration's lens distortion), ``"refraction"`` (ARDC
+        1959) and ``"earth_curvature"``, each the exact inverse of its correction in
+        :mod:`vectoradjust.refine`, with each image's TRUE flying height and each
+        point's TRUE terrain height (the correction uses the approximate ZL and the mean
+        terrain height). They are applied after the format test and before the
+        noise, so the points measured and the noise drawn are those of the same seed
+        without effects. Needs ``calibration``.
+    scan : bool
+        Measure in scanner pixels: every image gets a random scanner affine (film
+        rotation ~0.3 deg, placement ~40 px, scale 1e-4, shear 1e-4 rad) with the
+        calibration's ``pixel_size``; the image coordinates (with their noise) are
+        converted to pixels and the calibrated fiducials are measured in pixels with
+        ``N(0, fiducial_sigma)`` (mm) noise. Needs ``calibration`` with fiducials and
+        pixel size. ``measurements`` and their sigmas are then in pixels.
+    fiducial_sigma : float
+        Pointing precision of a fiducial (mm) when ``scan``.
 
     Returns
     -------
@@ -759,7 +854,14 @@ def make_scenario(
         raise ProjectError("a simulated database is named twice", "Give every database once")
     cx, cy = float(center[0]), float(center[1])
     n_images = int(n_images)
-    camera = Camera(FOCAL_LENGTH, (0.0, 0.0))
+    effects = _check_effects(effects, calibration, scan)
+    if calibration is None:
+        camera = Camera(FOCAL_LENGTH, (0.0, 0.0))
+    else:
+        camera = Camera(calibration.focal_length, tuple(calibration.principal_point),
+                        calibration=calibration)
+    # the projection about the principal point; physics adds it (and the effects)
+    view = Camera(camera.focal_length, (0.0, 0.0))
 
     # exterior orientation
     rng = _rng(seed, "eo")
@@ -770,6 +872,7 @@ def make_scenario(
     true_eo[:, 2] = TERRAIN_LEVEL + FLYING_HEIGHT + rng.normal(0.0, position_noise / 2.0, n_images)
     true_eo[:, 3:] = np.radians(rng.normal(0.0, attitude_noise, (n_images, 3)))
     ids = ["L", "R"] if n_images == 2 else [f"I{i + 1:02d}" for i in range(n_images)]
+    physics = None if calibration is None else _physics(calibration, effects, true_eo, ids)
     images = [
         ImageSpec(ids[i], np.round(true_eo[i, :3]), np.zeros(3), sigma_position, sigma_attitude,
                   date)
@@ -832,10 +935,11 @@ def make_scenario(
     layers, specs, truth, measured = {}, {}, {}, {}
     meas_parts = []
     rng_img = _rng(seed, "image")
-    pi, ii, obs, _ = _observe(control_true, true_eo, camera, sigma_image, rng_img,
-                              image_distortion)
+    pi, ii, obs, _ = _observe(control_true, true_eo, view, sigma_image, rng_img,
+                              image_distortion, physics=physics)
     meas_parts.append((np.asarray(cid, dtype=str)[pi], ii, obs))
-    pi, ii, obs, _ = _observe(tie_true, true_eo, camera, sigma_image, rng_img, image_distortion)
+    pi, ii, obs, _ = _observe(tie_true, true_eo, view, sigma_image, rng_img, image_distortion,
+                              physics=physics)
     meas_parts.append((tie_ids[pi], ii, obs))
     for model in models:
         layer, pids, true_xy, group, group_first = _make_database(
@@ -854,16 +958,25 @@ def make_scenario(
             pxy = seen_xyz[:, :2] + _rng(seed, f"pointing:{model.name}").normal(
                 0.0, pointing_sigma, (len(seen_xyz), 2))
             seen_xyz = np.column_stack([pxy, terrain_height(pxy[:, 0], pxy[:, 1], (cx, cy))])
-        gp, ii, obs, seen = _observe(seen_xyz, true_eo, camera, sigma_image, rng_db,
-                                     image_distortion)
+        gp, ii, obs, seen = _observe(seen_xyz, true_eo, view, sigma_image, rng_db,
+                                     image_distortion, physics=physics)
         measured[model.name] = seen[group]
         meas_parts.append((pids[group_first[gp]], ii, obs))
 
     point_id = np.concatenate([p[0].astype(str) for p in meas_parts])
-    image_id = np.asarray(ids, dtype=str)[np.concatenate([p[1] for p in meas_parts])]
-    xy = np.round(np.concatenate([p[2] for p in meas_parts]), 6)
-    measurements = Measurements(point_id, image_id, xy, np.full(xy.shape, float(sigma_image)),
-                                source="image_points.csv")
+    img_index = np.concatenate([p[1] for p in meas_parts]).astype(np.int64)
+    image_id = np.asarray(ids, dtype=str)[img_index]
+    xy = np.concatenate([p[2] for p in meas_parts]).reshape(-1, 2)
+    sigma = np.full(xy.shape, float(sigma_image))
+    unit, fiducials, scan_affine = "mm", None, None
+    if scan:
+        scan_affine = _scanner_affines(calibration, n_images, seed)
+        xy = _mm_to_pixel(xy, scan_affine[img_index])
+        sigma = sigma / _pixel_mean(calibration)
+        fiducials = _measure_fiducials(calibration, scan_affine, ids, seed, fiducial_sigma)
+        unit = "pixel"
+    xy = np.round(xy, 4 if scan else 6)
+    measurements = Measurements(point_id, image_id, xy, sigma, source="image_points.csv")
     lines, line_attrs = _truth_lines(roads, (cx, cy))
     options = {
         "seed": int(seed), "n_images": n_images, "grid": list(grid),
@@ -875,6 +988,11 @@ def make_scenario(
         "dem_noise": dem_noise, "image_distortion": image_distortion is not None,
         "pointing_sigma": float(pointing_sigma),
         "dense_spacing": spacing_override if n_shape_points is not None else None,
+        "camera": None if calibration is None else (calibration.name or "calibrated camera"),
+        "camera_file": None if calibration is None or calibration.source is None
+        else Path(calibration.source).name,
+        "effects": list(effects), "scan": bool(scan),
+        "fiducial_sigma": float(fiducial_sigma) if scan else None,
     }
     return Scenario(
         seed=int(seed), crs=CRS, camera=camera, images=images, true_eo=true_eo,
@@ -883,8 +1001,97 @@ def make_scenario(
         measured=measured, truth_lines=lines, truth_line_attributes=line_attrs,
         dem_grid=dem_grid, dem_transform=dem_transform, dem_nodata=DEM_NODATA,
         center=(cx, cy), databases={m.name: m for m in models}, sigma_image=float(sigma_image),
-        options=options,
+        options=options, unit=unit, fiducials=fiducials, scan_affine=scan_affine,
+        effects=tuple(effects),
     )
+
+
+def _check_effects(effects, calibration, scan) -> tuple:
+    if isinstance(effects, str):
+        effects = [e for e in effects.replace(",", " ").split() if e]
+    effects = tuple(str(e).strip().lower() for e in effects)
+    unknown = [e for e in effects if e not in EFFECTS]
+    if unknown:
+        raise ProjectError(f"unknown simulated effect(s) {', '.join(map(repr, unknown))}",
+                           f"Use any of {', '.join(EFFECTS)}")
+    if (effects or scan) and calibration is None:
+        raise ProjectError("simulated effects and scanning need a camera calibration",
+                           "Pass calibration=CameraCalibration(...) (e.g. from a camera file)")
+    if "distortion" in effects and not calibration.has_distortion:
+        raise ProjectError("the 'distortion' effect needs a camera with a distortion model",
+                           "Give the calibration [distortion] coefficients")
+    if scan and (calibration.fiducials is None or calibration.pixel_size is None):
+        raise ProjectError("scan=True needs a calibration with fiducials and pixel_size",
+                           "Add [fiducials] and pixel_size to the camera")
+    # the order of the chain, whatever the order given
+    return tuple(e for e in EFFECTS if e in effects)
+
+
+def _physics(calibration: CameraCalibration, effects: tuple, true_eo: np.ndarray, ids):
+    """``(xy about the principal point, xyz, point index, image index) -> recorded mm``."""
+    switches = {"affine": False, "principal_point": True}
+    switches.update({e: e in effects for e in EFFECTS})
+    heights = bool({"refraction", "earth_curvature"} & set(effects))
+
+    def apply(xy, xyz, pi, ii):
+        out = np.array(xy, float, copy=True)
+        for j in np.unique(ii):
+            sel = ii == j
+            out[sel] = distort(
+                xy[sel], calibration, unit="mm", corrections=switches, image_id=ids[int(j)],
+                flying_height=float(true_eo[j, 2]) if heights else None,
+                terrain_height=np.asarray(xyz, float)[pi[sel], 2] if heights else None)
+        return out
+
+    return apply
+
+
+def _pixel_mean(calibration: CameraCalibration) -> float:
+    sx, sy = calibration.pixel_size
+    return math.sqrt(sx * sy)
+
+
+def _scanner_affines(calibration: CameraCalibration, n_images: int, seed: int) -> np.ndarray:
+    """Random scanner affines (pixels -> photo mm), ``(n_images, 6)`` as a0, a1, a2, b0, b1, b2."""
+    rng = _rng(seed, "scan")
+    sx, sy = calibration.pixel_size
+    if calibration.image_size is not None:
+        cols, rows = calibration.image_size
+    else:
+        cols, rows = 2.0 * FORMAT_HALF / sx, 2.0 * FORMAT_HALF / sy
+    out = np.zeros((n_images, 6))
+    for i in range(n_images):
+        theta = math.radians(rng.normal(0.0, 0.3))
+        kx, ky = 1.0 + rng.normal(0.0, 1e-4, 2)
+        shear = rng.normal(0.0, 1e-4)
+        c0 = cols / 2.0 + rng.normal(0.0, 40.0)
+        r0 = rows / 2.0 + rng.normal(0.0, 40.0)
+        rot = np.array([[math.cos(theta), -math.sin(theta)], [math.sin(theta), math.cos(theta)]])
+        lin = rot @ np.array([[sx * kx, sx * kx * shear], [0.0, -sy * ky]])
+        off = -lin @ np.array([c0, r0])
+        out[i] = [off[0], lin[0, 0], lin[0, 1], off[1], lin[1, 0], lin[1, 1]]
+    return out
+
+
+def _mm_to_pixel(xy: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """Invert ``x = a0 + a1 c + a2 r``, ``y = b0 + b1 c + b2 r`` row by row (vectorised)."""
+    a0, a1, a2, b0, b1, b2 = params.T
+    dx, dy = xy[:, 0] - a0, xy[:, 1] - b0
+    det = a1 * b2 - a2 * b1
+    return np.column_stack([(b2 * dx - a2 * dy) / det, (a1 * dy - b1 * dx) / det])
+
+
+def _measure_fiducials(calibration: CameraCalibration, affines: np.ndarray, ids, seed: int,
+                       sigma: float) -> FiducialMeasurements:
+    rng = _rng(seed, "fiducials")
+    fid_ids = list(calibration.fiducials)
+    cal_xy = np.array([calibration.fiducials[f] for f in fid_ids], float)
+    m, n = len(ids), len(fid_ids)
+    measured = np.tile(cal_xy, (m, 1)) + rng.normal(0.0, sigma, (m * n, 2))
+    px = _mm_to_pixel(measured, np.repeat(affines, n, axis=0))
+    return FiducialMeasurements(np.repeat(np.asarray(ids, dtype=str), n),
+                                np.tile(np.asarray(fid_ids, dtype=str), m), np.round(px, 4),
+                                source="fiducials.csv")
 
 
 # --- writing -------------------------------------------------------------------------
@@ -902,20 +1109,23 @@ def _toml_value(v) -> str:
     raise TypeError(f"cannot write {v!r} to TOML")
 
 
-def _project_toml(sc: Scenario, layer_ext: str) -> str:
+def _project_toml(sc: Scenario, layer_ext: str, camera_file: str | None = None,
+                  reweight: str = "none") -> str:
     out = [
         f"# Simulated project written by vectoradjust.simulate (seed {sc.seed}); see README.md",
         f"name = {_toml_value('vectoradjust simulated scenario, seed ' + str(sc.seed))}",
         f"crs = {_toml_value(sc.crs)}",
         "",
         "[camera]",
-        f"focal_length = {_toml_value(sc.camera.focal_length)}",
-        f"principal_point = {_toml_value(list(sc.camera.principal_point))}",
-        "",
-        "[corrections]",
-        "refraction = false",
-        "earth_curvature = false",
     ]
+    if camera_file is None:
+        out += [f"focal_length = {_toml_value(sc.camera.focal_length)}",
+                f"principal_point = {_toml_value(list(sc.camera.principal_point))}",
+                "", "[corrections]", "refraction = false", "earth_curvature = false"]
+    else:
+        out += [f"path = {_toml_value(camera_file)}          # calibration (SIMULATED)",
+                "", "[corrections]                   # undo the simulated effects"]
+        out += [f"{k} = {_toml_value(v)}" for k, v in sc.default_corrections().items()]
     for im in sc.images:
         out += ["", "[[images]]", f"id = {_toml_value(im.id)}",
                 f"position = {_toml_value([float(v) for v in im.position])}",
@@ -926,8 +1136,15 @@ def _project_toml(sc: Scenario, layer_ext: str) -> str:
             out.append(f"sigma_attitude = {_toml_value(float(im.sigma_attitude))}")
         if im.date is not None:
             out.append(f"date = {_toml_value(im.date)}")
-    out += ["", "[measurements]", 'path = "image_points.csv"',
-            f"sigma = {_toml_value(sc.sigma_image)}", "", "[control]", 'path = "gcps.csv"']
+    out += ["", "[measurements]", 'path = "image_points.csv"']
+    if sc.unit == "pixel":
+        out += ['unit = "pixel"                  # x = column, y = row (scanner pixels)',
+                f"sigma = {_toml_value(round(float(sc.measurements.sigma[0, 0]), 6))}"
+                "          # pixels",
+                'fiducials = "fiducials.csv"']
+    else:
+        out += [f"sigma = {_toml_value(sc.sigma_image)}"]
+    out += ["", "[control]", 'path = "gcps.csv"']
     for name, spec in sc.vector_specs.items():
         stem = sc.databases[name].stem
         out += ["", "[[vectors]]", f"name = {_toml_value(name)}",
@@ -935,8 +1152,26 @@ def _project_toml(sc: Scenario, layer_ext: str) -> str:
                 f"id_field = {_toml_value(spec.id_field)}",
                 f"sigma = {_toml_value([float(s) for s in spec.sigma])}",
                 f"dem = {_toml_value(spec.dem)}", f"truth = {_toml_value(spec.truth)}"]
-    out += ["", "[adjustment]", "max_iterations = 20", 'reweight = "none"', "alpha = 0.05", ""]
+    rw = f"reweight = {_toml_value(reweight)}"
+    if reweight == "two-pass":
+        rw += "   # shape-point accuracy unknown: sigma <- RMS of pass-1 residuals"
+    out += ["", "[adjustment]", "max_iterations = 20", rw, "alpha = 0.05", ""]
     return "\n".join(out)
+
+
+def _camera_toml(cal: CameraCalibration) -> str:
+    """A camera file for a calibration that has no file of its own."""
+    d = cal.to_dict()
+    fid = d.pop("fiducials", None)
+    dist = d.pop("distortion", None)
+    out = ["# Camera calibration written by vectoradjust.simulate (SIMULATED values)"]
+    out += [f"{k} = {_toml_value(v)}" for k, v in d.items()]
+    if fid:
+        out += ["", "[fiducials]"] + [f"{json.dumps(k)} = {_toml_value(v)}"
+                                      for k, v in fid.items()]
+    if dist:
+        out += ["", "[distortion]"] + [f"{k} = {_toml_value(v)}" for k, v in dist.items()]
+    return "\n".join(out) + "\n"
 
 
 def _layer_frame(layer: LineLayer, crs: str):
@@ -976,7 +1211,8 @@ def _write_csv(path: Path, header: str, columns: list, formats: list) -> None:
         frame.to_csv(fh, header=False, index=False, lineterminator="\n")
 
 
-def write_project(scenario: Scenario, out_dir, *, format: str = "shp") -> Path:
+def write_project(scenario: Scenario, out_dir, *, format: str = "shp",
+                  reweight: str = "none") -> Path:
     """Write the scenario as a project following the file contract (``DESIGN.md`` 9).
 
     Files: ``project.toml``, ``image_points.csv``, ``gcps.csv``, ``<stem>_roads.shp``
@@ -984,7 +1220,11 @@ def write_project(scenario: Scenario, out_dir, *, format: str = "shp") -> Path:
     ``truth_roads.shp`` (true centrelines, 3D), ``truth_<stem>.csv`` per database
     (``point_id,X,Y,Z`` of every vertex; referenced as ``truth =`` in ``[[vectors]]``),
     ``truth_eo.csv`` and ``truth_points.csv`` (true EO, control/check/tie truth),
-    ``dem.tif`` (float32 GeoTIFF, deflate) and ``README.md``.
+    ``dem.tif`` (float32 GeoTIFF, deflate) and ``README.md``. A scenario with a
+    calibration also gets its camera file (``[camera] path``: a copy of the
+    calibration's own file, or ``camera.toml`` written from it) and ``[corrections]``
+    that undo the simulated effects; a scanned one ``fiducials.csv``
+    (``image_id,fiducial_id,x,y`` in pixels) and ``[measurements] unit = "pixel"``.
 
     Parameters
     ----------
@@ -993,6 +1233,8 @@ def write_project(scenario: Scenario, out_dir, *, format: str = "shp") -> Path:
         Created if missing; existing files of the same names are overwritten.
     format : {"shp", "gpkg"}
         Format of the road layers.
+    reweight : {"none", "two-pass", "vce"}
+        ``[adjustment] reweight`` written to the project file.
 
     Returns
     -------
@@ -1011,11 +1253,19 @@ def write_project(scenario: Scenario, out_dir, *, format: str = "shp") -> Path:
     sc = scenario
     driver = "ESRI Shapefile" if format == "shp" else "GPKG"
 
-    (out / "project.toml").write_text(_project_toml(sc, format), encoding="utf-8")
+    camera_file = _write_camera(sc, out)
+    (out / "project.toml").write_text(_project_toml(sc, format, camera_file, reweight),
+                                      encoding="utf-8")
     m = sc.measurements
+    xf = "%.4f" if sc.unit == "pixel" else "%.6f"
     _write_csv(out / "image_points.csv", "point_id,image_id,x,y,sigma_x,sigma_y",
                [m.point_id, m.image_id, m.xy[:, 0], m.xy[:, 1], m.sigma[:, 0], m.sigma[:, 1]],
-               [None, None, "%.6f", "%.6f", "%.6f", "%.6f"])
+               [None, None, xf, xf, "%.6f", "%.6f"])
+    if sc.fiducials is not None:
+        f = sc.fiducials
+        _write_csv(out / "fiducials.csv", "image_id,fiducial_id,x,y",
+                   [f.image_id, f.fiducial_id, f.xy[:, 0], f.xy[:, 1]],
+                   [None, None, "%.4f", "%.4f"])
     c = sc.control
     _write_csv(out / "gcps.csv", "point_id,X,Y,Z,sigma_x,sigma_y,sigma_z,role",
                [c.point_id, c.xyz[:, 0], c.xyz[:, 1], c.xyz[:, 2], c.sigma[:, 0], c.sigma[:, 1],
@@ -1052,11 +1302,28 @@ def write_project(scenario: Scenario, out_dir, *, format: str = "shp") -> Path:
         nodata=sc.dem_nodata, compress="deflate", predictor=3,
     ) as dst:
         dst.write(sc.dem_grid.astype(np.float32), 1)
-    (out / "README.md").write_text(describe(sc, layer_ext=format), encoding="utf-8")
+    (out / "README.md").write_text(describe(sc, layer_ext=format, reweight=reweight),
+                                   encoding="utf-8")
     return out / "project.toml"
 
 
-def describe(scenario: Scenario, layer_ext: str = "shp") -> str:
+def _write_camera(sc: Scenario, out: Path) -> str | None:
+    """Write (or copy) the scenario's camera file into ``out``; its name, or None."""
+    cal = sc.calibration
+    if cal is None:
+        return None
+    src = Path(cal.source) if cal.source else None
+    if (src is not None and src.is_file()
+            and CameraCalibration.from_file(src).to_dict() == cal.to_dict()):
+        dst = out / src.name
+        if not (dst.exists() and dst.resolve() == src.resolve()):
+            dst.write_bytes(src.read_bytes())
+        return src.name
+    (out / "camera.toml").write_text(_camera_toml(cal), encoding="utf-8")
+    return "camera.toml"
+
+
+def describe(scenario: Scenario, layer_ext: str = "shp", reweight: str = "none") -> str:
     """A Markdown description of the scenario (the written project's README).
 
     Parameters
@@ -1064,6 +1331,8 @@ def describe(scenario: Scenario, layer_ext: str = "shp") -> str:
     scenario : Scenario
     layer_ext : str
         Extension of the road layer files named in the text.
+    reweight : str
+        ``[adjustment] reweight`` of the written project (for the regenerate command).
 
     Returns
     -------
@@ -1091,7 +1360,7 @@ def describe(scenario: Scenario, layer_ext: str = "shp") -> str:
         "",
         "## Set-up",
         f"- CRS {sc.crs}; model centre E {sc.center[0]:.0f}, N {sc.center[1]:.0f}.",
-        f"- Camera: Wild RC10, f = {sc.camera.focal_length} mm, principal point (0, 0), "
+        f"- Camera: {_camera_text(sc)}, "
         f"23 x 23 cm format; photo scale 1:{PHOTO_SCALE:.0f}, flying height "
         f"{FLYING_HEIGHT:.1f} m above a terrain at about {TERRAIN_LEVEL:.0f} m, "
         f"{FORWARD_OVERLAP * 100:.0f} % forward overlap (base {BASE:.0f} m), "
@@ -1099,6 +1368,9 @@ def describe(scenario: Scenario, layer_ext: str = "shp") -> str:
         f"- {len(sc.images)} images; image coordinate sigma {sc.sigma_image} mm; a point is "
         f"measured on every image whose format (|x|, |y| < {FORMAT_HALF:.0f} mm) holds it, "
         "if at least two do.",
+    ]
+    lines += _physics_text(sc)
+    lines += [
         f"- Approximate exterior orientation in project.toml: true positions rounded to "
         f"metres, zero attitude, sigma_position {sc.images[0].sigma_position} m, "
         f"sigma_attitude {sc.images[0].sigma_attitude} deg.",
@@ -1186,11 +1458,63 @@ def describe(scenario: Scenario, layer_ext: str = "shp") -> str:
         "## Regenerate",
         "```",
         f"python -m vectoradjust.simulate OUT_DIR --seed {sc.seed} --images {len(sc.images)}"
-        + (f" --shape-points {o['n_shape_points']}" if o.get("n_shape_points") else ""),
+        + (f" --shape-points {o['n_shape_points']}" if o.get("n_shape_points") else "")
+        + _regenerate_options(sc, reweight),
         "```",
         "",
     ]
     return "\n".join(lines)
+
+
+def _camera_text(sc: Scenario) -> str:
+    cal = sc.calibration
+    if cal is None:
+        return f"Wild RC10, f = {sc.camera.focal_length} mm, principal point (0, 0)"
+    name = cal.name or "calibrated camera (SIMULATED)"
+    x0, y0 = cal.principal_point
+    return (f"{name}, camera file `{sc.options.get('camera_file') or 'camera.toml'}`, "
+            f"f = {cal.focal_length} mm, principal point ({x0:g}, {y0:g}) mm")
+
+
+def _physics_text(sc: Scenario) -> list:
+    cal = sc.calibration
+    if cal is None:
+        return []
+    labels = {"distortion": f"lens distortion ({cal.distortion_model})",
+              "refraction": "atmospheric refraction (ARDC 1959)",
+              "earth_curvature": "earth curvature"}
+    eff = ", ".join(labels[e] for e in sc.effects) or "none"
+    out = [
+        "- Image coordinates are in the fiducial frame: ideal coordinates about the "
+        "principal point, plus the principal point, plus the simulated effects: "
+        f"{eff}. Each effect is the exact inverse of its correction, with each image's "
+        "true flying height and each point's true terrain height; `[corrections]` in "
+        "project.toml switches on the corrections that undo them (using the approximate "
+        "ZL and the mean control height).",
+    ]
+    if sc.unit == "pixel":
+        o = sc.options
+        out.append(
+            "- Measured in scanner pixels (`[measurements] unit = \"pixel\"`, x = column, "
+            "y = row): every image has its own random scanner affine (film rotation, "
+            "placement, scale, shear); the calibrated fiducials are measured in pixels "
+            f"(`fiducials.csv`, noise {o.get('fiducial_sigma')} mm) and the image sigma is "
+            f"{float(sc.measurements.sigma[0, 0]):.4f} px.")
+    return out
+
+
+def _regenerate_options(sc: Scenario, reweight: str) -> str:
+    o = sc.options
+    text = ""
+    if sc.calibration is not None:
+        text += f" --camera {o.get('camera_file') or 'camera.toml'}"
+    if sc.effects:
+        text += f" --effects {','.join(sc.effects)}"
+    if sc.unit == "pixel":
+        text += " --scan"
+    if reweight != "none":
+        text += f" --reweight {reweight}"
+    return text
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -1217,12 +1541,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--images", type=int, default=2, help="images in the strip (>= 2)")
     parser.add_argument("--format", choices=("shp", "gpkg"), default="shp",
                         help="format of the road layers (default shp)")
+    parser.add_argument("--camera", default=None,
+                        help="camera TOML file (calibration) the image coordinates are made with")
+    parser.add_argument("--effects", default="",
+                        help="comma-separated physical effects in the image coordinates: "
+                        f"{', '.join(EFFECTS)} (need --camera)")
+    parser.add_argument("--scan", action="store_true",
+                        help="measure in scanner pixels with fiducials (needs --camera with "
+                        "fiducials and pixel_size)")
+    parser.add_argument("--reweight", choices=("none", "two-pass", "vce"), default="none",
+                        help="[adjustment] reweight written to the project (default none)")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
     try:
-        sc = make_scenario(args.seed, n_images=args.images, n_shape_points=args.shape_points)
-        path = write_project(sc, args.out_dir, format=args.format)
-    except ProjectError as exc:
+        cal = CameraCalibration.from_file(args.camera) if args.camera else None
+        sc = make_scenario(args.seed, n_images=args.images, n_shape_points=args.shape_points,
+                           calibration=cal, effects=args.effects, scan=args.scan)
+        path = write_project(sc, args.out_dir, format=args.format, reweight=args.reweight)
+    except VectorAdjustError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     pid = np.unique(sc.measurements.point_id)

@@ -13,12 +13,15 @@ from typing import Optional
 import numpy as np
 
 from vectoradjust.errors import CSVError, InputFileError
+from vectoradjust.interior import FiducialMeasurements
 from vectoradjust.model import ControlPoints, Measurements
 
-__all__ = ["read_measurements", "read_control", "read_truth_points", "parse_table"]
+__all__ = ["read_measurements", "read_control", "read_truth_points", "read_fiducials",
+           "parse_table"]
 
 MEASUREMENT_COLUMNS = ("point_id", "image_id", "x", "y")
 MEASUREMENT_OPTIONAL = ("sigma_x", "sigma_y")
+FIDUCIAL_COLUMNS = ("image_id", "fiducial_id", "x", "y")
 CONTROL_COLUMNS = ("point_id", "X", "Y", "Z", "sigma_x", "sigma_y", "sigma_z")
 CONTROL_OPTIONAL = ("role",)
 ROLES = ("control", "check")
@@ -134,14 +137,19 @@ def parse_table(
     return out
 
 
-def read_measurements(path: str, default_sigma: Optional[float] = None) -> Measurements:
-    """Read ``point_id,image_id,x,y[,sigma_x,sigma_y]`` (mm).
+def read_measurements(path: str, default_sigma: Optional[float] = None,
+                      unit: str = "mm") -> Measurements:
+    """Read ``point_id,image_id,x,y[,sigma_x,sigma_y]`` (mm, or pixels).
 
     Parameters
     ----------
     path : str
     default_sigma : float, optional
-        Sigma (mm) for rows without sigma columns (``[measurements] sigma``).
+        Sigma for rows without sigma columns (``[measurements] sigma``), in ``unit``.
+    unit : {"mm", "pixel"}
+        Unit of the coordinates and sigmas (``[measurements] unit``; pixels are
+        column, row). Only used in messages: the values are returned as read and
+        :func:`vectoradjust.interior.refine_measurements` converts them.
 
     Raises
     ------
@@ -162,14 +170,17 @@ def read_measurements(path: str, default_sigma: Optional[float] = None) -> Measu
     else:
         if default_sigma is None:
             raise CSVError(f"{path}: no sigma_x, sigma_y columns and no [measurements] sigma",
-                           "Add sigma = 0.015 (mm) to [measurements] in the project file",
+                           "Add sigma = 0.015 (mm) to [measurements] in the project file"
+                           if unit == "mm" else
+                           f"Add sigma = <{unit}s> to [measurements] in the project file",
                            path=path)
         sigma = np.full((k, 2), float(default_sigma))
     bad = np.flatnonzero(~(sigma > 0).all(axis=1))
     if bad.size:
         i = int(bad[0])
         raise CSVError(f"{path}, line {i + 2}: sigma must be positive, got {sigma[i].tolist()}",
-                       "Enter the standard deviation of the image coordinates in mm",
+                       "Enter the standard deviation of the image coordinates in "
+                       + ("pixels" if unit == "pixel" else unit),
                        path=path, details={"line": i + 2})
     pid = cols["point_id"].astype(str)
     iid = cols["image_id"].astype(str)
@@ -240,3 +251,46 @@ def read_truth_points(path: str) -> tuple[np.ndarray, np.ndarray]:
     header, rows = _read_rows(path)
     cols = parse_table(path, header, rows, ("point_id", "X", "Y", "Z"), numeric=("X", "Y", "Z"))
     return cols["point_id"].astype(str), np.column_stack([cols["X"], cols["Y"], cols["Z"]])
+
+
+def read_fiducials(path: str, unit: str = "pixel") -> FiducialMeasurements:
+    """Read measured fiducials ``image_id,fiducial_id,x,y``.
+
+    ``x, y`` are in the unit of the image measurements (``[measurements] unit``):
+    pixels (``x`` = column, ``y`` = row, the row axis pointing down) or comparator mm.
+    The fiducial ids are those of the camera's calibration report.
+
+    Parameters
+    ----------
+    path : str
+    unit : {"pixel", "mm"}
+        Only used in messages.
+
+    Returns
+    -------
+    FiducialMeasurements
+
+    Raises
+    ------
+    CSVError
+        Missing/extra columns, bad numbers, a fiducial measured twice on one image
+        (the lines are named).
+    """
+    header, rows = _read_rows(path)
+    cols = parse_table(path, header, rows, FIDUCIAL_COLUMNS, numeric=("x", "y"))
+    iid = cols["image_id"].astype(str)
+    fid = cols["fiducial_id"].astype(str)
+    key = np.char.add(np.char.add(iid, "\x1f"), fid)
+    _, first, counts = np.unique(key, return_index=True, return_counts=True)
+    if np.any(counts > 1):
+        dup_key = key[first[counts > 1][0]]
+        lines = cols["_line"][key == dup_key].tolist()
+        im, f = str(dup_key).split("\x1f")
+        raise CSVError(
+            f"{path}: fiducial {f!r} is measured on image {im!r} more than once (lines "
+            f"{', '.join(map(str, lines))})",
+            f"Keep one measurement ({unit}) per fiducial and image", path=path,
+            details={"lines": lines, "image_id": im, "fiducial_id": f},
+        )
+    return FiducialMeasurements(iid, fid, np.column_stack([cols["x"], cols["y"]]),
+                                source=str(path), rows=cols["_line"])
