@@ -162,6 +162,9 @@ def cmd_adjust(args) -> int:
     data = load_project_data(args.project, vectors=args.vectors)
     result = run(data, vectors=args.vectors, progress=bar)
     written = write_outputs(result, args.out, fmt=args.format)
+    from vectoradjust.report import write_report
+
+    written["report.html"] = str(write_report(result, Path(args.out) / "report.html"))
     if not args.quiet:
         print(f"vectoradjust adjust: {args.project}")
         _print_summary(result.summary)
@@ -187,15 +190,21 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
     if not spec.vectors:
         raise VectorAdjustError(f"{project}: there are no [[vectors]] entries to compare",
                                 "Add [[vectors]] entries (one per road database)")
+    from vectoradjust.report import write_compare_report, write_report
+
     data = load_project_data(spec)
     rows = []
+    runs = []
     out = Path(out_dir)
     for i, v in enumerate(spec.vectors):
         bar = ProgressBar(f"{v.name:>8s} ({i + 1}/{len(spec.vectors)})", enabled=not quiet)
         result = run(data, vectors=[v.name], progress=bar)
         write_outputs(result, out / v.name, fmt=fmt)
+        write_report(result, out / v.name / "report.html")
         rows.append(_compare_row(result.summary))
+        runs.append(result)
     out.mkdir(parents=True, exist_ok=True)
+    write_compare_report(runs, rows, out / "report.html")
     with open(out / "compare.csv", "w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=[k for k, _ in COMPARE_COLUMNS])
         w.writeheader()
@@ -210,7 +219,7 @@ def cmd_compare(args) -> int:
     rows = compare(args.project, args.out, fmt=args.format, quiet=args.quiet)
     print(f"vectoradjust compare: {args.project} (each database adjusted alone)")
     print_table(rows)
-    print(f"  wrote {Path(args.out) / 'compare.csv'}")
+    print(f"  wrote {Path(args.out) / 'compare.csv'} and {Path(args.out) / 'report.html'}")
     return 0
 
 
@@ -225,8 +234,10 @@ def cmd_demo(args) -> int:
     print("\n  each database alone (compare) ->", out / "compare")
     rows = compare(project, out / "compare", fmt=args.format, quiet=args.quiet)
     print_table(rows)
-    print("\n  (recovery = RMSE of residuals / RMSE of database - truth; improvement = 1 - "
+    print("\n  (RMSE x/y/z/h: of the residuals V = adjusted - database; recovery = the smaller "
+          "of RMSE(V) and RMSE(database - truth) over the larger; improvement = 1 - "
           "RMSE(adjusted - truth) / RMSE(database - truth))")
+    print(f"  reports: {out / 'all' / 'report.html'}, {out / 'compare' / 'report.html'}")
     return 0
 
 

@@ -149,6 +149,8 @@ def _degrees_att(eo: np.ndarray) -> np.ndarray:
 
 
 def _float_or_none(x) -> Optional[float]:
+    if x is None:
+        return None
     x = float(x)
     return x if np.isfinite(x) else None
 
@@ -461,6 +463,9 @@ def run(
         spec = spec_from_table(data.qa, source=data.source)
         out.control_points["QA"] = np.asarray(control_qa_field(out, spec), dtype=object)
     out.summary = _summary(out)
+    from vectoradjust.accuracy import accuracy_statements
+
+    out.summary["accuracy"] = accuracy_statements(out)
     report(1.0, "done")
     return out
 
