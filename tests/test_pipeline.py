@@ -241,3 +241,50 @@ def test_other_databases_measurements_do_not_become_tie_points(scenario):
     assert set(r.point_kind) == {"control", "shape", "tie"}
     assert (r.point_kind == "tie").sum() == len(scenario.tie_ids)
     assert any("left out" in w for w in r.summary["warnings"])
+
+
+# --------------------------------------------------------------------------- reliability, VCE
+def test_reliability_summary_and_redundancy_sum(scenario):
+    r = run(scenario.to_project_data())
+    rel = r.summary["reliability"]
+    assert rel["sum_of_redundancy_numbers"] == pytest.approx(r.summary["degrees_of_freedom"])
+    assert rel["critical_value"] == pytest.approx(3.2905, abs=1e-4)
+    assert rel["n_flagged"] == len(r.flagged)
+
+
+def test_snooping_removes_a_planted_blunder_and_names_its_line(scenario):
+    data = scenario.to_project_data()
+    m = data.measurements
+    # a 0.2 mm blunder in y of a control point measurement (y is well checked: r ~ 0.5)
+    k = int(np.flatnonzero(np.char.startswith(m.point_id.astype(str), "GCP"))[3])
+    xy = m.xy.copy()
+    xy[k, 1] += 0.2
+    data.measurements = replace(m, xy=xy)
+    data.settings.snooping = True
+    r = run(data)
+    removed = r.summary["data_snooping"]["removed"]
+    assert removed and removed[0]["point"] == m.point_id[k]
+    assert removed[0]["line"] == int(m.rows[k])
+    checks = data.control.point_id[data.control.role == "check"]
+    n_check_obs = int(np.isin(m.point_id, checks).sum())
+    assert len(r.problem.obs_point) == len(m.point_id) - n_check_obs - len(removed)
+    # after removal the control point is still adjusted from its other image
+    cp = r.control_points
+    j = list(cp["point_id"]).index(m.point_id[k])
+    assert cp["Used"][j] == 1
+
+
+def test_vce_estimates_each_databases_accuracy(scenario):
+    """The estimated horizontal sigma equals the true per-axis RMS of database - truth."""
+    data = scenario.to_project_data()
+    data.settings.reweight = "vce"
+    r = run(data)
+    groups = r.summary["variance_components"]["groups"]
+    assert groups["image"]["sigma"] == pytest.approx(0.015, rel=0.1)
+    for d in r.databases:
+        adj = d.vertices["Adjusted"] == 1
+        err = scenario.layers[d.name].coords[adj, :2] - scenario.truth[d.name][1][adj, :2]
+        true_axis = np.sqrt(np.mean(err**2))
+        assert groups[f"{d.name}:h"]["sigma"] == pytest.approx(true_axis, rel=0.1), d.name
+        assert d.sigma_used[0] == pytest.approx(groups[f"{d.name}:h"]["sigma"])
+    assert abs(r.summary["sigma0_squared"] - 1) < 0.05

@@ -164,7 +164,8 @@ def cmd_adjust(args) -> int:
     written = write_outputs(result, args.out, fmt=args.format)
     from vectoradjust.report import write_report
 
-    written["report.html"] = str(write_report(result, Path(args.out) / "report.html"))
+    written["report.html"] = str(write_report(result, Path(args.out) / "report.html",
+                                              reliability=result.reliability))
     if not args.quiet:
         print(f"vectoradjust adjust: {args.project}")
         _print_summary(result.summary)
@@ -200,7 +201,7 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
         bar = ProgressBar(f"{v.name:>8s} ({i + 1}/{len(spec.vectors)})", enabled=not quiet)
         result = run(data, vectors=[v.name], progress=bar)
         write_outputs(result, out / v.name, fmt=fmt)
-        write_report(result, out / v.name / "report.html")
+        write_report(result, out / v.name / "report.html", reliability=result.reliability)
         rows.append(_compare_row(result.summary))
         runs.append(result)
     out.mkdir(parents=True, exist_ok=True)

@@ -221,6 +221,10 @@ class AdjustmentSettings:
     tolerance_position: float = 1e-4
     tolerance_angle: float = 1e-8
     merge_tolerance: float = 0.001
+    snooping: bool = False
+    alpha0: float = 0.001
+    beta0: float = 0.2
+    max_removals: Optional[int] = None
 
 
 @dataclass

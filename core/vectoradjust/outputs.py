@@ -194,6 +194,21 @@ def _write_layer(gdf, path: Path, layer: Optional[str], fmt: str) -> None:
         gdf.to_file(path, driver="ESRI Shapefile", engine="pyogrio", encoding="UTF-8")
 
 
+FLAGGED_COLUMNS = ["kind", "image", "point", "point_kind", "component", "unit", "residual", "w",
+                   "redundancy", "suspected_error", "mdb", "line", "observation"]
+
+
+def _write_flagged(rows: list, path: Path) -> None:
+    """The flagged observations (w-test) as CSV, largest |w| first."""
+    import csv
+
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=FLAGGED_COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in FLAGGED_COLUMNS})
+
+
 def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
                   extra_json: Optional[dict] = None) -> dict:
     """Write ``adjusted.gpkg`` (or three shapefiles) and ``summary.json`` into ``out_dir``.
@@ -237,6 +252,9 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
             for name, gdf in frames.items():
                 _write_layer(gdf, tmp / f"{name}.shp", None, fmt)
                 names += [p.name for p in tmp.glob(f"{name}.*")]
+        if run.flagged:
+            _write_flagged(run.flagged, tmp / "flagged_observations.csv")
+            names.append("flagged_observations.csv")
         summary = dict(run.summary)
         if extra_json:
             summary.update(extra_json)

@@ -113,6 +113,8 @@ class AdjustmentRun:
     summary: dict
     warnings: list = field(default_factory=list)
     passes: list = field(default_factory=list)
+    reliability: object = None
+    flagged: list = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -412,12 +414,10 @@ def run(
     point_db_a = np.array(point_db, dtype=object).astype(str)
     passes: list = []
     n_pass = 2 if settings.reweight == "two-pass" and db_results else 1
-    if settings.reweight == "vce":
-        raise ProjectError(
-            f"{data.source}: [adjustment] reweight = 'vce' (variance component estimation) is not "
-            "available in this version",
-            "Use reweight = 'two-pass' or 'none'",
-        )
+    adjust_kwargs = {"max_iterations": settings.max_iterations,
+                     "tolerance_position": settings.tolerance_position,
+                     "tolerance_angle": settings.tolerance_angle,
+                     "is_cancelled": is_cancelled}
     result: Optional[BundleResult] = None
     for p in range(n_pass):
         report(0.1 + 0.4 * p / n_pass, f"adjustment pass {p + 1} of {n_pass}")
@@ -445,11 +445,41 @@ def run(
             problem = BundleProblem(problem.focal_length, problem.principal_point, eo0, eo_sigma,
                                     xyz0, prior_filled, weight, o_pt, o_img, o_xy, o_sig)
     assert result is not None
+    point_ids_a = np.array(point_ids, dtype=object).astype(str)
+    vce_info = None
+    if settings.reweight == "vce":
+        report(0.55, "variance component estimation")
+        problem, result, vce_info = _vce(problem, point_kind_a, point_db_a, db_results,
+                                         adjust_kwargs, warnings)
+        passes.append({"pass": "vce", "sigma0_squared": _float_or_none(result.sigma0_squared),
+                       "iterations": vce_info["iterations"],
+                       "sigma": {d.name: list(d.sigma_used) for d in db_results}})
+    snooping_info = None
+    if settings.snooping:
+        from vectoradjust.reliability import data_snooping
+
+        report(0.65, "data snooping")
+        sn = data_snooping(problem, alpha0=settings.alpha0, beta0=settings.beta0,
+                           max_removals=settings.max_removals, adjust_kwargs=adjust_kwargs)
+        snooping_info = _snooping_record(sn, point_ids_a, image_ids[img_used], meas, obs_rows)
+        kept = np.asarray(sn.point_index, np.int64)
+        remap = np.full(len(point_ids_a), -1, np.int64)
+        remap[kept] = np.arange(len(kept))
+        point_ids_a, point_kind_a, point_db_a = (a[kept] for a in
+                                                 (point_ids_a, point_kind_a, point_db_a))
+        for d in db_results:
+            d.vertex_point = np.where(d.vertex_point >= 0, remap[np.maximum(d.vertex_point, 0)],
+                                      -1)
+        obs_rows = obs_rows[np.asarray(sn.observation_index, np.int64)]
+        problem, result = sn.problem, sn.result
+        for rec in snooping_info["removed"]:
+            warnings.append(f"data snooping removed the measurement of point {rec['point']!r} on "
+                            f"image {rec['image']!r} (w = {rec['w']:.2f})")
     report(0.75, "intersecting check points and computing statistics")
 
     out = AdjustmentRun(
-        data=data, problem=problem, result=result, point_ids=np.array(point_ids, dtype=object)
-        .astype(str), point_kind=point_kind_a, point_database=point_db_a,
+        data=data, problem=problem, result=result, point_ids=point_ids_a,
+        point_kind=point_kind_a, point_database=point_db_a,
         image_ids=image_ids[img_used].tolist(), obs_rows=obs_rows, databases=db_results,
         control_points={}, summary={}, warnings=warnings, passes=passes,
     )
@@ -463,11 +493,99 @@ def run(
         spec = spec_from_table(data.qa, source=data.source)
         out.control_points["QA"] = np.asarray(control_qa_field(out, spec), dtype=object)
     out.summary = _summary(out)
+    out.summary["reliability"] = _reliability_summary(out, settings)
+    if vce_info is not None:
+        out.summary["variance_components"] = vce_info
+    if snooping_info is not None:
+        out.summary["data_snooping"] = snooping_info
     from vectoradjust.accuracy import accuracy_statements
 
     out.summary["accuracy"] = accuracy_statements(out)
     report(1.0, "done")
     return out
+
+
+# --------------------------------------------------------------------------- statistics
+MAX_FLAGGED_IN_SUMMARY = 1000
+
+
+def _reliability_summary(out: AdjustmentRun, settings) -> dict:
+    """Redundancy numbers, w-tests and flagged observations (Baarda, a-priori sigma0)."""
+    from vectoradjust.reliability import flagged_observations, reliability
+
+    rel = reliability(out.result, alpha0=settings.alpha0, beta0=settings.beta0)
+    out.reliability = rel
+    flagged = flagged_observations(rel, out.result, out.point_ids, out.image_ids,
+                                   out.point_kind)
+    meas = out.data.measurements
+    for f in flagged:
+        k = f.get("observation")
+        if f.get("kind") == "image" and k is not None:
+            f["line"] = int(meas.rows[out.obs_rows[int(k)]])
+    out.flagged = flagged
+    r_img = rel.r_image[np.isfinite(rel.r_image)]
+    return {
+        "test": "Baarda w-test with the a-priori sigma0 = 1",
+        "alpha0": settings.alpha0, "beta0": settings.beta0,
+        "critical_value": float(rel.critical), "delta0": float(rel.delta0),
+        "sum_of_redundancy_numbers": float(rel.sum_r), "degrees_of_freedom": int(rel.dof),
+        "mean_redundancy_image": _float_or_none(r_img.mean()) if r_img.size else None,
+        "n_flagged": len(flagged),
+        "flagged": flagged[:MAX_FLAGGED_IN_SUMMARY],
+        "flagged_truncated": len(flagged) > MAX_FLAGGED_IN_SUMMARY,
+    }
+
+
+def _vce(problem, point_kind, point_db, db_results, adjust_kwargs, warnings):
+    """Variance component estimation: image coordinates, GCPs, each database h / v."""
+    from vectoradjust.vce import variance_components
+
+    m = problem.n_points
+    labels = np.full((m, 3), "", dtype=object)
+    labels[point_kind == "control"] = "control"
+    for d in db_results:
+        sel = (point_kind == "shape") & (point_db == d.name)
+        labels[sel, :2] = f"{d.name}:h"
+        labels[sel, 2] = f"{d.name}:v"
+    v = variance_components(problem, "image", labels.astype(str), adjust_kwargs=adjust_kwargs)
+    for note in v.notes:
+        warnings.append(f"variance components: {note}")
+    if not v.converged:
+        warnings.append("variance component estimation did not converge; the last estimates are "
+                        "used")
+    for d in db_results:
+        h = v.sigma.get(f"{d.name}:h")
+        z = v.sigma.get(f"{d.name}:v")
+        d.sigma_used = (float(h if h is not None else d.sigma_used[0]),
+                        float(h if h is not None else d.sigma_used[1]),
+                        float(z if z is not None else d.sigma_used[2]))
+    info = {
+        "iterations": int(v.iterations), "converged": bool(v.converged),
+        "groups": {g: {"sigma": _float_or_none(v.sigma.get(g)),
+                       "sigma_initial": _float_or_none(v.sigma_initial.get(g)),
+                       "redundancy": _float_or_none(v.redundancy.get(g)),
+                       "count": int(v.count.get(g, 0)),
+                       "estimable": bool(v.estimable.get(g, False)),
+                       "unit": "mm" if g == "image" else "m"}
+                   for g in v.groups},
+        "notes": list(v.notes),
+    }
+    return v.problem, v.result, info
+
+
+def _snooping_record(sn, point_ids, image_ids, meas, obs_rows) -> dict:
+    removed = []
+    for rec in sn.removed:
+        r = dict(rec)
+        k = r.get("observation")
+        if k is not None:
+            r["line"] = int(meas.rows[obs_rows[int(k)]])
+        r["point"] = str(point_ids[int(r["point"])])
+        r["image"] = str(image_ids[int(r["image"])])
+        r["dropped_points"] = [str(point_ids[int(j)]) for j in r.get("dropped_points", [])]
+        removed.append({key: (val.tolist() if isinstance(val, np.ndarray) else val)
+                        for key, val in r.items()})
+    return {"removed": removed, "clean": bool(sn.clean), "iterations": int(sn.iterations)}
 
 
 # --------------------------------------------------------------------------- tables

@@ -258,6 +258,24 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
             raise _err(where, f"[adjustment] alpha must be in (0, 1), not {a}",
                        "Write alpha = 0.05")
         settings.alpha = a
+    if "snooping" in adj:
+        if not isinstance(adj["snooping"], bool):
+            raise _err(where, f"[adjustment] snooping must be true or false, not "
+                       f"{adj['snooping']!r}", "Write snooping = true")
+        settings.snooping = adj["snooping"]
+    for key in ("alpha0", "beta0"):
+        if key in adj:
+            v = _number(where, f"[adjustment] {key}", adj[key], positive=True)
+            if not v < 0.5:
+                raise _err(where, f"[adjustment] {key} must be in (0, 0.5), not {v}",
+                           f"Write {key} = {getattr(AdjustmentSettings, key)}")
+            setattr(settings, key, v)
+    if "max_removals" in adj:
+        mr = adj["max_removals"]
+        if isinstance(mr, bool) or not isinstance(mr, int) or mr < 0:
+            raise _err(where, f"[adjustment] max_removals must be a whole number >= 0, not {mr!r}",
+                       "Write max_removals = 10")
+        settings.max_removals = mr
     for key in ("tolerance_position", "tolerance_angle", "merge_tolerance"):
         if key in adj:
             setattr(settings, key, _number(where, f"[adjustment] {key}", adj[key], positive=True))
