@@ -99,7 +99,7 @@ def test_gpkg_output_and_summary(project_dir, tmp_path):
     import pyogrio
 
     layers = {name for name, _ in pyogrio.list_layers(out / "adjusted.gpkg")}
-    assert layers == {"shape_points", "features", "control_points"}
+    assert layers == {"shape_points", "features", "control_points", "uncertainty_bands"}
     cp = gpd.read_file(out / "adjusted.gpkg", layer="control_points")
     assert set(CONTRACT_CONTROL) <= set(cp.columns) and set(CONTROL_FIELDS) <= set(cp.columns)
     s = json.loads((out / "summary.json").read_text())

@@ -258,7 +258,13 @@ class BundleResult:
             ``sigma0^2 [D + Z S^-1 Z']`` with ``D`` block-diagonal ``N_pp^-1`` and
             ``Z = N_pp^-1 N_pe``; no full inverse of ``N`` is formed.
         """
-        pts = np.asarray(points, np.int64).reshape(-1)
+        pts_in = np.asarray(points, np.int64).reshape(-1)
+        pts, inverse = np.unique(pts_in, return_inverse=True)
+        if len(pts) != len(pts_in):  # repeated points: compute once, then expand
+            full = self.joint_covariance(pts)
+            idx = (3 * np.asarray(inverse).reshape(-1)[:, None] + np.arange(3)).ravel()
+            return full[np.ix_(idx, idx)]
+        pts = pts_in
         prob = self.problem
         n = prob.n_images
         p = len(pts)

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
 
-from vectoradjust import __version__, cli_qa
+from vectoradjust import __version__, cli_propagate, cli_qa
 from vectoradjust.errors import CancelledError, VectorAdjustError
 
 __all__ = ["main", "ProgressBar", "sample_project_dir"]
@@ -161,7 +161,8 @@ def cmd_adjust(args) -> int:
     bar(0.0, "reading inputs")
     data = load_project_data(args.project, vectors=args.vectors)
     result = run(data, vectors=args.vectors, progress=bar)
-    written = write_outputs(result, args.out, fmt=args.format)
+    written = write_outputs(result, args.out, fmt=args.format,
+                            bands=not getattr(args, "no_bands", False))
     from vectoradjust.report import write_report
 
     written["report.html"] = str(write_report(result, Path(args.out) / "report.html",
@@ -269,6 +270,8 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--out", required=True, help="output directory")
     a.add_argument("--vectors", action="append", metavar="NAME",
                    help="adjust only this [[vectors]] entry (repeatable)")
+    a.add_argument("--no-bands", action="store_true",
+                   help="do not write the uncertainty_bands layer (saves time on large runs)")
     common(a)
     a.set_defaults(func=cmd_adjust)
 
@@ -279,6 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_compare)
 
     cli_qa.add_parser(sub)
+    cli_propagate.add_parsers(sub)
     return p
 
 

@@ -24,7 +24,8 @@ __all__ = ["write_outputs", "shape_points_frame", "features_frame", "control_poi
 
 SHAPE_FIELDS = ["point_id", "feature_id", "X", "Y", "Z", "Vx", "Vy", "Vz", "AdjX", "AdjY", "AdjZ",
                 "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "NImages", "Adjusted", "Database"]
-FEATURE_FIELDS = ["NPts", "NAdj", "RMSE_X", "RMSE_Y", "RMSE_Z", "RMSE", "Length", "FirstX",
+FEATURE_FIELDS = ["NPts", "NAdj", "RMSE_X", "RMSE_Y", "RMSE_Z", "RMSE", "Length", "LengthSD",
+                  "LengthSDnc", "FirstX",
                   "FirstY", "LastX", "LastY", "Images", "ImgDate", "Database", "Problem"]
 CONTROL_FIELDS = ["point_id", "role", "X", "Y", "Z", "AdjX", "AdjY", "AdjZ", "Vx", "Vy", "Vz",
                   "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "NImages", "Used"]
@@ -210,7 +211,7 @@ def _write_flagged(rows: list, path: Path) -> None:
 
 
 def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
-                  extra_json: Optional[dict] = None) -> dict:
+                  extra_json: Optional[dict] = None, bands: bool = True) -> dict:
     """Write ``adjusted.gpkg`` (or three shapefiles) and ``summary.json`` into ``out_dir``.
 
     Parameters
@@ -221,6 +222,9 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
     fmt : {"gpkg", "shp"}
     extra_json : dict, optional
         More keys for summary.json.
+    bands : bool
+        Also write the ``uncertainty_bands`` layer (90 % G-band of every measured
+        road segment, Shi & Liu 2000).
 
     Returns
     -------
@@ -240,6 +244,10 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
         "features": features_frame(run),
         "control_points": control_points_frame(run),
     }
+    if bands and run.databases:
+        from vectoradjust.derived_io import uncertainty_bands_frame
+
+        frames["uncertainty_bands"] = uncertainty_bands_frame(run)
     tmp = Path(tempfile.mkdtemp(prefix=".vectoradjust-", dir=out))
     written = {}
     try:

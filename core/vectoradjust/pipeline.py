@@ -739,6 +739,12 @@ def _tabulate_database(out: AdjustmentRun, d: DatabaseResult) -> None:
         "ImgDate": np.array(date_txt, dtype=object)[inv] if nf else np.zeros(0, object),
         "Problem": problem_txt,
     }
+    # sigma of the adjusted length, with and without the covariances between points
+    from vectoradjust.derived import feature_length_sigma
+
+    sd, sd_nc = feature_length_sigma(out, d)
+    d.features["LengthSD"] = np.asarray(sd, float)
+    d.features["LengthSDnc"] = np.asarray(sd_nc, float)
     # ---- truth comparison (simulations)
     truth = out.data.truth.get(d.name)
     if truth is not None:
