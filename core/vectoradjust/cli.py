@@ -19,7 +19,7 @@ from typing import Optional
 from vectoradjust import __version__, cli_propagate, cli_qa
 from vectoradjust.errors import CancelledError, VectorAdjustError
 
-__all__ = ["main", "ProgressBar", "sample_project_dir"]
+__all__ = ["main", "ProgressBar", "sample_project_dir", "compare", "compare_row", "print_table"]
 
 
 class ProgressBar:
@@ -122,7 +122,8 @@ COMPARE_COLUMNS = [
 ]
 
 
-def _compare_row(summary: dict) -> dict:
+def compare_row(summary: dict) -> dict:
+    """One row of the comparison table (``compare.csv``) from a run's summary."""
     db = summary["databases"][0] if summary["databases"] else {}
     res = db.get("residuals", {})
     truth = db.get("truth") or {}
@@ -159,7 +160,10 @@ def cmd_adjust(args) -> int:
 
     bar = ProgressBar("adjust", enabled=not args.quiet)
     bar(0.0, "reading inputs")
-    data = load_project_data(args.project, vectors=args.vectors)
+    # every database is read, so that measurements of the databases not selected with
+    # --vectors are recognised as their shape points and left out (as in compare),
+    # not turned into tie points
+    data = load_project_data(args.project)
     result = run(data, vectors=args.vectors, progress=bar)
     written = write_outputs(result, args.out, fmt=args.format,
                             bands=not getattr(args, "no_bands", False))
@@ -203,7 +207,7 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
         result = run(data, vectors=[v.name], progress=bar)
         write_outputs(result, out / v.name, fmt=fmt)
         write_report(result, out / v.name / "report.html", reliability=result.reliability)
-        rows.append(_compare_row(result.summary))
+        rows.append(compare_row(result.summary))
         runs.append(result)
     out.mkdir(parents=True, exist_ok=True)
     write_compare_report(runs, rows, out / "report.html")

@@ -420,7 +420,7 @@ def run(
                      "is_cancelled": is_cancelled}
     result: Optional[BundleResult] = None
     for p in range(n_pass):
-        report(0.1 + 0.4 * p / n_pass, f"adjustment pass {p + 1} of {n_pass}")
+        report(0.1 + 0.6 * p / n_pass, f"adjustment pass {p + 1} of {n_pass}")
 
         def sub(frac, msg, p=p):
             report(0.1 + 0.6 * (p + frac) / n_pass, msg)

@@ -1,0 +1,1 @@
+"""The vectoradjust Processing algorithms."""

@@ -1,0 +1,267 @@
+"""Adjust road vectors: the photogrammetric adjustment of one road database."""
+
+import time
+
+from qgis.core import (
+    QgsFeatureSink,
+    QgsProcessing,
+    QgsProcessingOutputBoolean,
+    QgsProcessingOutputNumber,
+    QgsProcessingParameterDefinition,
+    QgsProcessingParameterFeatureSink,
+    QgsProcessingParameterFeatureSource,
+    QgsProcessingParameterField,
+    QgsProcessingParameterFileDestination,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterRasterLayer,
+    QgsProcessingParameterString,
+    QgsWkbTypes,
+)
+
+from .. import qgis_io, results
+from ..styles import style_output
+from . import inputs
+from .base import VectorAdjustAlgorithm, cancel_callback, check_cancelled, progress_callback
+
+HELP = """
+<p>Adjusts a road line layer (OSM, TIGER, TNM, any centrelines) with a photogrammetric
+bundle adjustment: the vertices of the roads (<i>shape points</i>) measured on a stereo pair
+or block of aerial images are adjusted together with the images' exterior orientation, tied to
+surveyed control points. The result tells, for every measured vertex, how far the database is
+from where the road really is (the residual), the adjusted position, and how sure that is
+(CE90/LE90 from the a-posteriori covariance).</p>
+<h3>Needs</h3>
+<ul>
+<li><b>Road line layer</b> (projected or any CRS; transformed to the ground CRS) and its
+<b>id field</b> (unique feature ids; empty = the 0-based feature index). Shape point ids are
+<code>&lt;feature id&gt;_&lt;vertex index&gt;</code>, the vertex index 0-based along the feature and
+continuing across parts (the ids <i>Extract shape points</i> writes).</li>
+<li><b>DEM</b> (optional): heights of the shape points by bilinear interpolation; without it
+the layer's Z values are used.</li>
+<li><b>Prior sigma</b> of the shape points (m, horizontal and vertical; default 10 m).</li>
+<li>Camera, images, measurements and control: see below.</li>
+</ul>
+{project_help}
+<p>If the project file has a <code>[[vectors]]</code> entry whose path is this layer's file,
+its name, id field, sigma, DEM and truth are used unless set here.</p>
+<h3>Writes</h3>
+<ul>
+<li><b>Adjusted shape points</b> (Point Z at the adjusted position): point_id, feature_id,
+database X, Y, Z, residuals Vx, Vy, Vz (adjusted - database), AdjX, AdjY, AdjZ, SigmaX/Y/Z,
+CE90, LE90, NImages, Adjusted (1/0; unmeasured vertices keep their database position).</li>
+<li><b>Adjusted road features</b>: every input feature with all its attributes and the adjusted
+geometry, plus NPts, NAdj, RMSE_X/Y/Z, RMSE (horizontal), Length, first/last point, Images,
+ImgDate.</li>
+<li><b>Control and check points</b>: surveyed and adjusted (check points: intersected from the
+adjusted images, not used in the adjustment) coordinates, residuals, CE90, LE90.</li>
+<li><b>Residual vectors</b>: a line from each measured vertex's database position to its
+adjusted position (the map view of a quiver plot; <i>Residual vector scale</i> exaggerates
+them).</li>
+<li>Numbers: sigma0^2 (variance factor), whether the chi-square test passed, RMSE of the
+residuals (horizontal) and of the check points; optionally the whole summary as JSON (the
+<code>summary.json</code> of the command line).</li>
+</ul>
+<p>The same numbers as <code>vectoradjust adjust PROJECT --vectors NAME</code>.</p>
+""".replace("{project_help}", inputs.PROJECT_HELP)
+
+
+class AdjustRoadVectors(VectorAdjustAlgorithm):
+    NAME = "adjustroadvectors"
+    DISPLAY = "Adjust road vectors"
+    SHORT = "Bundle adjustment of a road line layer: residuals, adjusted positions, CE90/LE90."
+    HELP = HELP
+
+    INPUT = "INPUT"
+    ID_FIELD = "ID_FIELD"
+    NAME_PARAM = "NAME"
+    DEM = "DEM"
+    SIGMA_XY = "SIGMA_XY"
+    SIGMA_Z = "SIGMA_Z"
+    RESIDUAL_SCALE = "RESIDUAL_SCALE"
+    SHAPE_POINTS = "SHAPE_POINTS"
+    FEATURES = "FEATURES"
+    CONTROL_POINTS = "CONTROL_POINTS"
+    RESIDUALS = "RESIDUALS"
+    SUMMARY = "SUMMARY"
+
+    def initAlgorithm(self, config=None):
+        self.addParameter(QgsProcessingParameterFeatureSource(
+            self.INPUT, "Road line layer", [QgsProcessing.TypeVectorLine]))
+        self.addParameter(QgsProcessingParameterField(
+            self.ID_FIELD, "Feature id field (empty: feature index)", parentLayerParameterName=
+            self.INPUT, optional=True))
+        self.addParameter(QgsProcessingParameterRasterLayer(
+            self.DEM, "DEM for the shape point heights", optional=True))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.SIGMA_XY, "Prior sigma of the shape points, horizontal [m] (default 10)",
+            QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.SIGMA_Z, "Prior sigma of the shape points, vertical [m] (default 10)",
+            QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
+        p = QgsProcessingParameterString(self.NAME_PARAM, "Database name (default: layer name)",
+                                         optional=True)
+        p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        self.addParameter(p)
+        inputs.add_project_parameters(self)
+        p = QgsProcessingParameterNumber(self.RESIDUAL_SCALE, "Residual vector scale",
+                                         QgsProcessingParameterNumber.Double, defaultValue=1.0,
+                                         minValue=0.0)
+        p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        self.addParameter(p)
+        # optional sinks, created by default in the dialog: qgis_process and models write
+        # only those that are given
+        for key, label, kind in (
+                (self.SHAPE_POINTS, "Adjusted shape points", QgsProcessing.TypeVectorPoint),
+                (self.FEATURES, "Adjusted road features", QgsProcessing.TypeVectorLine),
+                (self.CONTROL_POINTS, "Control and check points",
+                 QgsProcessing.TypeVectorPoint),
+                (self.RESIDUALS, "Residual vectors", QgsProcessing.TypeVectorLine)):
+            self.addParameter(QgsProcessingParameterFeatureSink(
+                key, label, kind, optional=True, createByDefault=True))
+        self.addParameter(QgsProcessingParameterFileDestination(
+            self.SUMMARY, "Summary (JSON)", "JSON files (*.json)", optional=True,
+            createByDefault=False))
+        for name, label in (("SIGMA0_SQUARED", "Variance factor sigma0^2"),
+                            ("DEGREES_OF_FREEDOM", "Degrees of freedom"),
+                            ("RMSE", "RMSE of the shape point residuals, horizontal [m]"),
+                            ("RMSE_CHECK", "RMSE of the check points, horizontal [m]"),
+                            ("MEAN_CE90", "Mean CE90 of the adjusted shape points [m]"),
+                            ("ITERATIONS", "Iterations")):
+            self.addOutput(QgsProcessingOutputNumber(name, label))
+        self.addOutput(QgsProcessingOutputBoolean("CHI_SQUARE_PASSED", "Chi-square test passed"))
+
+    # ------------------------------------------------------------------ run
+    def run_algorithm(self, parameters, context, feedback):
+        from vectoradjust.model import VectorSpec
+        from vectoradjust.pipeline import run as run_pipeline
+        from vectoradjust.tables import read_truth_points
+
+        t0 = time.perf_counter()
+        source = self.parameterAsSource(parameters, self.INPUT, context)
+        if source is None:
+            from qgis.core import QgsProcessingException
+
+            raise QgsProcessingException(self.invalidSourceError(parameters, self.INPUT))
+        vlayer = self.parameterAsVectorLayer(parameters, self.INPUT, context)
+        feedback.setProgressText("reading the inputs")
+        prj = inputs.project_inputs(self, parameters, context, feedback, source.sourceCrs())
+        entry = inputs.matching_vector_spec(prj, vlayer)
+        name = self.parameterAsString(parameters, self.NAME_PARAM, context).strip() or (
+            entry.name if entry else source.sourceName())
+        id_field = self.parameterAsString(parameters, self.ID_FIELD, context).strip() or (
+            entry.id_field if entry else None)
+        default_sigma = entry.sigma if entry else (10.0, 10.0, 10.0)
+        sxy = (self.parameterAsDouble(parameters, self.SIGMA_XY, context)
+               if parameters.get(self.SIGMA_XY) not in (None, "") else None)
+        sz = (self.parameterAsDouble(parameters, self.SIGMA_Z, context)
+              if parameters.get(self.SIGMA_Z) not in (None, "") else None)
+        sigma = (sxy if sxy is not None else default_sigma[0],
+                 sxy if sxy is not None else default_sigma[1],
+                 sz if sz is not None else default_sigma[2])
+        for s in sigma:
+            if not s > 0:
+                from vectoradjust.errors import ProjectError
+
+                raise ProjectError(f"The prior sigma of the shape points must be positive, not "
+                                   f"{s}", "Enter a sigma in metres (e.g. 10)")
+        where = f"road layer {source.sourceName()!r}"
+        line_layer, in_fields = qgis_io.read_line_source(source, name, id_field, prj.crs,
+                                                         context, where)
+        check_cancelled(feedback)
+        dem = self.parameterAsRasterLayer(parameters, self.DEM, context)
+        dem_name = None
+        if dem is None and entry is not None and entry.dem:
+            dem = inputs.raster_from_path(entry.dem, prj.source)
+        if dem is not None:
+            dem_name = dem.source()
+            feedback.setProgressText(f"sampling the DEM {dem.name()}")
+            line_layer.coords[:, 2] = qgis_io.dem_heights(
+                dem, line_layer.coords[:, :2], prj.crs, context, f"DEM {dem.name()!r}")
+        truth = {}
+        if entry is not None and entry.truth:
+            truth[name] = read_truth_points(entry.truth)
+        spec = VectorSpec(name=name, path=qgis_io.layer_path(vlayer) or where,
+                          id_field=id_field, sigma=sigma, dem=dem_name,
+                          truth=entry.truth if entry else None)
+        data = prj.project_data([(spec, line_layer)], truth)
+        feedback.setProgress(10)
+        out = run_pipeline(data, vectors=[name], progress=progress_callback(feedback, 10, 75),
+                           is_cancelled=cancel_callback(feedback))
+        check_cancelled(feedback)
+        for w in out.warnings:
+            feedback.pushWarning(w)
+        outputs = self._write(parameters, context, feedback, out, in_fields, source.wkbType(),
+                              prj.crs)
+        s = out.summary
+        outputs.update({
+            "SIGMA0_SQUARED": s["sigma0_squared"],
+            "DEGREES_OF_FREEDOM": s["degrees_of_freedom"],
+            "ITERATIONS": s["iterations"],
+            "CHI_SQUARE_PASSED": s["chi_square"].get("passed"),
+            "RMSE": s["shape_points"].get("rmse_horizontal"),
+            "RMSE_CHECK": s["check_points"].get("rmse_horizontal"),
+            "MEAN_CE90": s.get("mean_ce90"),
+        })
+        report_summary(feedback, s)
+        feedback.pushInfo(f"done in {time.perf_counter() - t0:.1f} s")
+        return outputs
+
+    def _write(self, parameters, context, feedback, out, in_fields, source_wkb, crs):
+        feedback.setProgressText("writing the outputs")
+        outputs = {}
+        scale = self.parameterAsDouble(parameters, self.RESIDUAL_SCALE, context)
+        specs = [
+            (self.SHAPE_POINTS, results.shape_fields(), QgsWkbTypes.PointZ,
+             results.shape_point_features, "shape_points"),
+            (self.FEATURES, results.feature_fields(in_fields),
+             results.feature_wkb_type(source_wkb), None, "features"),
+            (self.CONTROL_POINTS, results.control_fields(out), QgsWkbTypes.PointZ,
+             results.control_point_features, "control_points"),
+            (self.RESIDUALS, results.residual_fields(), QgsWkbTypes.LineStringZ, None,
+             "residuals"),
+        ]
+        for k, (key, fields, wkb, make, kind) in enumerate(specs):
+            sink, dest = self.parameterAsSink(parameters, key, context, fields, wkb, crs,
+                                              QgsFeatureSink.RegeneratePrimaryKey)
+            if sink is None:
+                continue
+            if key == self.FEATURES:
+                feats = results.feature_features(out, fields,
+                                                 QgsWkbTypes.isMultiType(wkb))
+            elif key == self.RESIDUALS:
+                feats = results.residual_features(out, fields, scale)
+            else:
+                feats = make(out, fields)
+            results.add_all(sink, feats, feedback, 85 + 3.5 * k, 3.5)
+            style_output(context, dest, kind)
+            outputs[key] = dest
+        summary_path = self.parameterAsFileOutput(parameters, self.SUMMARY, context)
+        if summary_path:
+            results.write_json(summary_path, out.summary)
+            outputs[self.SUMMARY] = summary_path
+        feedback.setProgress(100)
+        return outputs
+
+
+def report_summary(feedback, s):
+    """The run summary in the log, like the command line prints it."""
+    chi = s["chi_square"]
+    feedback.pushInfo(f"sigma0^2 = {_f(s['sigma0_squared'], 4)} with {s['degrees_of_freedom']} "
+                      f"degrees of freedom, {s['iterations']} iterations")
+    if chi.get("lower") is not None:
+        feedback.pushInfo(f"chi-square test (alpha = {chi['alpha']}): v'Pv = "
+                          f"{_f(chi['statistic'], 2)} in [{_f(chi['lower'], 2)}, "
+                          f"{_f(chi['upper'], 2)}]: {'passed' if chi['passed'] else 'FAILED'}")
+    for key, label in (("shape_points", "shape point residuals"),
+                       ("control_points", "control points"), ("check_points", "check points")):
+        r = s.get(key) or {}
+        if r.get("count"):
+            feedback.pushInfo(f"{label}: n = {r['count']}, RMSE x {_f(r['rmse_x'])}, y "
+                              f"{_f(r['rmse_y'])}, z {_f(r['rmse_z'])}, horizontal "
+                              f"{_f(r['rmse_horizontal'])} m")
+    if s.get("mean_ce90") is not None:
+        feedback.pushInfo(f"mean CE90 {_f(s['mean_ce90'])} m, mean LE90 {_f(s['mean_le90'])} m")
+
+
+def _f(v, nd=3):
+    return "-" if v is None else f"{float(v):.{nd}f}"

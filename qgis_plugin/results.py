@@ -1,0 +1,285 @@
+"""The adjustment's tables as QGIS features, mirroring :mod:`vectoradjust.outputs`.
+
+The layers have the contract's fields (``DESIGN.md`` section 9; the field lists are
+imported from :mod:`vectoradjust.outputs`, whose geopandas writers are never called
+here) and the same nulls: floats that are NaN become NULL, and the per-point
+statistics of unmeasured vertices are NULL. Geometries are Z-aware; an unknown Z is
+written as 0, as the headless writer does.
+"""
+
+import json
+import math
+import os
+
+import numpy as np
+from qgis.core import (
+    QgsCoordinateTransformContext,
+    QgsFeatureSink,
+    QgsField,
+    QgsFields,
+    QgsVectorFileWriter,
+    QgsWkbTypes,
+)
+from qgis.PyQt.QtCore import QVariant
+
+from .qgis_io import fields_for, line_z, new_feature, point_z
+
+_SHAPE_TYPES = {"point_id": "s", "feature_id": "s", "Database": "s", "NImages": "i",
+                "Adjusted": "i"}
+_FEATURE_TYPES = {"NPts": "i", "NAdj": "i", "Images": "s", "ImgDate": "s", "Database": "s",
+                  "Problem": "s"}
+_CONTROL_TYPES = {"point_id": "s", "role": "s", "NImages": "i", "Used": "i"}
+_MASKED = ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90")
+
+RESIDUAL_FIELDS = ["point_id", "feature_id", "Database", "Vx", "Vy", "Vz", "V", "Azimuth",
+                   "CE90", "LE90", "Scale"]
+_RESIDUAL_TYPES = {"point_id": "s", "feature_id": "s", "Database": "s"}
+
+
+def _outputs_module():
+    from vectoradjust import outputs
+
+    return outputs
+
+
+# --------------------------------------------------------------------------- fields
+def shape_fields():
+    """Fields of the ``shape_points`` layer."""
+    return fields_for(_outputs_module().SHAPE_FIELDS, _SHAPE_TYPES)
+
+
+def _control_columns(run=None):
+    """The ``control_points`` columns: the contract's, plus ``QA`` when the run has it
+    (as the headless writer adds it)."""
+    cols = list(_outputs_module().CONTROL_FIELDS)
+    if run is not None and "QA" in run.control_points:
+        cols.append("QA")
+    return cols
+
+
+def _kind(values):
+    kind = np.asarray(values).dtype.kind
+    return "f" if kind == "f" else "i" if kind in "iub" else "s"
+
+
+def control_fields(run=None):
+    """Fields of the ``control_points`` layer."""
+    types = dict(_CONTROL_TYPES)
+    if run is not None and "QA" in run.control_points:
+        types["QA"] = _kind(run.control_points["QA"])
+    return fields_for(_control_columns(run), types)
+
+
+def residual_fields():
+    """Fields of the residual vectors layer."""
+    return fields_for(RESIDUAL_FIELDS, _RESIDUAL_TYPES)
+
+
+def feature_fields(input_fields):
+    """Fields of the ``features`` layer: every input field, then the contract's.
+
+    Input fields whose names clash with ours (or ``geometry``) are renamed as the
+    headless writer renames them (``<first 7 characters>_in``).
+    """
+    ours = _outputs_module().FEATURE_FIELDS
+    fields = QgsFields()
+    for f in input_fields:
+        g = QgsField(f)
+        if f.name() in ours or f.name().lower() == "geometry":
+            g.setName(f.name()[:7] + "_in")
+        fields.append(g)
+    for f in fields_for(ours, _FEATURE_TYPES):
+        fields.append(f)
+    return fields
+
+
+def feature_wkb_type(source_wkb):
+    """Output type of the adjusted features: (Multi)LineString Z like the input."""
+    if QgsWkbTypes.isMultiType(source_wkb):
+        return QgsWkbTypes.MultiLineStringZ
+    return QgsWkbTypes.LineStringZ
+
+
+# --------------------------------------------------------------------------- values
+def _column(col, mask=None):
+    arr = np.asarray(col)
+    out = arr.astype(object)
+    if arr.dtype.kind == "f":
+        out[~np.isfinite(arr)] = None
+    if mask is not None:
+        out[~mask] = None
+    return out
+
+
+def shape_point_features(run, fields):
+    """Features of the ``shape_points`` layer (every vertex of every database)."""
+    names = _outputs_module().SHAPE_FIELDS
+    out = []
+    for d in run.databases:
+        v = d.vertices
+        adj = v["Adjusted"] == 1
+        cols = [_column(v[f], adj if f in _MASKED else None) for f in names]
+        for i in range(len(adj)):
+            out.append(new_feature(fields, [c[i] for c in cols],
+                                   point_z(v["AdjX"][i], v["AdjY"][i], v["AdjZ"][i])))
+    return out
+
+
+def _feature_parts(d):
+    """Adjusted vertex arrays per feature and part (as the headless writer splits them)."""
+    layer = d.shape.layer
+    parts = {}
+    if len(layer.coords) == 0:
+        return parts
+    adj = d.adjusted_coords
+    fi, part = layer.vertex_feature, layer.vertex_part
+    key = fi * 100000 + part
+    brk = np.flatnonzero(np.diff(key)) + 1
+    for s, e in zip(np.r_[0, brk], np.r_[brk, len(key)]):
+        parts.setdefault(int(fi[s]), []).append(adj[s:e])
+    return parts
+
+
+def feature_features(run, fields, multi):
+    """Features of the ``features`` layer: input attributes, contract fields, adjusted line."""
+    ours = _outputs_module().FEATURE_FIELDS
+    out = []
+    for d in run.databases:
+        layer = d.shape.layer
+        in_cols = list(layer.attributes.values())
+        cols = []
+        for f in ours:
+            if f == "Database":
+                cols.append([d.name] * layer.n_features)
+            else:
+                cols.append(_column(d.features[f]))
+        parts = _feature_parts(d)
+        for i in range(layer.n_features):
+            values = [c[i] for c in in_cols] + [c[i] for c in cols]
+            geom = line_z(parts.get(i, []), multi)
+            out.append(new_feature(fields, values, geom))
+    return out
+
+
+def control_point_features(run, fields):
+    """Features of the ``control_points`` layer (adjusted position, else surveyed)."""
+    c = run.control_points
+    names = _control_columns(run)
+    cols = [_column(c[f]) for f in names]
+    used = c["Used"] == 1
+    out = []
+    for i in range(len(used)):
+        if used[i]:
+            g = point_z(c["AdjX"][i], c["AdjY"][i], c["AdjZ"][i])
+        else:
+            g = point_z(c["X"][i], c["Y"][i], c["Z"][i])
+        out.append(new_feature(fields, [col[i] for col in cols], g))
+    return out
+
+
+def residual_features(run, fields, scale=1.0):
+    """Residual vectors: a line from the database position to the adjusted position.
+
+    ``scale`` exaggerates the vectors (end = database + scale * V) for a readable map;
+    the ``V*`` fields hold the true residuals.
+    """
+    from qgis.core import QgsGeometry, QgsLineString, QgsPoint
+
+    out = []
+    for d in run.databases:
+        v = d.vertices
+        for i in np.flatnonzero(v["Adjusted"] == 1):
+            x, y, z = float(v["X"][i]), float(v["Y"][i]), float(v["Z"][i])
+            vx, vy, vz = float(v["Vx"][i]), float(v["Vy"][i]), float(v["Vz"][i])
+            z0 = z if math.isfinite(z) else 0.0
+            dz = vz if math.isfinite(vz) else 0.0
+            line = QgsLineString([QgsPoint(x, y, z0),
+                                  QgsPoint(x + scale * vx, y + scale * vy, z0 + scale * dz)])
+            az = math.degrees(math.atan2(vx, vy)) % 360.0
+            values = [v["point_id"][i], v["feature_id"][i], d.name, vx, vy, vz,
+                      math.hypot(vx, vy), az, v["CE90"][i], v["LE90"][i], float(scale)]
+            out.append(new_feature(fields, values, QgsGeometry(line)))
+    return out
+
+
+def add_all(sink, features, feedback=None, start=0.0, span=0.0):
+    """Add features to a sink (or file writer) in batches."""
+    n = len(features)
+    step = 5000
+    for k in range(0, n, step):
+        if feedback is not None and feedback.isCanceled():
+            break
+        ok = sink.addFeatures(features[k:k + step], QgsFeatureSink.FastInsert)
+        if ok is False:
+            from vectoradjust.errors import InputFileError
+
+            msg = sink.lastError() if hasattr(sink, "lastError") else ""
+            raise InputFileError(f"Could not write the output features ({msg})",
+                                 "Choose another output file or format")
+        if feedback is not None and span:
+            feedback.setProgress(start + span * min(1.0, (k + step) / max(n, 1)))
+
+
+# --------------------------------------------------------------------------- files
+def clean_json(obj):
+    """NaN/inf -> None and numpy scalars -> Python, recursively (strict JSON)."""
+    if isinstance(obj, dict):
+        return {str(k): clean_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [clean_json(v) for v in obj]
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    return obj
+
+
+def write_json(path, obj):
+    """Write ``obj`` as indented strict JSON."""
+    d = os.path.dirname(os.path.abspath(path))
+    os.makedirs(d, exist_ok=True)
+    with open(path, "w", encoding="utf-8") as fh:
+        json.dump(clean_json(obj), fh, indent=2)
+
+
+def write_gpkg(path, layers, crs, transform_context=None):
+    """Write several layers into one GeoPackage (replacing the file).
+
+    Parameters
+    ----------
+    layers : list of (name, QgsFields, wkb type, list of QgsFeature)
+    crs : QgsCoordinateReferenceSystem
+    """
+    from vectoradjust.errors import InputFileError
+
+    if os.path.exists(path):
+        os.remove(path)
+    tc = transform_context or QgsCoordinateTransformContext()
+    for k, (name, fields, wkb, feats) in enumerate(layers):
+        opts = QgsVectorFileWriter.SaveVectorOptions()
+        opts.driverName = "GPKG"
+        opts.layerName = name
+        opts.fileEncoding = "UTF-8"
+        opts.actionOnExistingFile = (QgsVectorFileWriter.CreateOrOverwriteFile if k == 0 else
+                                     QgsVectorFileWriter.CreateOrOverwriteLayer)
+        writer = QgsVectorFileWriter.create(path, fields, wkb, crs, tc, opts)
+        if writer.hasError() != QgsVectorFileWriter.NoError:
+            raise InputFileError(f"Cannot write {path} (layer {name}): {writer.errorMessage()}",
+                                 "Choose a writable output folder")
+        add_all(writer, feats)
+        del writer
+
+
+def table_fields(columns, types):
+    """Fields of a plain table; ``types``: name -> 'f', 'i', 's' or 'b'."""
+    fields = QgsFields()
+    for c in columns:
+        t = types.get(c, "f")
+        if t == "b":
+            fields.append(QgsField(c, QVariant.Bool))
+        else:
+            fields.append(fields_for([c], {c: t})[0])
+    return fields

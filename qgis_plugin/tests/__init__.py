@@ -1,0 +1,1 @@
+"""Tests of the QGIS plugin (run inside Debian's QGIS)."""

@@ -1,0 +1,119 @@
+"""In-process reference inputs read WITHOUT the QGIS layer API.
+
+Road layers and the DEM are read with GDAL's own Python bindings (``osgeo``: the same
+GDAL library QGIS uses, so nothing second is loaded), the tables with the core's
+plain-Python readers (:mod:`vectoradjust.tables`), the project with
+:func:`vectoradjust.project.load_project`. Feeding these arrays to
+:func:`vectoradjust.pipeline.run` in the QGIS test process gives the numbers the plugin
+must reproduce exactly: it checks the plugin's layer -> array conversion.
+"""
+
+import numpy as np
+
+from vectoradjust.dem import bilinear
+from vectoradjust.interior import refine_measurements
+from vectoradjust.model import Camera, ControlPoints, LineLayer, ProjectData
+from vectoradjust.project import load_project
+from vectoradjust.tables import (
+    read_control,
+    read_fiducials,
+    read_measurements,
+    read_truth_points,
+)
+
+
+def _id_text(v):
+    if isinstance(v, float) and float(v).is_integer():
+        return str(int(v))
+    return str(v)
+
+
+def read_lines(path, name, id_field):
+    """A LineLayer of a shapefile (vertex order, ids and problems as the headless reader)."""
+    from osgeo import ogr
+
+    ds = ogr.Open(str(path))
+    lyr = ds.GetLayer(0)
+    defn = lyr.GetLayerDefn()
+    names = [defn.GetFieldDefn(i).GetName() for i in range(defn.GetFieldCount())]
+    attributes = {n: [] for n in names}
+    ids, problems = [], {}
+    coords, vf, vi, vp = [], [], [], []
+    for i, feat in enumerate(lyr):
+        for n in names:
+            attributes[n].append(feat.GetField(n))
+        ids.append(_id_text(feat.GetField(id_field)) if id_field else str(i))
+        g = feat.GetGeometryRef()
+        if g is None:
+            problems[i] = "null geometry"
+            continue
+        if g.IsEmpty():
+            problems[i] = "empty geometry"
+            continue
+        parts = [g.GetGeometryRef(k) for k in range(g.GetGeometryCount())] if \
+            g.GetGeometryCount() else [g]
+        count = 0
+        for pnum, part in enumerate(parts):
+            pts = np.array([part.GetPoint(k) for k in range(part.GetPointCount())], float)
+            if part.GetCoordinateDimension() == 2 or not len(pts):
+                pts = pts.reshape(-1, 3) if len(pts) else np.zeros((0, 3))
+                pts[:, 2] = np.nan
+            if not len(pts):
+                continue
+            coords.append(pts)
+            vf.append(np.full(len(pts), i))
+            vi.append(count + np.arange(len(pts)))
+            vp.append(np.full(len(pts), pnum))
+            count += len(pts)
+        if count == 0:
+            problems[i] = "empty geometry"
+    xyz = np.concatenate(coords) if coords else np.zeros((0, 3))
+
+    def cat(a):
+        return np.concatenate(a) if a else np.zeros(0, np.int64)
+
+    return LineLayer(name, np.asarray(ids, dtype=object).astype(str), attributes, xyz, cat(vf),
+                     cat(vi), cat(vp), problems, None, str(path))
+
+
+def dem_heights(path, xy):
+    """Bilinear DEM heights (band 1) with GDAL's reader."""
+    from osgeo import gdal
+
+    ds = gdal.Open(str(path))
+    band = ds.GetRasterBand(1)
+    grid = band.ReadAsArray().astype(float)
+    return bilinear(grid, ds.GetGeoTransform(), xy, nodata=band.GetNoDataValue())
+
+
+def project_data(project_path, names):
+    """ProjectData of the named [[vectors]] entries, read without the QGIS layer API."""
+    spec = load_project(project_path)
+    unit = spec.measurements.get("unit", "mm")
+    raw = read_measurements(spec.measurements["path"], spec.measurements.get("sigma"), unit=unit)
+    if spec.control is not None:
+        control = read_control(spec.control["path"])
+    else:
+        control = ControlPoints(np.zeros(0, str), np.zeros((0, 3)), np.zeros((0, 3)),
+                                np.zeros(0, str))
+    fid = spec.measurements.get("fiducials")
+    interior = refine_measurements(raw, spec.images, spec.camera, spec.corrections, unit=unit,
+                                   fiducials=read_fiducials(fid, unit) if fid else None,
+                                   control=control, map_projection=True)
+    vectors, truth = [], {}
+    for v in spec.vectors:
+        if v.name not in names:
+            continue
+        layer = read_lines(v.path, v.name, v.id_field)
+        if v.dem:
+            layer.coords[:, 2] = dem_heights(v.dem, layer.coords[:, :2])
+        vectors.append((v, layer))
+        if v.truth:
+            truth[v.name] = read_truth_points(v.truth)
+    camera = Camera(spec.camera.focal_length, interior.principal_point,
+                    calibration=spec.camera.calibration)
+    return ProjectData(crs=spec.crs, camera=camera, images=spec.images,
+                       measurements=interior.measurements, control=control, vectors=vectors,
+                       settings=spec.settings, truth=truth, corrections=spec.corrections,
+                       source=str(project_path), qa=spec.raw.get("qa"),
+                       interior=interior.report)

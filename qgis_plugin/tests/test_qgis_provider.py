@@ -1,0 +1,199 @@
+"""The provider, the plugin entry points, metadata, styles and the plugin zip."""
+
+import configparser
+import zipfile
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("qgis.core")
+
+pytestmark = pytest.mark.qgis
+
+PLUGIN = Path(__file__).resolve().parents[1]
+REPO = PLUGIN.parent
+ALGORITHMS = {
+    "vectoradjust:extractshapepoints": "Extract shape points",
+    "vectoradjust:adjustroadvectors": "Adjust road vectors",
+    "vectoradjust:compareroaddatabases": "Compare road databases",
+    "vectoradjust:bufferaccuracytest": "Buffer accuracy test",
+}
+
+
+def test_provider_and_algorithms(qgis_app):
+    from qgis.core import QgsApplication
+
+    provider = QgsApplication.processingRegistry().providerById("vectoradjust")
+    assert provider is not None and provider.name() == "vectoradjust"
+    assert not provider.icon().isNull()
+    algs = {a.id(): a for a in provider.algorithms()}
+    assert {k: a.displayName() for k, a in algs.items()} == ALGORITHMS
+    for alg in algs.values():
+        text = alg.shortHelpString()
+        assert "<h3>Needs</h3>" in text and "<h3>Writes</h3>" in text, alg.id()
+        assert alg.shortDescription()
+        assert alg.group() == "Road vector adjustment"
+        for p in alg.parameterDefinitions():
+            assert p.description(), (alg.id(), p.name())
+
+
+def test_adjust_parameters_and_outputs(qgis_app):
+    from qgis.core import QgsApplication
+
+    alg = QgsApplication.processingRegistry().algorithmById("vectoradjust:adjustroadvectors")
+    params = {p.name(): p for p in alg.parameterDefinitions()}
+    for name in ("INPUT", "ID_FIELD", "DEM", "MEASUREMENTS", "CONTROL", "PROJECT",
+                 "FOCAL_LENGTH", "PRINCIPAL_POINT_X", "PRINCIPAL_POINT_Y", "IMAGES",
+                 "SHAPE_POINTS", "FEATURES", "CONTROL_POINTS", "RESIDUALS"):
+        assert name in params, name
+    assert params["ID_FIELD"].parentLayerParameterName() == "INPUT"
+    outputs = {o.name(): o.type() for o in alg.outputDefinitions()}
+    assert outputs["SIGMA0_SQUARED"] == "outputNumber"
+    assert outputs["CHI_SQUARE_PASSED"] == "outputBoolean"
+    assert outputs["RMSE"] == "outputNumber"
+    for sink in ("SHAPE_POINTS", "FEATURES", "CONTROL_POINTS", "RESIDUALS"):
+        assert outputs[sink] == "outputVector"
+
+
+def test_metadata_complete():
+    cp = configparser.ConfigParser()
+    cp.read(PLUGIN / "metadata.txt", encoding="utf-8")
+    meta = cp["general"]
+    for key in ("name", "qgisMinimumVersion", "description", "about", "version", "author",
+                "email", "tracker", "repository", "tags", "icon", "hasProcessingProvider"):
+        assert meta.get(key), key
+    assert meta["qgisMinimumVersion"] == "3.22"
+    assert meta["hasProcessingProvider"] == "yes"
+    assert (PLUGIN / meta["icon"]).is_file()
+
+
+def test_class_factory_registers_and_unloads(qgis_app):
+    """classFactory -> initProcessing adds the provider; unload removes it."""
+    from qgis.core import QgsApplication
+
+    import qgis_plugin
+    from qgis_plugin.provider import VectorAdjustProvider
+
+    from . import conftest
+
+    registry = QgsApplication.processingRegistry()
+    registry.removeProvider(registry.providerById("vectoradjust"))
+    conftest._APP.pop("provider", None)
+    try:
+        plugin = qgis_plugin.classFactory(None)
+        plugin.initProcessing()
+        plugin.initProcessing()  # idempotent
+        assert registry.providerById("vectoradjust") is plugin.provider
+        assert registry.algorithmById("vectoradjust:adjustroadvectors") is not None
+        plugin.unload()
+        assert registry.providerById("vectoradjust") is None
+    finally:
+        provider = VectorAdjustProvider()
+        assert registry.addProvider(provider)
+        conftest._APP["provider"] = provider
+
+
+@pytest.mark.parametrize("qml,geometry,renderer,attribute", [
+    ("residual_arrows.qml", "LineStringZ", "singleSymbol", None),
+    ("shape_points_ce90.qml", "PointZ", "graduatedSymbol", "CE90"),
+    ("control_points_role.qml", "PointZ", "categorizedSymbol", "role"),
+    ("features_rmse.qml", "MultiLineStringZ", "graduatedSymbol", "RMSE"),
+    ("extracted_shape_points.qml", "PointZ", "singleSymbol", None),
+])
+def test_styles_load(qgis_app, qml, geometry, renderer, attribute):
+    from qgis.core import QgsVectorLayer
+
+    path = REPO / "resources" / "styles" / qml
+    assert path.is_file()
+    layer = QgsVectorLayer(f"{geometry}?crs=EPSG:32616&field=point_id:string&field=CE90:double&"
+                           "field=role:string&field=RMSE:double", "t", "memory")
+    msg, ok = layer.loadNamedStyle(str(path))
+    assert ok, msg
+    r = layer.renderer()
+    assert r.type() == renderer
+    if attribute:
+        assert r.classAttribute() == attribute
+    if qml == "residual_arrows.qml":
+        assert r.symbol().symbolLayer(0).layerType() == "ArrowLine"
+    if qml == "control_points_role.qml":
+        assert {c.value() for c in r.categories()} >= {"control", "check"}
+
+
+def test_styles_applied_to_loaded_outputs(qgis_app, sample):
+    """Outputs loaded into a project (the Processing dialog) get their QML style."""
+    import processing
+    from qgis.core import (
+        QgsProcessingContext,
+        QgsProcessingFeedback,
+        QgsProcessingOutputLayerDefinition,
+        QgsProject,
+    )
+
+    project = QgsProject.instance()
+    context = QgsProcessingContext()
+    context.setProject(project)
+    params = {"INPUT": str(sample / "osm_roads.shp"), "PROJECT": str(sample / "project.toml")}
+    for k in ("SHAPE_POINTS", "FEATURES", "CONTROL_POINTS", "RESIDUALS"):
+        params[k] = QgsProcessingOutputLayerDefinition("TEMPORARY_OUTPUT", project)
+    feedback = QgsProcessingFeedback()
+    out = processing.run("vectoradjust:adjustroadvectors", params, context=context,
+                         feedback=feedback)
+    expected = {"SHAPE_POINTS": "graduatedSymbol", "FEATURES": "graduatedSymbol",
+                "CONTROL_POINTS": "categorizedSymbol", "RESIDUALS": "singleSymbol"}
+    for key, renderer in expected.items():
+        # processing.run hands the layer objects back (taken out of the context)
+        layer = out[key] if not isinstance(out[key], str) else context.getMapLayer(out[key])
+        assert context.willLoadLayerOnCompletion(layer.id()), key
+        details = context.layerToLoadOnCompletionDetails(layer.id())
+        assert details.postProcessor() is not None, key
+        details.postProcessor().postProcessLayer(layer, context, feedback)
+        assert layer.renderer().type() == renderer, key
+
+
+def test_build_zip(tmp_path):
+    from qgis_plugin import build_zip
+
+    path = Path(build_zip.build(str(tmp_path)))
+    assert path.name == f"vectoradjust_qgis-{build_zip.version()}.zip"
+    with zipfile.ZipFile(path) as zf:
+        names = set(zf.namelist())
+    for must in ("vectoradjust_qgis/__init__.py", "vectoradjust_qgis/metadata.txt",
+                 "vectoradjust_qgis/icon.png", "vectoradjust_qgis/provider.py",
+                 "vectoradjust_qgis/algorithms/adjust.py",
+                 "vectoradjust_qgis/styles/residual_arrows.qml",
+                 "vectoradjust_qgis/ext/vectoradjust/pipeline.py",
+                 "vectoradjust_qgis/ext/vectoradjust/bundle.py"):
+        assert must in names, must
+    assert not any("/tests/" in n or "__pycache__" in n or n.endswith(".pyc") for n in names)
+    assert all(n.startswith("vectoradjust_qgis/") for n in names)
+
+
+def test_zip_installs_and_runs(qgis_app, sample, tmp_path):
+    """The zip's plugin (with its vendored core) loads in a clean Python and lists its
+    algorithms: the core it carries is complete."""
+    import os
+    import subprocess
+    import sys
+
+    from qgis_plugin import build_zip
+
+    path = build_zip.build(str(tmp_path / "dist"))
+    with zipfile.ZipFile(path) as zf:
+        zf.extractall(tmp_path / "plugins")
+    code = (
+        "import sys\n"
+        "from qgis.core import QgsApplication\n"
+        "app = QgsApplication([], False); app.initQgis()\n"
+        "import vectoradjust_qgis as p\n"
+        "plugin = p.classFactory(None); plugin.initProcessing()\n"
+        "import vectoradjust, vectoradjust.pipeline\n"
+        "assert vectoradjust.__file__.startswith(sys.argv[1]), vectoradjust.__file__\n"
+        "print(sorted(a.id() for a in plugin.provider.algorithms()))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["PYTHONPATH"] = str(tmp_path / "plugins")
+    env["QT_QPA_PLATFORM"] = "offscreen"
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "plugins")],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "vectoradjust:adjustroadvectors" in proc.stdout
