@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import Optional
 
 from vectoradjust import __version__, cli_propagate, cli_qa
-from vectoradjust.errors import CancelledError, VectorAdjustError
+from vectoradjust.clitools import run_command
+from vectoradjust.errors import VectorAdjustError
 
 __all__ = ["main", "ProgressBar", "sample_project_dir", "compare", "compare_row", "print_table"]
 
@@ -294,17 +295,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     """Entry point of the ``vectoradjust`` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except CancelledError as exc:
-        print(f"\nvectoradjust: cancelled: {exc}", file=sys.stderr)
-        return 130
-    except VectorAdjustError as exc:
-        print(f"\nvectoradjust: error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("\nvectoradjust: interrupted", file=sys.stderr)
-        return 130
+    return run_command(args)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -18,7 +18,6 @@ vectoradjust.cli_propagate`` runs them alone.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -28,40 +27,9 @@ from typing import Optional
 
 import numpy as np
 
-from vectoradjust.errors import CancelledError, InputFileError, VectorAdjustError
+from vectoradjust.clitools import run_command, write_json
 
 __all__ = ["add_parsers", "cmd_propagate", "cmd_equal_error", "cmd_two_step", "main"]
-
-
-def _clean(obj):
-    """JSON-ready copy: numpy scalars and arrays to Python, NaN/inf to None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
-
-
-def _write_json(out_dir, name: str, payload: dict) -> Path:
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        path = out / name
-        with open(path, "w", encoding="utf-8") as fh:
-            json.dump(_clean(payload), fh, indent=2)
-    except OSError as exc:
-        raise InputFileError(f"Cannot write {name} in {str(out)!r} ({exc})",
-                             "Choose a writable directory with --out") from exc
-    return path
 
 
 def _adjust(project: str, quiet: bool):
@@ -125,7 +93,7 @@ def cmd_propagate(args) -> int:
               f"{v.sigma_no_cov:.4f} m without (ratio {_f(ratio, 3)})")
     payload["results"] = [v.to_dict() for v in results]
     payload["seconds"] = time.perf_counter() - t0
-    path = _write_json(args.out, "propagate.json", payload)
+    path = write_json(args.out, "propagate.json", payload)
     print(f"  wrote {path}")
     return 0
 
@@ -163,7 +131,7 @@ def cmd_equal_error(args) -> int:
     payload = {"project": str(args.project), "images": list(pair), "heights": dem or "mean",
                "transform": list(grid.transform), "shape": list(grid.X.shape), **rng,
                "seconds": time.perf_counter() - t0}
-    path = _write_json(out, "equal_error.json", payload)
+    path = write_json(out, "equal_error.json", payload)
     print(f"vectoradjust equal-error: {args.project}, images {pair[0]} and {pair[1]}, "
           f"{rng['nodes']} nodes at {args.spacing:g} m, heights from {dem or 'the mean terrain'}")
     for name in ("sigma_x", "sigma_y", "sigma_h", "sigma_z"):
@@ -211,7 +179,7 @@ def cmd_two_step(args) -> int:
     c["seconds"] = time.perf_counter() - t0
     print(f"vectoradjust two-step: {args.project}")
     print(format_two_step(c))
-    path = _write_json(args.out, "two_step.json", c)
+    path = write_json(args.out, "two_step.json", c)
     print(f"  wrote {path}")
     return 0
 
@@ -291,14 +259,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     sub.required = True
     add_parsers(sub)
     args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except CancelledError as exc:
-        print(f"\nvectoradjust: cancelled: {exc}", file=sys.stderr)
-        return 130
-    except VectorAdjustError as exc:
-        print(f"\nvectoradjust: error: {exc}", file=sys.stderr)
-        return 1
+    return run_command(args)
 
 
 if __name__ == "__main__":  # pragma: no cover

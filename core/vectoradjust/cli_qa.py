@@ -13,16 +13,14 @@ vectoradjust.cli_qa`` runs it alone.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
-
-from vectoradjust.errors import CancelledError, InputFileError, VectorAdjustError
+from vectoradjust.clitools import run_command, write_json
+from vectoradjust.errors import VectorAdjustError
 
 __all__ = ["add_parser", "cmd_qa", "format_report", "write_qa_json", "main"]
 
@@ -72,24 +70,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return q
 
 
-def _clean(obj):
-    """JSON-ready copy: numpy scalars to Python, NaN/inf to None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    return obj
-
-
 def write_qa_json(report: dict, out_dir, extra: Optional[dict] = None) -> Path:
     """Write ``qa.json`` (verdict and non-conformities first) into ``out_dir``.
 
@@ -106,21 +86,10 @@ def write_qa_json(report: dict, out_dir, extra: Optional[dict] = None) -> Path:
     -------
     pathlib.Path
     """
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputFileError(f"Cannot create the output directory {str(out)!r} ({exc})",
-                             "Choose a writable directory with --out") from exc
     doc = dict(report)
     if extra:
         doc.update(extra)
-    path = out / "qa.json"
-    tmp = out / ".qa.json.tmp"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(_clean(doc), fh, indent=2, allow_nan=False)
-    tmp.replace(path)
-    return path
+    return write_json(out_dir, "qa.json", doc)
 
 
 def _f(v, nd: int = 3) -> str:
@@ -259,14 +228,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if not argv or argv[0] != "qa":
         argv = ["qa", *argv]
     args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except CancelledError as exc:
-        print(f"\nvectoradjust: cancelled: {exc}", file=sys.stderr)
-        return 130
-    except VectorAdjustError as exc:
-        print(f"\nvectoradjust: error: {exc}", file=sys.stderr)
-        return 1
+    return run_command(args)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -16,6 +16,7 @@ from typing import Optional
 
 import numpy as np
 
+from vectoradjust.clitools import clean_json
 from vectoradjust.errors import InputFileError
 from vectoradjust.pipeline import AdjustmentRun
 
@@ -45,22 +46,6 @@ def json_default(o):
     if isinstance(o, Path):
         return str(o)
     raise TypeError(f"not JSON serialisable: {type(o)}")
-
-
-def _clean(obj):
-    """Replace NaN/inf floats by None recursively (strict JSON)."""
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
 
 
 def _nullable(col: np.ndarray, mask: Optional[np.ndarray] = None):
@@ -267,7 +252,7 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
         if extra_json:
             summary.update(extra_json)
         with open(tmp / "summary.json", "w", encoding="utf-8") as fh:
-            json.dump(_clean(summary), fh, indent=2, default=json_default)
+            json.dump(clean_json(summary), fh, indent=2, default=json_default)
         names.append("summary.json")
         for n in names:
             os.replace(tmp / n, out / n)

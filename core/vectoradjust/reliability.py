@@ -44,7 +44,13 @@ from typing import Optional
 import numpy as np
 from scipy.stats import norm
 
-from vectoradjust.bundle import BundleProblem, BundleResult, adjust, inv3x3
+from vectoradjust.bundle import (
+    BundleProblem,
+    BundleResult,
+    _group_observations,
+    adjust,
+    inv3x3,
+)
 from vectoradjust.errors import AdjustmentError, SingularityError
 
 __all__ = [
@@ -199,30 +205,6 @@ class Reliability:
 
 
 # --------------------------------------------------------------------------- cofactors
-def _image_sets(obs_point: np.ndarray, obs_image: np.ndarray, n_points: int):
-    """Group the points by the set of images that observe them.
-
-    Returns a list of ``(images (c,), points (g,), obs (g, c))``; within a point the
-    observations are in image order. Points without observations are in no group.
-    """
-    order = np.lexsort((obs_image, obs_point))
-    counts = np.bincount(obs_point, minlength=n_points)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    groups = []
-    for c in np.unique(counts[counts > 0]):
-        pts = np.flatnonzero(counts == c)
-        obs_mat = order[starts[pts][:, None] + np.arange(c)[None, :]]
-        img_mat = obs_image[obs_mat]
-        keys, inverse = np.unique(img_mat, axis=0, return_inverse=True)
-        inverse = np.asarray(inverse).reshape(-1)
-        sort = np.argsort(inverse, kind="stable")
-        bounds = np.searchsorted(inverse[sort], np.arange(len(keys) + 1))
-        for g in range(len(keys)):
-            sel = sort[bounds[g]: bounds[g + 1]]
-            groups.append((keys[g], pts[sel], obs_mat[sel]))
-    return groups
-
-
 def _cofactors(result: BundleResult):
     """Diagonal of ``A Q_xx A'`` for the image observations and ``Q_pp`` of every point.
 
@@ -243,7 +225,8 @@ def _cofactors(result: BundleResult):
     q_point = npp_inv.copy()
     aqa = np.zeros((len(prob.obs_point), 2))
     six = np.arange(6)
-    for imgs, pts, obs in _image_sets(prob.obs_point, prob.obs_image, prob.n_points):
+    groups = _group_observations(prob.obs_point, prob.obs_image, prob.n_points)
+    for imgs, pts, obs in zip(groups.images, groups.points, groups.obs):
         c = len(imgs)
         sg = sinv4[np.ix_(imgs, six, imgs, six)].reshape(6 * c, 6 * c)
         sdiag = sinv4[imgs, :, imgs, :]  # (c, 6, 6): Q_ee(i, i)
