@@ -170,8 +170,16 @@ def cmd_adjust(args) -> int:
                             bands=not getattr(args, "no_bands", False))
     from vectoradjust.report import write_report
 
+    qa_doc = None
+    if data.qa:  # [qa] in the project: the accuracy-control verdict goes with the outputs
+        from vectoradjust.cli_qa import write_qa_json
+        from vectoradjust.qa_run import accuracy_control, spec_from_table
+
+        qa_doc = accuracy_control(result, spec_from_table(data.qa, source=data.source)).as_dict()
+        written["qa.json"] = str(write_qa_json(qa_doc, args.out,
+                                               extra={"project": str(args.project)}))
     written["report.html"] = str(write_report(result, Path(args.out) / "report.html",
-                                              reliability=result.reliability))
+                                              reliability=result.reliability, qa=qa_doc))
     if not args.quiet:
         print(f"vectoradjust adjust: {args.project}")
         _print_summary(result.summary)

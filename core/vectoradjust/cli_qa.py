@@ -207,15 +207,19 @@ def cmd_qa(args) -> int:
                                 "Give the pixel size in millimetres, e.g. --pixel-size 0.012")
     bar = ProgressBar("qa", enabled=not args.quiet)
     bar(0.0, "reading inputs")
-    data = load_project_data(project, vectors=args.vectors)
+    data = load_project_data(project)
     result = run(data, vectors=args.vectors, progress=bar)
     report = accuracy_control(result, spec, pixel_size=args.pixel_size, pairs=args.pairs,
                               point_rule=args.point_rule)
     doc = report.as_dict()
     path = write_qa_json(doc, args.out, extra={"project": str(args.project)})
+    from vectoradjust.report import write_report
+
+    html = write_report(result, Path(args.out) / "report.html", qa=doc,
+                        reliability=result.reliability)
     print(f"vectoradjust qa: {args.project}")
     print(format_report(doc))
-    print(f"  wrote {path}")
+    print(f"  wrote {path} and {html}")
     return 0
 
 
