@@ -272,3 +272,18 @@ def test_cli_reports_user_errors_without_traceback(copy, capsys):
 def test_every_error_class_is_a_vectoradjust_error():
     for cls in (CSVError, CRSError, DEMError, LayerError, ControlError, MeasurementError):
         assert issubclass(cls, VectorAdjustError)
+
+
+def test_adjust_with_qa_table_writes_verdict_and_qa_field(copy):
+    text = (copy / "project.toml").read_text()
+    (copy / "project.toml").write_text(
+        text + '\n[qa]\nproduct = "topographic map"\nmap_scale = 2000\ncontour_interval = 1.0\n')
+    out = copy / "out"
+    assert main(["adjust", str(copy / "project.toml"), "--out", str(out), "-q",
+                 "--no-bands"]) == 0
+    qa = json.loads((out / "qa.json").read_text())
+    assert "verdict" in qa
+    cp = gpd.read_file(out / "adjusted.gpkg", layer="control_points")
+    assert set(cp["QA"]) <= {"pass", "fail", "", None}
+    assert (cp["QA"] == "pass").sum() > 20
+    assert "Quality assurance" in (out / "report.html").read_text()
