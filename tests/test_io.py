@@ -287,3 +287,24 @@ def test_adjust_with_qa_table_writes_verdict_and_qa_field(copy):
     assert set(cp["QA"]) <= {"pass", "fail", "", None}
     assert (cp["QA"] == "pass").sum() > 20
     assert "Quality assurance" in (out / "report.html").read_text()
+
+
+def test_buffer_test_cli_and_truth_comparison(project_dir, tmp_path, capsys):
+    """Shares inside buffers of the true centrelines rise after the adjustment."""
+    out = tmp_path / "buf.csv"
+    assert main(["buffer-test", str(project_dir / "osm_roads.shp"),
+                 str(project_dir / "truth_roads.shp"), "--widths", "1,2,500",
+                 "--out", str(out)]) == 0
+    rows = out.read_text().splitlines()
+    assert rows[0] == "width,share,length_inside,length_total"
+    assert float(rows[3].split(",")[1]) == pytest.approx(1.0)  # everything within 500 m
+    assert main(["buffer-test", str(project_dir / "osm_roads.shp"),
+                 str(project_dir / "gcps.csv")]) == 1
+    cmp_dir = tmp_path / "cmp"
+    assert main(["compare", str(project_dir / "project.toml"), "--out", str(cmp_dir), "-q"]) == 0
+    s = json.loads((cmp_dir / "OSM" / "summary.json").read_text())
+    buf = s["databases"][0]["truth"]["buffer"]
+    assert buf["widths"] == [1.0, 2.0]
+    assert buf["after"][0] > 0.8 > buf["before"][0]
+    header = (cmp_dir / "compare.csv").read_text().splitlines()[0]
+    assert header.endswith("in_1m_before,in_1m_after,in_2m_before,in_2m_after")

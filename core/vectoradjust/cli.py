@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
 
-from vectoradjust import __version__, cli_propagate, cli_qa
+from vectoradjust import __version__, cli_buffer, cli_propagate, cli_qa
 from vectoradjust.clitools import run_command
 from vectoradjust.errors import VectorAdjustError
 
@@ -139,14 +139,39 @@ def compare_row(summary: dict) -> dict:
         "recovery": truth.get("recovery_rate"),
         "adjusted_truth_rmse": truth.get("rmse_adjusted_truth_horizontal"),
         "improvement": truth.get("improvement"),
+        **_buffer_columns(truth.get("buffer")),
     }
+
+
+def _buffer_columns(buf) -> dict:
+    """``in 1m before`` / ``in 1m after`` ... from a truth buffer test (shares, 0-1)."""
+    if not buf:
+        return {}
+    out = {}
+    for w, b, a in zip(buf["widths"], buf["before"], buf["after"]):
+        out[f"in_{w:g}m_before"] = b
+        out[f"in_{w:g}m_after"] = a
+    return out
+
+
+def compare_columns(rows: list) -> list:
+    """The table's (key, heading) pairs: the fixed columns, then any buffer-test shares."""
+    cols = list(COMPARE_COLUMNS)
+    known = {k for k, _ in cols}
+    for r in rows:
+        for k in r:
+            if k not in known:
+                known.add(k)
+                cols.append((k, k.replace("in_", "in ").replace("_", " ")))
+    return cols
 
 
 def print_table(rows: list, out=None) -> None:
     """Print the side-by-side comparison table."""
     out = out or sys.stdout
-    heads = [h for _, h in COMPARE_COLUMNS]
-    cells = [[_fmt(r.get(k)) if k != "database" else str(r.get(k)) for k, _ in COMPARE_COLUMNS]
+    cols = compare_columns(rows)
+    heads = [h for _, h in cols]
+    cells = [[_fmt(r.get(k)) if k != "database" else str(r.get(k)) for k, _ in cols]
              for r in rows]
     widths = [max(len(h), *(len(c[i]) for c in cells)) for i, h in enumerate(heads)]
     print("  ".join(h.rjust(w) for h, w in zip(heads, widths)), file=out)
@@ -158,14 +183,19 @@ def cmd_adjust(args) -> int:
     from vectoradjust.io import load_project_data
     from vectoradjust.outputs import write_outputs
     from vectoradjust.pipeline import run
+    from vectoradjust.project import load_project
 
     bar = ProgressBar("adjust", enabled=not args.quiet)
     bar(0.0, "reading inputs")
     # every database is read, so that measurements of the databases not selected with
     # --vectors are recognised as their shape points and left out (as in compare),
     # not turned into tie points
-    data = load_project_data(args.project)
+    spec = load_project(args.project)
+    data = load_project_data(spec)
     result = run(data, vectors=args.vectors, progress=bar)
+    truth = cli_buffer.project_truth(spec)
+    if truth is not None:  # true centrelines: buffer test before/after the adjustment
+        cli_buffer.truth_buffer(result, *truth)
     written = write_outputs(result, args.out, fmt=args.format,
                             bands=not getattr(args, "no_bands", False))
     from vectoradjust.report import write_report
@@ -208,12 +238,15 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
     from vectoradjust.report import write_compare_report, write_report
 
     data = load_project_data(spec)
+    truth = cli_buffer.project_truth(spec)
     rows = []
     runs = []
     out = Path(out_dir)
     for i, v in enumerate(spec.vectors):
         bar = ProgressBar(f"{v.name:>8s} ({i + 1}/{len(spec.vectors)})", enabled=not quiet)
         result = run(data, vectors=[v.name], progress=bar)
+        if truth is not None:
+            cli_buffer.truth_buffer(result, *truth)
         write_outputs(result, out / v.name, fmt=fmt)
         write_report(result, out / v.name / "report.html", reliability=result.reliability)
         rows.append(compare_row(result.summary))
@@ -221,10 +254,11 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
     out.mkdir(parents=True, exist_ok=True)
     write_compare_report(runs, rows, out / "report.html")
     with open(out / "compare.csv", "w", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=[k for k, _ in COMPARE_COLUMNS])
+        cols = compare_columns(rows)
+        w = csv.DictWriter(fh, fieldnames=[k for k, _ in cols])
         w.writeheader()
         for r in rows:
-            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k, _ in COMPARE_COLUMNS})
+            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k, _ in cols})
     with open(out / "compare.json", "w", encoding="utf-8") as fh:
         json.dump(rows, fh, indent=2)
     return rows
@@ -296,6 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     cli_qa.add_parser(sub)
     cli_propagate.add_parsers(sub)
+    cli_buffer.add_parser(sub)
     return p
 
 

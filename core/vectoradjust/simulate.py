@@ -1155,7 +1155,9 @@ def _project_toml(sc: Scenario, layer_ext: str, camera_file: str | None = None,
     rw = f"reweight = {_toml_value(reweight)}"
     if reweight == "two-pass":
         rw += "   # shape-point accuracy unknown: sigma <- RMS of pass-1 residuals"
-    out += ["", "[adjustment]", "max_iterations = 20", rw, "alpha = 0.05", ""]
+    out += ["", "[adjustment]", "max_iterations = 20", rw, "alpha = 0.05"]
+    out += ["", "[truth]   # simulated true centrelines: buffer test before/after the adjustment",
+            f"path = {_toml_value('truth_roads.' + layer_ext)}", "widths = [1.0, 2.0]", ""]
     return "\n".join(out)
 
 
