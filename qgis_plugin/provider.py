@@ -5,10 +5,13 @@ import os
 from qgis.core import QgsProcessingProvider
 from qgis.PyQt.QtGui import QIcon
 
+from .algorithms.accuracy_control import AccuracyControl
 from .algorithms.adjust import AdjustRoadVectors
 from .algorithms.buffer_test import BufferAccuracyTest
 from .algorithms.compare import CompareRoadDatabases
+from .algorithms.equal_error_map import EqualErrorMap
 from .algorithms.extract_shape_points import ExtractShapePoints
+from .algorithms.uncertainty_bands import UncertaintyBands
 
 PLUGIN_DIR = os.path.dirname(os.path.abspath(__file__))
 
@@ -30,5 +33,6 @@ class VectorAdjustProvider(QgsProcessingProvider):
 
     def loadAlgorithms(self):
         for alg in (ExtractShapePoints(), AdjustRoadVectors(), CompareRoadDatabases(),
-                    BufferAccuracyTest()):
+                    BufferAccuracyTest(), AccuracyControl(), UncertaintyBands(),
+                    EqualErrorMap()):
             self.addAlgorithm(alg)

@@ -13,19 +13,16 @@ semantics as the headless reader:
 * DEM heights by :func:`vectoradjust.dem.bilinear` on band 1 read with
   ``QgsRasterDataProvider.block``;
 * measurement and control tables through :mod:`vectoradjust.tables` (a CSV file is
-  read by it directly; a table layer's contract columns are handed to the same
-  reader).
+  read by it directly; a table layer's contract columns go to its ``*_from_rows``
+  functions, the same checks, with messages naming the layer and the row).
 
 User mistakes raise the core's :class:`~vectoradjust.errors.VectorAdjustError`
 subclasses, naming the layer, field or feature; the algorithms turn them into
 ``QgsProcessingException``.
 """
 
-import csv
 import math
 import os
-import re
-import tempfile
 
 import numpy as np
 from qgis.core import (
@@ -48,7 +45,7 @@ from qgis.core import (
 )
 from qgis.PyQt.QtCore import QDate, QDateTime, QTime, QVariant
 
-from vectoradjust.errors import CRSError, DEMError, LayerError, VectorAdjustError
+from vectoradjust.errors import CRSError, DEMError, LayerError
 from vectoradjust.model import LineLayer
 
 __all__ = [
@@ -256,7 +253,7 @@ def read_line_source(source, name, id_field, target_crs, context, where):
     for i, f in enumerate(source.getFeatures(request)):
         attrs = f.attributes()
         for n, v in zip(names, attrs):
-            attributes[n].append(v)
+            attributes[n].append(None if is_null(v) else v)  # NULL -> None, as headless
         if id_idx >= 0:
             v = attrs[id_idx]
             if is_null(v):
@@ -455,37 +452,9 @@ def table_rows(source, columns=None):
     return header, rows
 
 
-def _via_csv(reader, header, rows, where, **kwargs):
-    """Run a :mod:`vectoradjust.tables` reader on rows by way of a temporary CSV.
-
-    The reader's checks and numbers are used unchanged; messages name ``where`` and a
-    data row number (row 1 = the first feature) instead of the temporary file's line.
-    """
-    fd, tmp = tempfile.mkstemp(suffix=".csv", prefix="vectoradjust-")
-    try:
-        with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
-            w = csv.writer(fh)
-            w.writerow(header)
-            w.writerows(rows)
-        try:
-            result = reader(tmp, **kwargs)
-        except VectorAdjustError as exc:
-            raise type(exc)(_rename(exc.what, tmp, where), _rename(exc.mend, tmp, where),
-                            path=where, details=exc.details) from None
-    finally:
-        os.unlink(tmp)
-    if hasattr(result, "rows"):
-        result.source = where
-        result.rows = np.arange(1, len(rows) + 1)
-    return result
-
-
-def _rename(text, tmp, where):
-    text = (text or "").replace(tmp, where)
-    text = re.sub(r"\bline (\d+)", lambda m: f"row {int(m.group(1)) - 1}", text)
-    return re.sub(r"\(lines ([\d, ]+)\)",
-                  lambda m: "(rows " + ", ".join(str(int(s) - 1) for s in m.group(1).split(","))
-                  + ")", text)
+def _row_numbers(rows):
+    """Row numbers of a layer's rows in messages: 1 = the first feature."""
+    return range(1, len(rows) + 1)
 
 
 def is_csv_path(value):
@@ -502,8 +471,8 @@ def read_measurements_source(value, source, default_sigma, where, unit="mm"):
     if is_csv_path(value):
         return tables.read_measurements(value, default_sigma, unit=unit)
     header, rows = table_rows(source, tables.MEASUREMENT_COLUMNS + tables.MEASUREMENT_OPTIONAL)
-    return _via_csv(tables.read_measurements, header, rows, where, default_sigma=default_sigma,
-                    unit=unit)
+    return tables.measurements_from_rows(header, rows, where, default_sigma, unit,
+                                         lines=_row_numbers(rows), line_word="row")
 
 
 def read_control_source(value, source, target_crs, context, where):
@@ -522,7 +491,8 @@ def read_control_source(value, source, target_crs, context, where):
     lower = {n.lower() for n in source.fields().names()}
     if {"x", "y"} <= lower:
         header, rows = table_rows(source, cols)
-        return _via_csv(tables.read_control, header, rows, where)
+        return tables.control_from_rows(header, rows, where, lines=_row_numbers(rows),
+                                        line_word="row")
     if QgsWkbTypes.geometryType(source.wkbType()) != QgsWkbTypes.PointGeometry:
         raise LayerError(f"{where}: the control table has no X and Y fields and no point "
                          "geometry", "Add X, Y, Z fields (ground CRS) or give a point layer")
@@ -551,7 +521,8 @@ def read_control_source(value, source, target_crs, context, where):
             z = p.z() if QgsWkbTypes.hasZ(p.wkbType()) else float("nan")
             row.append(repr(float(z)) if math.isfinite(z) else "")
         rows.append(row)
-    return _via_csv(tables.read_control, header, rows, where)
+    return tables.control_from_rows(header, rows, where, lines=_row_numbers(rows),
+                                    line_word="row")
 
 
 def read_truth_source(value, source, where):
@@ -561,7 +532,8 @@ def read_truth_source(value, source, where):
     if is_csv_path(value):
         return tables.read_truth_points(value)
     header, rows = table_rows(source, ("point_id", "X", "Y", "Z"))
-    return _via_csv(tables.read_truth_points, header, rows, where)
+    return tables.truth_from_rows(header, rows, where, lines=_row_numbers(rows),
+                                  line_word="row")
 
 
 # --------------------------------------------------------------------------- output

@@ -16,13 +16,13 @@ if [ "$(id -u)" != 0 ] && command -v sudo >/dev/null 2>&1; then SUDO="sudo"; fi
 
 echo "== installing Debian packages (QGIS for the plugin tests)"
 need_apt=0
-for pkg in python3-qgis qgis python3-pytest python3-scipy xvfb xauth; do
+for pkg in python3-qgis qgis python3-pytest python3-scipy python3-matplotlib xvfb xauth; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need_apt=1
 done
 if [ "$need_apt" = 1 ]; then
   $SUDO apt-get update -q
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends \
-    python3-qgis qgis qgis-providers python3-pytest python3-scipy xvfb xauth
+    python3-qgis qgis qgis-providers python3-pytest python3-scipy python3-matplotlib xvfb xauth
 fi
 
 echo "== creating $VENV and installing vectoradjust[test]"

@@ -308,3 +308,13 @@ def test_buffer_test_cli_and_truth_comparison(project_dir, tmp_path, capsys):
     assert buf["after"][0] > 0.8 > buf["before"][0]
     header = (cmp_dir / "compare.csv").read_text().splitlines()[0]
     assert header.endswith("in_1m_before,in_1m_after,in_2m_before,in_2m_after")
+
+
+def test_csv_line_numbers_survive_blank_lines(copy):
+    lines = (copy / "gcps.csv").read_text().splitlines()
+    parts = lines[3].split(",")
+    parts[1] = "abc"
+    lines[3] = ",".join(parts)
+    lines.insert(2, "")  # a blank line before the bad row: it is now line 5 of the file
+    (copy / "gcps.csv").write_text("\n".join(lines) + "\n")
+    _fails(copy, CSVError, r"gcps.csv, line 5: column X is 'abc'")

@@ -12,7 +12,7 @@ from typing import Optional
 import numpy as np
 
 from vectoradjust.errors import CRSError, DEMError, InputFileError, LayerError
-from vectoradjust.model import ControlPoints, LineLayer, ProjectData
+from vectoradjust.model import LineLayer, ProjectData
 from vectoradjust.project import ProjectSpec, load_project
 from vectoradjust.tables import read_control, read_measurements, read_truth_points
 
@@ -271,8 +271,7 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
         them (``(0, 0)`` once reduced), ``camera.calibration`` the
         :class:`~vectoradjust.camera.CameraCalibration` and ``interior`` the report.
     """
-    from vectoradjust.interior import refine_measurements
-    from vectoradjust.model import Camera
+    from vectoradjust.assemble import project_data
     from vectoradjust.tables import read_fiducials
 
     spec = project if isinstance(project, ProjectSpec) else load_project(project)
@@ -281,21 +280,9 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
     unit = spec.measurements.get("unit", "mm")
     raw_meas = read_measurements(spec.measurements["path"], spec.measurements.get("sigma"),
                                  unit=unit)
-    if spec.control is not None:
-        control = read_control(spec.control["path"])
-    else:
-        control = ControlPoints(np.zeros(0, str), np.zeros((0, 3)), np.zeros((0, 3)),
-                                np.zeros(0, str), source=f"{where} [control]")
-    # image coordinate refinement (DESIGN 5): pixels/comparator -> refined photo mm
+    control = read_control(spec.control["path"]) if spec.control is not None else None
     fid_path = spec.measurements.get("fiducials")
     fiducials = read_fiducials(fid_path, unit) if fid_path else None
-    # the project CRS is projected (checked above): earth curvature applies when asked
-    interior = refine_measurements(
-        raw_meas, spec.images, spec.camera, spec.corrections, unit=unit, fiducials=fiducials,
-        control=control, map_projection=bool(crs.is_projected))
-    meas = interior.measurements
-    camera = Camera(spec.camera.focal_length, interior.principal_point,
-                    calibration=spec.camera.calibration)
     layers = []
     truth = {}
     names = vectors or [v.name for v in spec.vectors]
@@ -311,9 +298,8 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
             truth[v.name] = read_truth_points(v.truth)
     for n in names:
         spec.vector(n)  # raises a clear error for an unknown name
-    return ProjectData(
-        crs=crs.to_string(), camera=camera, images=spec.images, measurements=meas,
-        control=control, vectors=layers, settings=spec.settings, truth=truth,
-        corrections=spec.corrections, source=where, qa=spec.raw.get("qa"),
-        interior=interior.report,
-    )
+    # refinement (DESIGN 5), camera, [qa], truth: vectoradjust.assemble, shared with QGIS;
+    # the project CRS is projected (checked above): earth curvature applies when asked
+    return project_data(spec, raw_meas, control, layers, crs=crs.to_string(), truth=truth,
+                        fiducials=fiducials, map_projection=bool(crs.is_projected),
+                        source=where)

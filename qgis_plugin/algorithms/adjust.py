@@ -9,19 +9,16 @@ from qgis.core import (
     QgsProcessingOutputNumber,
     QgsProcessingParameterDefinition,
     QgsProcessingParameterFeatureSink,
-    QgsProcessingParameterFeatureSource,
-    QgsProcessingParameterField,
     QgsProcessingParameterFileDestination,
     QgsProcessingParameterNumber,
-    QgsProcessingParameterRasterLayer,
-    QgsProcessingParameterString,
     QgsWkbTypes,
 )
 
-from .. import qgis_io, results
+from .. import results
 from ..styles import style_output
 from . import inputs
-from .base import VectorAdjustAlgorithm, cancel_callback, check_cancelled, progress_callback
+from .base import VectorAdjustAlgorithm
+from .buffer_test import project_truth_buffer
 
 HELP = """
 <p>Adjusts a road line layer (OSM, TIGER, TNM, any centrelines) with a photogrammetric
@@ -42,27 +39,32 @@ the layer's Z values are used.</li>
 <li>Camera, images, measurements and control: see below.</li>
 </ul>
 {project_help}
-<p>If the project file has a <code>[[vectors]]</code> entry whose path is this layer's file,
-its name, id field, sigma, DEM and truth are used unless set here.</p>
-<h3>Writes</h3>
+{road_help}<h3>Writes</h3>
 <ul>
 <li><b>Adjusted shape points</b> (Point Z at the adjusted position): point_id, feature_id,
 database X, Y, Z, residuals Vx, Vy, Vz (adjusted - database), AdjX, AdjY, AdjZ, SigmaX/Y/Z,
 CE90, LE90, NImages, Adjusted (1/0; unmeasured vertices keep their database position).</li>
 <li><b>Adjusted road features</b>: every input feature with all its attributes and the adjusted
-geometry, plus NPts, NAdj, RMSE_X/Y/Z, RMSE (horizontal), Length, first/last point, Images,
-ImgDate.</li>
+geometry, plus NPts, NAdj, RMSE_X/Y/Z, RMSE (horizontal), Length with its standard
+deviation LengthSD (from the joint covariance of the vertices) and LengthSDnc (covariances
+between vertices ignored), first/last point, Images, ImgDate.</li>
 <li><b>Control and check points</b>: surveyed and adjusted (check points: intersected from the
-adjusted images, not used in the adjustment) coordinates, residuals, CE90, LE90.</li>
+adjusted images, not used in the adjustment) coordinates, residuals, CE90, LE90, and QA
+(pass/fail against the product tolerances) when the project has a <code>[qa]</code>
+table.</li>
 <li><b>Residual vectors</b>: a line from each measured vertex's database position to its
 adjusted position (the map view of a quiver plot; <i>Residual vector scale</i> exaggerates
 them).</li>
 <li>Numbers: sigma0^2 (variance factor), whether the chi-square test passed, RMSE of the
 residuals (horizontal) and of the check points; optionally the whole summary as JSON (the
-<code>summary.json</code> of the command line).</li>
+<code>summary.json</code> of the command line, with reliability and accuracy statements; with
+a project <code>[truth]</code> table of true centrelines also the share of the road lines
+within 1 m and 2 m of them before and after the adjustment).</li>
+<li><b>Report (HTML)</b> (optional): the <code>report.html</code> of the command line, one
+self-contained file with tables and figures (needs matplotlib in QGIS's Python).</li>
 </ul>
 <p>The same numbers as <code>vectoradjust adjust PROJECT --vectors NAME</code>.</p>
-""".replace("{project_help}", inputs.PROJECT_HELP)
+""".replace("{project_help}", inputs.PROJECT_HELP).replace("{road_help}", inputs.ROAD_HELP)
 
 
 class AdjustRoadVectors(VectorAdjustAlgorithm):
@@ -83,25 +85,10 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
     CONTROL_POINTS = "CONTROL_POINTS"
     RESIDUALS = "RESIDUALS"
     SUMMARY = "SUMMARY"
+    REPORT = "REPORT"
 
     def initAlgorithm(self, config=None):
-        self.addParameter(QgsProcessingParameterFeatureSource(
-            self.INPUT, "Road line layer", [QgsProcessing.TypeVectorLine]))
-        self.addParameter(QgsProcessingParameterField(
-            self.ID_FIELD, "Feature id field (empty: feature index)", parentLayerParameterName=
-            self.INPUT, optional=True))
-        self.addParameter(QgsProcessingParameterRasterLayer(
-            self.DEM, "DEM for the shape point heights", optional=True))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.SIGMA_XY, "Prior sigma of the shape points, horizontal [m] (default 10)",
-            QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.SIGMA_Z, "Prior sigma of the shape points, vertical [m] (default 10)",
-            QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
-        p = QgsProcessingParameterString(self.NAME_PARAM, "Database name (default: layer name)",
-                                         optional=True)
-        p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
-        self.addParameter(p)
+        inputs.add_road_parameters(self)
         inputs.add_project_parameters(self)
         p = QgsProcessingParameterNumber(self.RESIDUAL_SCALE, "Residual vector scale",
                                          QgsProcessingParameterNumber.Double, defaultValue=1.0,
@@ -121,6 +108,9 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
         self.addParameter(QgsProcessingParameterFileDestination(
             self.SUMMARY, "Summary (JSON)", "JSON files (*.json)", optional=True,
             createByDefault=False))
+        self.addParameter(QgsProcessingParameterFileDestination(
+            self.REPORT, "Report (HTML)", "HTML files (*.html *.htm)", optional=True,
+            createByDefault=False))
         for name, label in (("SIGMA0_SQUARED", "Variance factor sigma0^2"),
                             ("DEGREES_OF_FREEDOM", "Degrees of freedom"),
                             ("RMSE", "RMSE of the shape point residuals, horizontal [m]"),
@@ -132,66 +122,16 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
 
     # ------------------------------------------------------------------ run
     def run_algorithm(self, parameters, context, feedback):
-        from vectoradjust.model import VectorSpec
-        from vectoradjust.pipeline import run as run_pipeline
-        from vectoradjust.tables import read_truth_points
-
         t0 = time.perf_counter()
-        source = self.parameterAsSource(parameters, self.INPUT, context)
-        if source is None:
-            from qgis.core import QgsProcessingException
-
-            raise QgsProcessingException(self.invalidSourceError(parameters, self.INPUT))
-        vlayer = self.parameterAsVectorLayer(parameters, self.INPUT, context)
-        feedback.setProgressText("reading the inputs")
-        prj = inputs.project_inputs(self, parameters, context, feedback, source.sourceCrs())
-        entry = inputs.matching_vector_spec(prj, vlayer)
-        name = self.parameterAsString(parameters, self.NAME_PARAM, context).strip() or (
-            entry.name if entry else source.sourceName())
-        id_field = self.parameterAsString(parameters, self.ID_FIELD, context).strip() or (
-            entry.id_field if entry else None)
-        default_sigma = entry.sigma if entry else (10.0, 10.0, 10.0)
-        sxy = (self.parameterAsDouble(parameters, self.SIGMA_XY, context)
-               if parameters.get(self.SIGMA_XY) not in (None, "") else None)
-        sz = (self.parameterAsDouble(parameters, self.SIGMA_Z, context)
-              if parameters.get(self.SIGMA_Z) not in (None, "") else None)
-        sigma = (sxy if sxy is not None else default_sigma[0],
-                 sxy if sxy is not None else default_sigma[1],
-                 sz if sz is not None else default_sigma[2])
-        for s in sigma:
-            if not s > 0:
-                from vectoradjust.errors import ProjectError
-
-                raise ProjectError(f"The prior sigma of the shape points must be positive, not "
-                                   f"{s}", "Enter a sigma in metres (e.g. 10)")
-        where = f"road layer {source.sourceName()!r}"
-        line_layer, in_fields = qgis_io.read_line_source(source, name, id_field, prj.crs,
-                                                         context, where)
-        check_cancelled(feedback)
-        dem = self.parameterAsRasterLayer(parameters, self.DEM, context)
-        dem_name = None
-        if dem is None and entry is not None and entry.dem:
-            dem = inputs.raster_from_path(entry.dem, prj.source)
-        if dem is not None:
-            dem_name = dem.source()
-            feedback.setProgressText(f"sampling the DEM {dem.name()}")
-            line_layer.coords[:, 2] = qgis_io.dem_heights(
-                dem, line_layer.coords[:, :2], prj.crs, context, f"DEM {dem.name()!r}")
-        truth = {}
-        if entry is not None and entry.truth:
-            truth[name] = read_truth_points(entry.truth)
-        spec = VectorSpec(name=name, path=qgis_io.layer_path(vlayer) or where,
-                          id_field=id_field, sigma=sigma, dem=dem_name,
-                          truth=entry.truth if entry else None)
-        data = prj.project_data([(spec, line_layer)], truth)
-        feedback.setProgress(10)
-        out = run_pipeline(data, vectors=[name], progress=progress_callback(feedback, 10, 75),
-                           is_cancelled=cancel_callback(feedback))
-        check_cancelled(feedback)
-        for w in out.warnings:
-            feedback.pushWarning(w)
-        outputs = self._write(parameters, context, feedback, out, in_fields, source.wkbType(),
-                              prj.crs)
+        adj = inputs.run_adjustment(self, parameters, context, feedback)
+        out = adj.run
+        # true centrelines ([truth]): buffer shares before/after, into the summary
+        project_truth_buffer(adj.prj, [out], context, feedback)
+        outputs = self._write(parameters, context, feedback, out, adj.road.fields,
+                              adj.road.wkb, adj.prj.crs)
+        report = write_html_report(self, parameters, context, feedback, self.REPORT, out)
+        if report:
+            outputs[self.REPORT] = report
         s = out.summary
         outputs.update({
             "SIGMA0_SQUARED": s["sigma0_squared"],
@@ -203,6 +143,7 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
             "MEAN_CE90": s.get("mean_ce90"),
         })
         report_summary(feedback, s)
+        feedback.setProgress(100)
         feedback.pushInfo(f"done in {time.perf_counter() - t0:.1f} s")
         return outputs
 
@@ -239,8 +180,44 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
         if summary_path:
             results.write_json(summary_path, out.summary)
             outputs[self.SUMMARY] = summary_path
-        feedback.setProgress(100)
         return outputs
+
+
+def write_html_report(alg, parameters, context, feedback, key, run=None, runs=None,
+                      rows=None):
+    """Write the HTML report (``report.html`` of the command line) when ``key`` is given.
+
+    One run: :func:`vectoradjust.report.write_report`; a comparison (``runs`` and
+    ``rows``): :func:`vectoradjust.report.write_compare_report`. Figures are drawn with
+    matplotlib's Agg canvas (no pyplot). Returns the path or None.
+    """
+    path = alg.parameterAsFileOutput(parameters, key, context)
+    if not path:
+        return None
+    feedback.setProgressText("writing the report")
+    try:
+        from vectoradjust import report
+    except ImportError as exc:  # pragma: no cover - depends on the machine
+        from qgis.core import QgsProcessingException
+
+        raise QgsProcessingException(
+            f"The HTML report needs matplotlib in QGIS's Python ({exc}); install it "
+            "(Debian/Ubuntu: apt install python3-matplotlib; OSGeo4W: python3-matplotlib) or "
+            "leave the report output empty") from exc
+    try:
+        if runs is not None:
+            written = report.write_compare_report(runs, rows, path)
+        else:
+            written = report.write_report(run, path, reliability=run.reliability)
+    except ImportError as exc:  # matplotlib is imported when the figures are drawn
+        from qgis.core import QgsProcessingException
+
+        raise QgsProcessingException(
+            f"The HTML report needs matplotlib in QGIS's Python ({exc}); install it "
+            "(Debian/Ubuntu: apt install python3-matplotlib; OSGeo4W: python3-matplotlib) or "
+            "leave the report output empty") from exc
+    feedback.pushInfo(f"wrote the report {written}")
+    return str(written)
 
 
 def report_summary(feedback, s):

@@ -131,6 +131,84 @@ def buffer_shares(tested, reference, widths, quad_segs=32, cap_style="round", fe
     return results
 
 
+def _vertex_lines(xy, feature, part):
+    """LineStrings of the vertex arrays (one per feature part with >= 2 vertices)."""
+    from qgis.core import QgsLineString
+
+    key = feature * 100000 + part
+    if len(key) == 0:
+        return []
+    brk = np.flatnonzero(np.diff(key)) + 1
+    return [QgsGeometry(QgsLineString([float(v) for v in xy[s:e, 0]],
+                                      [float(v) for v in xy[s:e, 1]]))
+            for s, e in zip(np.r_[0, brk], np.r_[brk, len(key)]) if e - s >= 2]
+
+
+def truth_buffer(run, truth_path, widths, crs, context, feedback=None):
+    """The QGIS twin of :func:`vectoradjust.cli_buffer.truth_buffer` (which reads the
+    true centrelines with geopandas): the share of each database's lines inside buffers
+    of the true lines before and after the adjustment.
+
+    Only features with at least one adjusted vertex are compared. Writes
+    ``run.summary["databases"][i]["truth"]["buffer"]`` and returns ``{database: entry}``.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    truth_path : str
+        The ``[truth] path`` line layer (read through QGIS, transformed to ``crs``).
+    widths : list of float
+    crs : QgsCoordinateReferenceSystem
+        The ground CRS.
+    context : QgsProcessingContext
+    """
+    import os
+
+    from qgis.core import QgsVectorLayer
+
+    from vectoradjust.errors import LayerError
+
+    if not os.path.exists(truth_path):
+        raise LayerError(f"Line layer {truth_path!r} does not exist ([truth] path)",
+                         "Check the path", path=str(truth_path))
+    layer = QgsVectorLayer(str(truth_path), "truth", "ogr")
+    if not layer.isValid():
+        raise LayerError(f"{truth_path}: cannot be read as a vector layer ([truth] path)",
+                         "Give a shapefile, GeoPackage or GeoJSON of lines", path=str(truth_path))
+    truth = _lines(layer, crs, context, f"true centrelines {truth_path!r} ([truth] path)")
+    out = {}
+    for d, entry in zip(run.databases, run.summary.get("databases", [])):
+        lyr = d.shape.layer
+        measured = np.unique(lyr.vertex_feature[d.vertices["Adjusted"] == 1])
+        keep = np.isin(lyr.vertex_feature, measured)
+        if not keep.any():
+            continue
+        fp = (lyr.vertex_feature[keep], lyr.vertex_part[keep])
+        if feedback is not None:
+            check_cancelled(feedback)
+        before = buffer_shares(_vertex_lines(lyr.coords[keep, :2], *fp), truth, widths)
+        after = buffer_shares(_vertex_lines(d.adjusted_coords[keep, :2], *fp), truth, widths)
+        res = {"widths": list(widths), "before": [r["share"] for r in before],
+               "after": [r["share"] for r in after], "truth_lines": str(truth_path)}
+        out[d.name] = res
+        entry.setdefault("truth", {})["buffer"] = res
+    return out
+
+
+def project_truth_buffer(prj, runs, context, feedback):
+    """Apply :func:`truth_buffer` to every run when the project has a ``[truth]`` table
+    (true centrelines), as ``vectoradjust adjust`` / ``compare`` do."""
+    from vectoradjust.cli_buffer import project_truth
+
+    truth = project_truth(prj.spec)
+    if truth is None:
+        return
+    path, widths = truth
+    feedback.setProgressText(f"buffer test against the true centrelines {path}")
+    for r in runs:
+        truth_buffer(r, path, widths, prj.crs, context, feedback)
+
+
 class BufferAccuracyTest(VectorAdjustAlgorithm):
     NAME = "bufferaccuracytest"
     DISPLAY = "Buffer accuracy test"

@@ -12,6 +12,7 @@ from qgis.core import (
     QgsProcessingException,
     QgsProcessingParameterDefinition,
     QgsProcessingParameterFeatureSink,
+    QgsProcessingParameterFileDestination,
     QgsProcessingParameterFolderDestination,
     QgsProcessingParameterMultipleLayers,
     QgsProcessingParameterNumber,
@@ -24,7 +25,9 @@ from qgis.core import (
 from .. import qgis_io, results
 from ..styles import style_output
 from . import inputs
+from .adjust import write_html_report
 from .base import VectorAdjustAlgorithm, cancel_callback, check_cancelled, progress_callback
+from .buffer_test import project_truth_buffer
 
 HELP = """
 <p>Adjusts several road databases (e.g. OSM, TNM and TIGER) of the same area <b>one at a
@@ -46,20 +49,23 @@ positions (simulations): one per layer in the same order, or one for all.</li>
 <li>Camera, images, measurements and control: see below.</li>
 </ul>
 {project_help}
-<p>A layer whose file is the path of a project file's [[vectors]] entry takes that entry's
-name, id field, sigma, DEM and truth unless set here.</p>
-<h3>Writes</h3>
+{road_help}<h3>Writes</h3>
 <ul>
 <li><b>Comparison table</b>: one row per database (the columns of the command line's
-<code>compare.csv</code>).</li>
+<code>compare.csv</code>, with the buffer shares <code>in_1m_before</code>,
+<code>in_1m_after</code> ... when the project has a <code>[truth]</code> table of true
+centrelines).</li>
 <li><b>Adjusted shape points</b> and <b>Residual vectors</b> of all databases (field
 <code>Database</code>).</li>
 <li><b>Output folder</b> (optional): per database <code>NAME/adjusted.gpkg</code> (layers
 shape_points, features, control_points) and <code>NAME/summary.json</code>, and
 <code>compare.csv</code> / <code>compare.json</code>, as <code>vectoradjust compare</code>
 writes them.</li>
+<li><b>Comparison report (HTML)</b> (optional): the comparison table, the RMSE chart and one
+set of sections per database (the <code>report.html</code> of <code>vectoradjust
+compare</code>; needs matplotlib in QGIS's Python).</li>
 </ul>
-""".replace("{project_help}", inputs.PROJECT_HELP)
+""".replace("{project_help}", inputs.PROJECT_HELP).replace("{road_help}", inputs.ROAD_HELP)
 
 _TABLE_TYPES = {"database": "s", "adjusted": "i", "chi_square_passed": "b"}
 
@@ -85,6 +91,7 @@ class CompareRoadDatabases(VectorAdjustAlgorithm):
     SHAPE_POINTS = "SHAPE_POINTS"
     RESIDUALS = "RESIDUALS"
     OUTPUT_FOLDER = "OUTPUT_FOLDER"
+    REPORT = "REPORT"
 
     def initAlgorithm(self, config=None):
         self.addParameter(QgsProcessingParameterMultipleLayers(
@@ -120,6 +127,9 @@ class CompareRoadDatabases(VectorAdjustAlgorithm):
         self.addParameter(QgsProcessingParameterFolderDestination(
             self.OUTPUT_FOLDER, "Output folder for the per-database GeoPackages", optional=True,
             createByDefault=False))
+        self.addParameter(QgsProcessingParameterFileDestination(
+            self.REPORT, "Comparison report (HTML)", "HTML files (*.html *.htm)", optional=True,
+            createByDefault=False))
 
     # ------------------------------------------------------------------ helpers
     def _layers(self, parameters, context, key):
@@ -144,11 +154,9 @@ class CompareRoadDatabases(VectorAdjustAlgorithm):
 
     # ------------------------------------------------------------------ run
     def run_algorithm(self, parameters, context, feedback):
-        from vectoradjust.cli import COMPARE_COLUMNS, compare_row
+        from vectoradjust.cli import compare_columns, compare_row
         from vectoradjust.errors import ProjectError
-        from vectoradjust.model import VectorSpec
         from vectoradjust.pipeline import run as run_pipeline
-        from vectoradjust.tables import read_truth_points
 
         layers = self._layers(parameters, context, self.LAYERS)
         if not layers:
@@ -170,50 +178,27 @@ class CompareRoadDatabases(VectorAdjustAlgorithm):
                 raise ProjectError(f"one database name for {n} road layers",
                                    "Give one name per layer, separated by commas")
             names = [""] * n
-        sxy = (self.parameterAsDouble(parameters, self.SIGMA_XY, context)
-               if parameters.get(self.SIGMA_XY) not in (None, "") else None)
-        sz = (self.parameterAsDouble(parameters, self.SIGMA_Z, context)
-              if parameters.get(self.SIGMA_Z) not in (None, "") else None)
+        sxy = inputs._number(self, parameters, self.SIGMA_XY, context)
+        sz = inputs._number(self, parameters, self.SIGMA_Z, context)
         dem_param = self.parameterAsRasterLayer(parameters, self.DEM, context)
         truth_param = self._truth(parameters, context, n)
 
-        vectors = []
-        truth = {}
-        in_fields = []
+        given = []
         for k, lyr in enumerate(layers):
             check_cancelled(feedback)
-            entry = inputs.matching_vector_spec(prj, lyr)
-            name = names[k] or (entry.name if entry else lyr.name())
-            if name in [s.name for s, _ in vectors]:
-                raise ProjectError(f"two road layers are both called {name!r}",
+            db = inputs.read_road_layer(
+                prj, lyr, lyr, context, feedback, name=names[k], id_field=id_fields[k],
+                sigma_xy=sxy, sigma_z=sz, dem=dem_param,
+                truth=truth_param[k] if truth_param is not None else None)
+            if db.spec.name in [g.spec.name for g in given]:
+                raise ProjectError(f"two road layers are both called {db.spec.name!r}",
                                    "Give distinct database names (parameter Names)")
-            id_field = id_fields[k] or (entry.id_field if entry else None)
-            base = entry.sigma if entry else (10.0, 10.0, 10.0)
-            sigma = (sxy if sxy is not None else base[0], sxy if sxy is not None else base[1],
-                     sz if sz is not None else base[2])
-            if not all(s > 0 for s in sigma):
-                raise ProjectError(f"the prior sigma of the shape points must be positive, not "
-                                   f"{sigma}", "Enter a sigma in metres (e.g. 10)")
-            where = f"road layer {lyr.name()!r}"
-            line_layer, fields = qgis_io.read_line_source(lyr, name, id_field, prj.crs, context,
-                                                          where)
-            in_fields.append((fields, lyr.wkbType()))
-            dem = dem_param
-            if dem is None and entry is not None and entry.dem:
-                dem = inputs.raster_from_path(entry.dem, prj.source)
-            if dem is not None:
-                feedback.setProgressText(f"{name}: sampling the DEM {dem.name()}")
-                line_layer.coords[:, 2] = qgis_io.dem_heights(
-                    dem, line_layer.coords[:, :2], prj.crs, context, f"DEM {dem.name()!r}")
-            if truth_param is not None:
-                truth[name] = truth_param[k]
-            elif entry is not None and entry.truth:
-                truth[name] = read_truth_points(entry.truth)
-            vectors.append((VectorSpec(name=name, path=qgis_io.layer_path(lyr) or where,
-                                       id_field=id_field, sigma=sigma,
-                                       dem=dem.source() if dem is not None else None,
-                                       truth=entry.truth if entry else None), line_layer))
-        data = prj.project_data(vectors, truth)
+            given.append(db)
+        # every [[vectors]] entry of the project is read too (as vectoradjust compare
+        # does): measurements of the databases not compared are recognised and left out
+        data = inputs.project_data_with(prj, given, context, feedback)
+        in_fields = [(g.fields, g.wkb) for g in given]
+        vectors = [(g.spec, g.layer) for g in given]
         feedback.setProgress(5)
 
         runs = []
@@ -227,9 +212,16 @@ class CompareRoadDatabases(VectorAdjustAlgorithm):
                 feedback.pushWarning(f"{spec.name}: {w}")
             runs.append(out)
         check_cancelled(feedback)
+        project_truth_buffer(prj, runs, context, feedback)
         rows = [compare_row(r.summary) for r in runs]
-        return self._write(parameters, context, feedback, runs, rows, in_fields, prj.crs,
-                           [k for k, _ in COMPARE_COLUMNS])
+        outputs = self._write(parameters, context, feedback, runs, rows, in_fields, prj.crs,
+                              [k for k, _ in compare_columns(rows)])
+        report = write_html_report(self, parameters, context, feedback, self.REPORT,
+                                   runs=runs, rows=rows)
+        if report:
+            outputs[self.REPORT] = report
+        feedback.setProgress(100)
+        return outputs
 
     def _write(self, parameters, context, feedback, runs, rows, in_fields, crs, columns):
         feedback.setProgressText("writing the outputs")

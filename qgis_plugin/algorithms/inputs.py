@@ -7,9 +7,13 @@ core's message. The project file is validated by the core
 (:func:`vectoradjust.project.parse_project`), and a parameter-only set-up is validated
 the same way, so both routes give the same checks and the same numbers.
 
-A road layer whose file is the ``path`` of a ``[[vectors]]`` entry of the project file
-takes that entry's name, id field, sigma, DEM and truth unless parameters say
-otherwise.
+Every ``[[vectors]]`` entry of the project file is read through QGIS (as the command
+line reads them all), so that measurements of the databases that are not adjusted are
+recognised and left out rather than taken for tie points. A road layer whose file is the
+``path`` of an entry takes that entry's place, name, id field, sigma, DEM and truth
+unless parameters say otherwise; a road layer that is not in the project is one more
+database. The tables are assembled into the core's ProjectData by
+:func:`vectoradjust.assemble.project_data`, the function the command line uses.
 """
 
 import os
@@ -23,10 +27,14 @@ from qgis.core import (
     QgsProcessingParameterDefinition,
     QgsProcessingParameterEnum,
     QgsProcessingParameterFeatureSource,
+    QgsProcessingParameterField,
     QgsProcessingParameterFile,
     QgsProcessingParameterMatrix,
     QgsProcessingParameterNumber,
+    QgsProcessingParameterRasterLayer,
+    QgsProcessingParameterString,
     QgsRasterLayer,
+    QgsVectorLayer,
 )
 
 from .. import qgis_io
@@ -46,8 +54,9 @@ MAX_ITERATIONS = "MAX_ITERATIONS"
 
 IMAGE_HEADERS = ["id", "XL", "YL", "ZL", "omega", "phi", "kappa", "sigma_position",
                  "sigma_attitude", "date"]
-REWEIGHT_OPTIONS = ["as in the project file (none if not given)", "none", "two-pass"]
-_REWEIGHT_VALUES = [None, "none", "two-pass"]
+REWEIGHT_OPTIONS = ["as in the project file (none if not given)", "none", "two-pass",
+                    "variance component estimation (vce)"]
+_REWEIGHT_VALUES = [None, "none", "two-pass", "vce"]
 
 PROJECT_HELP = """
 <h3>Camera, images, measurements and control</h3>
@@ -130,29 +139,27 @@ def add_project_parameters(alg):
 class ProjectInputs:
     """What the shared parameters gave (everything but the road layers).
 
-    ``measurements`` are refined (interior orientation, as the headless reader does)
-    and ``camera`` is the camera the collinearity equations use with them.
+    ``measurements`` and ``control`` are as read; :meth:`project_data` refines the
+    measurements and assembles the core's ProjectData exactly as the command line does
+    (:func:`vectoradjust.assemble.project_data`).
     """
 
     spec: object  # vectoradjust.project.ProjectSpec
     crs: object  # QgsCoordinateReferenceSystem
-    camera: object
     measurements: object
     control: object
     source: str
-    interior: dict = field(default_factory=dict)
+    fiducials: object = None
     vectors: list = field(default_factory=list)
 
     def project_data(self, vectors, truth):
         """The core's ProjectData for these road databases."""
-        from vectoradjust.model import ProjectData
+        from vectoradjust.assemble import project_data
 
-        return ProjectData(
-            crs=self.crs.authid() or self.crs.toWkt(), camera=self.camera,
-            images=self.spec.images, measurements=self.measurements, control=self.control,
-            vectors=vectors, settings=self.spec.settings, truth=truth,
-            corrections=self.spec.corrections, source=self.source,
-            qa=self.spec.raw.get("qa"), interior=self.interior)
+        # the ground CRS is projected (checked): earth curvature applies when switched on
+        return project_data(self.spec, self.measurements, self.control, vectors,
+                            crs=self.crs.authid() or self.crs.toWkt(), truth=truth,
+                            fiducials=self.fiducials, map_projection=True, source=self.source)
 
 
 def _is_set(parameters, name):
@@ -236,11 +243,7 @@ def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectI
         Ground CRS when neither the parameter nor the project file gives one (the road
         layer's CRS).
     """
-    import numpy as np
-
     from vectoradjust.errors import ProjectError
-    from vectoradjust.interior import refine_measurements
-    from vectoradjust.model import Camera, ControlPoints
     from vectoradjust.project import parse_project
     from vectoradjust.tables import read_control, read_fiducials, read_measurements
 
@@ -325,19 +328,11 @@ def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectI
     elif spec.control is not None:
         control = read_control(spec.control["path"])
     else:
-        control = ControlPoints(np.zeros(0, str), np.zeros((0, 3)), np.zeros((0, 3)),
-                                np.zeros(0, str), source=f"{where} [control]")
-    # image coordinate refinement (DESIGN 5), exactly as vectoradjust.io.load_project_data
+        control = None  # an empty table (vectoradjust.assemble)
     fid_path = spec.measurements.get("fiducials")
     fiducials = read_fiducials(fid_path, unit) if fid_path else None
-    interior = refine_measurements(
-        raw_meas, spec.images, spec.camera, spec.corrections, unit=unit, fiducials=fiducials,
-        control=control, map_projection=True)  # the ground CRS is projected (checked)
-    camera = Camera(spec.camera.focal_length, interior.principal_point,
-                    calibration=spec.camera.calibration)
-    return ProjectInputs(spec=spec, crs=crs, camera=camera, measurements=interior.measurements,
-                         control=control, source=where, interior=interior.report,
-                         vectors=list(spec.vectors))
+    return ProjectInputs(spec=spec, crs=crs, measurements=raw_meas, control=control,
+                         source=where, fiducials=fiducials, vectors=list(spec.vectors))
 
 
 def matching_vector_spec(inputs, layer):
@@ -364,3 +359,290 @@ def raster_from_path(path, where):
         raise DEMError(f"{path}: cannot be read as a raster ({where})", "Give a GeoTIFF DEM",
                        path=path)
     return layer
+
+
+# --------------------------------------------------------------------------- road databases
+ROAD_HELP = """
+<p>When the project file lists <code>[[vectors]]</code>, every listed road database is read
+(through QGIS) as the command line does, so that measurements of the other databases' shape
+points are recognised and left out instead of being taken for tie points. A road layer whose
+file is the path of a <code>[[vectors]]</code> entry takes that entry's place (and its name,
+id field, sigma, DEM and truth unless set here); a road layer that is not in the project is
+one more database.</p>
+"""
+
+
+@dataclass
+class RoadDatabase:
+    """A road layer given as a parameter, read for the adjustment.
+
+    ``spec`` and ``layer`` are the core's VectorSpec and LineLayer (vertices in the
+    ground CRS, Z from the DEM or the geometry); ``fields`` and ``wkb`` describe the
+    source for the features output; ``entry`` is the project's ``[[vectors]]`` entry
+    for the layer's file (or None); ``truth`` the truth table, if any.
+    """
+
+    spec: object
+    layer: object
+    fields: object
+    wkb: int
+    entry: object = None
+    truth: object = None
+    where: str = ""
+
+
+def shape_point_sigma(base, sigma_xy, sigma_z):
+    """Prior sigma (x, y, z) of the shape points: parameters over ``base``; positive."""
+    from vectoradjust.errors import ProjectError
+
+    sigma = (sigma_xy if sigma_xy is not None else base[0],
+             sigma_xy if sigma_xy is not None else base[1],
+             sigma_z if sigma_z is not None else base[2])
+    for s in sigma:
+        if not s > 0:
+            raise ProjectError(f"The prior sigma of the shape points must be positive, not {s}",
+                               "Enter a sigma in metres (e.g. 10)")
+    return tuple(float(s) for s in sigma)
+
+
+def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field="",
+                    sigma_xy=None, sigma_z=None, dem=None, truth=None):
+    """Read a road layer parameter (a feature source) for the adjustment.
+
+    Parameters
+    ----------
+    prj : ProjectInputs
+    source : QgsFeatureSource
+        The layer's features (the selection when only selected features are used).
+    vlayer : QgsVectorLayer or None
+        The layer (its file matches a ``[[vectors]]`` entry of the project).
+    name, id_field : str
+        Database name and id field; empty = the entry's, else the layer name / the
+        feature index.
+    sigma_xy, sigma_z : float or None
+        Prior sigma of the shape points (default the entry's, else 10 m).
+    dem : QgsRasterLayer or None
+        DEM for the heights (default the entry's DEM).
+    truth : tuple or None
+        Truth table (ids, xyz) (default the entry's).
+
+    Returns
+    -------
+    RoadDatabase
+    """
+    from vectoradjust.model import VectorSpec
+    from vectoradjust.tables import read_truth_points
+
+    entry = matching_vector_spec(prj, vlayer)
+    name = (name or "").strip() or (entry.name if entry else source.sourceName())
+    id_field = (id_field or "").strip() or (entry.id_field if entry else None)
+    sigma = shape_point_sigma(entry.sigma if entry else (10.0, 10.0, 10.0), sigma_xy, sigma_z)
+    where = f"road layer {source.sourceName()!r}"
+    line_layer, fields = qgis_io.read_line_source(source, name, id_field, prj.crs, context,
+                                                  where)
+    if dem is None and entry is not None and entry.dem:
+        dem = raster_from_path(entry.dem, prj.source)
+    if dem is not None:
+        feedback.setProgressText(f"{name}: sampling the DEM {dem.name()}")
+        line_layer.coords[:, 2] = qgis_io.dem_heights(
+            dem, line_layer.coords[:, :2], prj.crs, context, f"DEM {dem.name()!r}")
+    if truth is None and entry is not None and entry.truth:
+        truth = read_truth_points(entry.truth)
+    spec = VectorSpec(name=name, path=qgis_io.layer_path(vlayer) or where, id_field=id_field,
+                      sigma=sigma, dem=dem.source() if dem is not None else None,
+                      truth=entry.truth if entry else None)
+    return RoadDatabase(spec, line_layer, fields, source.wkbType(), entry, truth, where)
+
+
+def open_vector_entry(entry, where):
+    """The QgsVectorLayer of a ``[[vectors]]`` entry's file (layer name as the headless
+    reader picks it: ``layer``, or ``lines`` of an OSM PBF)."""
+    from vectoradjust.errors import InputFileError, LayerError
+
+    path = entry.path
+    if not path or not os.path.exists(path):
+        raise InputFileError(f"Road layer {path!r} does not exist ({where})",
+                             "Check the path in the [[vectors]] entry", path=path)
+    uri = path
+    sub = entry.layer or ("lines" if str(path).lower().endswith(".pbf") else None)
+    if sub:
+        uri = f"{path}|layername={sub}"
+    layer = QgsVectorLayer(uri, entry.name, "ogr")
+    if not layer.isValid():
+        raise LayerError(f"{path}: cannot be read as a vector layer ({where})",
+                         "Give a shapefile, GeoPackage, GeoJSON or OSM PBF with line features",
+                         path=path)
+    return layer
+
+
+def read_project_entry(prj, entry, context, feedback, dems=None):
+    """A ``[[vectors]]`` entry read from its file through QGIS, as the command line reads it.
+
+    Returns
+    -------
+    (VectorSpec, LineLayer, truth or None)
+    """
+    from vectoradjust.tables import read_truth_points
+
+    where = f"[[vectors]] entry {entry.name!r} of {prj.source}"
+    feedback.setProgressText(f"reading {entry.name} ({entry.path})")
+    layer = open_vector_entry(entry, where)
+    line_layer, _ = qgis_io.read_line_source(layer, entry.name, entry.id_field, prj.crs,
+                                             context, f"{where} ({entry.path})")
+    if entry.dem:
+        dems = {} if dems is None else dems
+        if entry.dem not in dems:
+            dems[entry.dem] = raster_from_path(entry.dem, where)
+        dem = dems[entry.dem]
+        line_layer.coords[:, 2] = qgis_io.dem_heights(
+            dem, line_layer.coords[:, :2], prj.crs, context, f"DEM {dem.name()!r}")
+    truth = read_truth_points(entry.truth) if entry.truth else None
+    return entry, line_layer, truth
+
+
+def project_data_with(prj, given, context, feedback):
+    """The core's ProjectData: the given road layers and every other ``[[vectors]]`` entry.
+
+    A given layer that matches an entry takes its place (project order is kept); the
+    other given layers follow. Like ``vectoradjust adjust --vectors NAME`` /
+    ``compare``, every database of the project is read so that the measurements of
+    databases that are not adjusted are recognised as theirs (and left out).
+
+    Parameters
+    ----------
+    prj : ProjectInputs
+    given : list of RoadDatabase
+
+    Returns
+    -------
+    ProjectData
+    """
+    from vectoradjust.errors import ProjectError
+
+    from .base import check_cancelled
+
+    taken = {}
+    extra = []
+    for g in given:
+        if g.entry is not None and id(g.entry) not in taken:
+            taken[id(g.entry)] = g
+        else:
+            extra.append(g)
+    items = []  # (spec, layer, truth, where)
+    dems = {}
+    for entry in prj.vectors:
+        check_cancelled(feedback)
+        g = taken.get(id(entry))
+        if g is not None:
+            items.append((g.spec, g.layer, g.truth, g.where))
+        else:
+            spec, layer, truth = read_project_entry(prj, entry, context, feedback, dems)
+            items.append((spec, layer, truth, f"the project's [[vectors]] entry ({spec.path})"))
+    items += [(g.spec, g.layer, g.truth, g.where) for g in extra]
+    seen = {}
+    for spec, _, _, where in items:
+        if spec.name in seen:
+            raise ProjectError(
+                f"two road databases are both called {spec.name!r}: {seen[spec.name]} and "
+                f"{where}",
+                "Give the road layer another database name (parameter Database name / "
+                "Names), or choose the file of the project's [[vectors]] entry")
+        seen[spec.name] = where
+    truth = {spec.name: t for spec, _, t, _ in items if t is not None}
+    return prj.project_data([(spec, layer) for spec, layer, _, _ in items], truth)
+
+
+# --------------------------------------------------------------------------- one adjustment
+INPUT = "INPUT"
+ID_FIELD = "ID_FIELD"
+NAME = "NAME"
+DEM = "DEM"
+SIGMA_XY = "SIGMA_XY"
+SIGMA_Z = "SIGMA_Z"
+
+
+def add_road_parameters(alg, optional=False):
+    """The road layer parameters of Adjust (INPUT, ID_FIELD, DEM, SIGMA_XY, SIGMA_Z, NAME).
+
+    ``optional``: the road layer may be left empty (then the project's ``[[vectors]]``
+    are adjusted together).
+    """
+    label = "Road line layer" + (" (optional: default every [[vectors]] entry of the "
+                                 "project)" if optional else "")
+    alg.addParameter(QgsProcessingParameterFeatureSource(
+        INPUT, label, [QgsProcessing.TypeVectorLine], optional=optional))
+    alg.addParameter(QgsProcessingParameterField(
+        ID_FIELD, "Feature id field (empty: feature index)", parentLayerParameterName=INPUT,
+        optional=True))
+    alg.addParameter(QgsProcessingParameterRasterLayer(
+        DEM, "DEM for the shape point heights", optional=True))
+    alg.addParameter(QgsProcessingParameterNumber(
+        SIGMA_XY, "Prior sigma of the shape points, horizontal [m] (default 10)",
+        QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
+    alg.addParameter(QgsProcessingParameterNumber(
+        SIGMA_Z, "Prior sigma of the shape points, vertical [m] (default 10)",
+        QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
+    p = QgsProcessingParameterString(NAME, "Database name (default: layer name)",
+                                     optional=True)
+    p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+    alg.addParameter(p)
+
+
+@dataclass
+class Adjusted:
+    """One adjustment run by :func:`run_adjustment`."""
+
+    run: object  # vectoradjust.pipeline.AdjustmentRun
+    prj: ProjectInputs
+    road: Optional[RoadDatabase]
+
+
+def run_adjustment(alg, parameters, context, feedback, *, road_optional=False, start=10.0,
+                   span=75.0):
+    """Read the road layer (if any) and the project, and run the adjustment.
+
+    With a road layer, that database is adjusted (``pipeline.run(data,
+    vectors=[name])``) with every other ``[[vectors]]`` entry of the project read
+    too; without one (``road_optional``), every ``[[vectors]]`` entry is adjusted
+    together (as ``vectoradjust qa PROJECT`` / ``equal-error`` do).
+
+    Returns
+    -------
+    Adjusted
+    """
+    from qgis.core import QgsProcessingException
+
+    from vectoradjust.pipeline import run as run_pipeline
+
+    from .base import cancel_callback, check_cancelled, progress_callback
+
+    source = None
+    if _is_set(parameters, INPUT) or not road_optional:
+        source = alg.parameterAsSource(parameters, INPUT, context)
+        if source is None:
+            raise QgsProcessingException(alg.invalidSourceError(parameters, INPUT))
+    feedback.setProgressText("reading the inputs")
+    prj = project_inputs(alg, parameters, context, feedback,
+                         source.sourceCrs() if source is not None else None)
+    road = None
+    given = []
+    if source is not None:
+        vlayer = alg.parameterAsVectorLayer(parameters, INPUT, context)
+        road = read_road_layer(
+            prj, source, vlayer, context, feedback,
+            name=alg.parameterAsString(parameters, NAME, context),
+            id_field=alg.parameterAsString(parameters, ID_FIELD, context),
+            sigma_xy=_number(alg, parameters, SIGMA_XY, context),
+            sigma_z=_number(alg, parameters, SIGMA_Z, context),
+            dem=alg.parameterAsRasterLayer(parameters, DEM, context))
+        given.append(road)
+    check_cancelled(feedback)
+    data = project_data_with(prj, given, context, feedback)
+    feedback.setProgress(start)
+    out = run_pipeline(data, vectors=[road.spec.name] if road is not None else None,
+                       progress=progress_callback(feedback, start, span),
+                       is_cancelled=cancel_callback(feedback))
+    check_cancelled(feedback)
+    for w in out.warnings:
+        feedback.pushWarning(w)
+    return Adjusted(out, prj, road)

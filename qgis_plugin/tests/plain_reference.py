@@ -10,9 +10,9 @@ must reproduce exactly: it checks the plugin's layer -> array conversion.
 
 import numpy as np
 
+from vectoradjust.assemble import project_data as assemble_project_data
 from vectoradjust.dem import bilinear
-from vectoradjust.interior import refine_measurements
-from vectoradjust.model import Camera, ControlPoints, LineLayer, ProjectData
+from vectoradjust.model import LineLayer
 from vectoradjust.project import load_project
 from vectoradjust.tables import (
     read_control,
@@ -86,23 +86,17 @@ def dem_heights(path, xy):
     return bilinear(grid, ds.GetGeoTransform(), xy, nodata=band.GetNoDataValue())
 
 
-def project_data(project_path, names):
-    """ProjectData of the named [[vectors]] entries, read without the QGIS layer API."""
+def project_data(project_path, names=None):
+    """ProjectData of the project's [[vectors]] entries (all, or ``names``), read without
+    the QGIS layer API and assembled by the core (:mod:`vectoradjust.assemble`)."""
     spec = load_project(project_path)
     unit = spec.measurements.get("unit", "mm")
     raw = read_measurements(spec.measurements["path"], spec.measurements.get("sigma"), unit=unit)
-    if spec.control is not None:
-        control = read_control(spec.control["path"])
-    else:
-        control = ControlPoints(np.zeros(0, str), np.zeros((0, 3)), np.zeros((0, 3)),
-                                np.zeros(0, str))
+    control = read_control(spec.control["path"]) if spec.control is not None else None
     fid = spec.measurements.get("fiducials")
-    interior = refine_measurements(raw, spec.images, spec.camera, spec.corrections, unit=unit,
-                                   fiducials=read_fiducials(fid, unit) if fid else None,
-                                   control=control, map_projection=True)
     vectors, truth = [], {}
     for v in spec.vectors:
-        if v.name not in names:
+        if names is not None and v.name not in names:
             continue
         layer = read_lines(v.path, v.name, v.id_field)
         if v.dem:
@@ -110,10 +104,6 @@ def project_data(project_path, names):
         vectors.append((v, layer))
         if v.truth:
             truth[v.name] = read_truth_points(v.truth)
-    camera = Camera(spec.camera.focal_length, interior.principal_point,
-                    calibration=spec.camera.calibration)
-    return ProjectData(crs=spec.crs, camera=camera, images=spec.images,
-                       measurements=interior.measurements, control=control, vectors=vectors,
-                       settings=spec.settings, truth=truth, corrections=spec.corrections,
-                       source=str(project_path), qa=spec.raw.get("qa"),
-                       interior=interior.report)
+    return assemble_project_data(spec, raw, control, vectors, truth=truth,
+                                 fiducials=read_fiducials(fid, unit) if fid else None,
+                                 source=str(project_path))

@@ -28,10 +28,13 @@ pytestmark = pytest.mark.qgis
 PLUGIN = Path(__file__).resolve().parents[1]
 REPO = PLUGIN.parent
 ALGORITHM_LINES = [
+    "vectoradjust:accuracycontrol\tAccuracy control",
     "vectoradjust:adjustroadvectors\tAdjust road vectors",
     "vectoradjust:bufferaccuracytest\tBuffer accuracy test",
     "vectoradjust:compareroaddatabases\tCompare road databases",
+    "vectoradjust:equalerrormap\tEqual-error map",
     "vectoradjust:extractshapepoints\tExtract shape points",
+    "vectoradjust:uncertaintybands\tUncertainty bands",
 ]
 
 
@@ -102,7 +105,7 @@ def test_qgis_process_runs_adjust(qgis_process, sample, headless_adjust, tmp_pat
            for k in ("SHAPE_POINTS", "FEATURES", "CONTROL_POINTS", "RESIDUALS")}
     args = ["--json", "run", "vectoradjust:adjustroadvectors", "--",
             f"INPUT={sample / 'osm_roads.shp'}", f"PROJECT={sample / 'project.toml'}",
-            f"SUMMARY={tmp_path / 'summary.json'}"]
+            f"SUMMARY={tmp_path / 'summary.json'}", f"REPORT={tmp_path / 'report.html'}"]
     args += [f"{k}={v}" for k, v in out.items()]
     proc = qgis_process(*args)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
@@ -115,6 +118,8 @@ def test_qgis_process_runs_adjust(qgis_process, sample, headless_adjust, tmp_pat
         assert path.is_file()
     with open(tmp_path / "summary.json", encoding="utf-8") as fh:
         assert close(json.load(fh)["sigma0_squared"], s["sigma0_squared"])
+    report = (tmp_path / "report.html").read_text(encoding="utf-8")  # matplotlib, headless
+    assert report.count("data:image/png;base64,") >= 3 and "</html>" in report
     mine = columns(QgsVectorLayer(str(out["SHAPE_POINTS"]), "sp", "ogr"))
     ref = columns(QgsVectorLayer(f"{headless_adjust['gpkg']}|layername=shape_points", "r",
                                  "ogr"))
@@ -122,6 +127,19 @@ def test_qgis_process_runs_adjust(qgis_process, sample, headless_adjust, tmp_pat
     for f in ("X", "Y", "Z", "Vx", "Vy", "Vz", "AdjX", "AdjY", "AdjZ", "CE90", "LE90",
               "Adjusted"):
         assert_same_values(mine[f], ref[f], f)
+
+
+def test_qgis_process_runs_accuracy_control(qgis_process, sample, tmp_path):
+    proc = qgis_process("--json", "run", "vectoradjust:accuracycontrol", "--",
+                        f"PROJECT={sample / 'project.toml'}", "PRODUCT=0", "SCALE=2000",
+                        "CONTOUR_INTERVAL=1", f"OUTPUT={tmp_path / 'qa.csv'}",
+                        f"QA_JSON={tmp_path / 'qa.json'}")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    result = json.loads(proc.stdout[proc.stdout.index("{"):])["results"]
+    with open(tmp_path / "qa.json", encoding="utf-8") as fh:
+        doc = json.load(fh)
+    assert result["VERDICT"] == doc["verdict"] and result["PASSED"] == doc["passed"]
+    assert (tmp_path / "qa.csv").is_file()
 
 
 def test_qgis_process_reports_user_errors(qgis_process, sample, tmp_path):

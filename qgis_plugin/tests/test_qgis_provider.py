@@ -17,6 +17,9 @@ ALGORITHMS = {
     "vectoradjust:adjustroadvectors": "Adjust road vectors",
     "vectoradjust:compareroaddatabases": "Compare road databases",
     "vectoradjust:bufferaccuracytest": "Buffer accuracy test",
+    "vectoradjust:accuracycontrol": "Accuracy control",
+    "vectoradjust:uncertaintybands": "Uncertainty bands",
+    "vectoradjust:equalerrormap": "Equal-error map",
 }
 
 
@@ -44,15 +47,44 @@ def test_adjust_parameters_and_outputs(qgis_app):
     params = {p.name(): p for p in alg.parameterDefinitions()}
     for name in ("INPUT", "ID_FIELD", "DEM", "MEASUREMENTS", "CONTROL", "PROJECT",
                  "FOCAL_LENGTH", "PRINCIPAL_POINT_X", "PRINCIPAL_POINT_Y", "IMAGES",
-                 "SHAPE_POINTS", "FEATURES", "CONTROL_POINTS", "RESIDUALS"):
+                 "SHAPE_POINTS", "FEATURES", "CONTROL_POINTS", "RESIDUALS", "SUMMARY",
+                 "REPORT"):
         assert name in params, name
     assert params["ID_FIELD"].parentLayerParameterName() == "INPUT"
+    assert params["REPORT"].type() == "fileDestination"
+    assert params["REPORT"].flags() & params["REPORT"].FlagOptional
     outputs = {o.name(): o.type() for o in alg.outputDefinitions()}
     assert outputs["SIGMA0_SQUARED"] == "outputNumber"
     assert outputs["CHI_SQUARE_PASSED"] == "outputBoolean"
     assert outputs["RMSE"] == "outputNumber"
     for sink in ("SHAPE_POINTS", "FEATURES", "CONTROL_POINTS", "RESIDUALS"):
         assert outputs[sink] == "outputVector"
+
+
+def test_new_algorithms_parameters_and_outputs(qgis_app):
+    from qgis.core import QgsApplication
+
+    reg = QgsApplication.processingRegistry()
+    qa = reg.algorithmById("vectoradjust:accuracycontrol")
+    params = {p.name(): p for p in qa.parameterDefinitions()}
+    assert params["PRODUCT"].options() == ["topographic map", "orthophoto", "orthomosaic"]
+    assert params["TERRAIN"].options() == ["flat", "hilly", "mountainous"]
+    for name in ("INPUT", "PRODUCT", "SCALE", "CONTOUR_INTERVAL", "TERRAIN", "PIXEL_SIZE"):
+        assert params[name].flags() & params[name].FlagOptional, name
+    assert params["OUTPUT"].type() == "sink" and params["QA_JSON"].type() == "fileDestination"
+    outputs = {o.name(): o.type() for o in qa.outputDefinitions()}
+    assert outputs["PASSED"] == "outputBoolean" and outputs["VERDICT"] == "outputString"
+    assert outputs["CONTROL_POINTS"] == "outputVector"
+    bands = reg.algorithmById("vectoradjust:uncertaintybands")
+    params = {p.name(): p for p in bands.parameterDefinitions()}
+    assert params["CONFIDENCE"].defaultValue() == 0.9
+    assert not params["INPUT"].flags() & params["INPUT"].FlagOptional
+    ee = reg.algorithmById("vectoradjust:equalerrormap")
+    params = {p.name(): p for p in ee.parameterDefinitions()}
+    assert params["OUTPUT"].type() == "rasterDestination"
+    assert params["DEM"].flags() & params["DEM"].FlagOptional
+    assert reg.algorithmById("vectoradjust:compareroaddatabases").parameterDefinition(
+        "REPORT").type() == "fileDestination"
 
 
 def test_metadata_complete():
@@ -160,6 +192,13 @@ def test_build_zip(tmp_path):
     for must in ("vectoradjust_qgis/__init__.py", "vectoradjust_qgis/metadata.txt",
                  "vectoradjust_qgis/icon.png", "vectoradjust_qgis/provider.py",
                  "vectoradjust_qgis/algorithms/adjust.py",
+                 "vectoradjust_qgis/algorithms/accuracy_control.py",
+                 "vectoradjust_qgis/algorithms/uncertainty_bands.py",
+                 "vectoradjust_qgis/algorithms/equal_error_map.py",
+                 "vectoradjust_qgis/ext/vectoradjust/assemble.py",
+                 "vectoradjust_qgis/ext/vectoradjust/derived.py",
+                 "vectoradjust_qgis/ext/vectoradjust/qa_run.py",
+                 "vectoradjust_qgis/ext/vectoradjust/report.py",
                  "vectoradjust_qgis/styles/residual_arrows.qml",
                  "vectoradjust_qgis/ext/vectoradjust/pipeline.py",
                  "vectoradjust_qgis/ext/vectoradjust/bundle.py"):
@@ -186,7 +225,7 @@ def test_zip_installs_and_runs(qgis_app, sample, tmp_path):
         "app = QgsApplication([], False); app.initQgis()\n"
         "import vectoradjust_qgis as p\n"
         "plugin = p.classFactory(None); plugin.initProcessing()\n"
-        "import vectoradjust, vectoradjust.pipeline\n"
+        "import vectoradjust, vectoradjust.pipeline, vectoradjust.assemble\n"
         "assert vectoradjust.__file__.startswith(sys.argv[1]), vectoradjust.__file__\n"
         "print(sorted(a.id() for a in plugin.provider.algorithms()))\n"
     )

@@ -34,15 +34,28 @@ def test_no_second_gdal_after_every_algorithm(qgis_app, sample, tmp_path):
         "INPUT": f"{s}/tnm_roads.shp", "PROJECT": f"{s}/project.toml",
         "SHAPE_POINTS": "TEMPORARY_OUTPUT", "FEATURES": "TEMPORARY_OUTPUT",
         "CONTROL_POINTS": "TEMPORARY_OUTPUT", "RESIDUALS": "TEMPORARY_OUTPUT",
-        "SUMMARY": str(tmp_path / "summary.json")})
+        "SUMMARY": str(tmp_path / "summary.json"), "REPORT": str(tmp_path / "report.html")})
     processing.run("vectoradjust:compareroaddatabases", {
         "LAYERS": [f"{s}/osm_roads.shp", f"{s}/tiger_roads.shp"],
         "PROJECT": f"{s}/project.toml", "OUTPUT": "TEMPORARY_OUTPUT",
         "SHAPE_POINTS": "TEMPORARY_OUTPUT", "RESIDUALS": "TEMPORARY_OUTPUT",
-        "OUTPUT_FOLDER": str(tmp_path / "compare")})
+        "OUTPUT_FOLDER": str(tmp_path / "compare"),
+        "REPORT": str(tmp_path / "compare.html")})
     processing.run("vectoradjust:bufferaccuracytest", {
         "INPUT": f"{s}/tiger_roads.shp", "REFERENCE": f"{s}/truth_roads.shp",
         "OUTPUT": "TEMPORARY_OUTPUT"})
+    processing.run("vectoradjust:accuracycontrol", {
+        "PROJECT": f"{s}/project.toml", "PRODUCT": 0, "SCALE": 2000, "CONTOUR_INTERVAL": 1,
+        "OUTPUT": "TEMPORARY_OUTPUT", "QA_JSON": str(tmp_path / "qa.json"),
+        "CONTROL_POINTS": "TEMPORARY_OUTPUT"})
+    processing.run("vectoradjust:uncertaintybands", {
+        "INPUT": f"{s}/osm_roads.shp", "PROJECT": f"{s}/project.toml",
+        "OUTPUT": "TEMPORARY_OUTPUT"})
+    processing.run("vectoradjust:equalerrormap", {
+        "PROJECT": f"{s}/project.toml", "OUTPUT": str(tmp_path / "ee.tif")})
+    assert (tmp_path / "report.html").is_file() and (tmp_path / "ee.tif").is_file()
+    # the report's figures: matplotlib's Agg canvas, never pyplot (no GUI backend in QGIS)
+    assert "matplotlib.pyplot" not in sys.modules
     assert not _loaded(SECOND_GDAL), f"loaded in the QGIS process: {_loaded(SECOND_GDAL)}"
     new = sorted(set(_loaded(BANNED)) - before)
     assert not new, f"loaded by the algorithms: {new}"

@@ -81,3 +81,54 @@ def close(a, b, atol=ATOL):
     if isinstance(a, float) and math.isnan(a):
         return isinstance(b, float) and math.isnan(b)
     return abs(float(a) - float(b)) <= atol
+
+
+def compare_summaries(a, b, path="summary"):
+    """Recursive comparison of two summary dicts: numbers to 1e-9, relative for large ones
+    (derived quantities such as a suspected blunder of -5814.8 divide by tiny
+    redundancy numbers and carry the last digits of the adjustment further)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict), path
+        keys = set(a) | set(b)
+        keys.discard("project")
+        for k in keys:
+            assert k in a and k in b, f"{path}.{k} missing on one side"
+            compare_summaries(a[k], b[k], f"{path}.{k}")
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), path
+        for i, (u, v) in enumerate(zip(a, b)):
+            compare_summaries(u, v, f"{path}[{i}]")
+    elif isinstance(a, bool) or a is None or isinstance(a, str):
+        assert a == b, f"{path}: {a!r} vs {b!r}"
+    else:
+        assert close(a, b, ATOL * max(1.0, abs(float(b)))), f"{path}: {a!r} vs {b!r}"
+
+
+def project_copy(sample, path, extra="", drop=()):
+    """Write a copy of the sample project file to ``path`` (files named by absolute paths).
+
+    ``extra`` is appended (e.g. a ``[qa]`` table); ``drop`` names ``[[vectors]]`` entries
+    to leave out. The data files stay where they are (nothing is written to the repo).
+    """
+    import json
+    import re
+
+    text = (sample / "project.toml").read_text(encoding="utf-8")
+    text = re.sub(r'^(\s*(?:path|dem|truth)\s*=\s*)"([^"]+)"',
+                  lambda m: m.group(1) + json.dumps(str((sample / m.group(2)).resolve())),
+                  text, flags=re.MULTILINE)
+    sections, current = [], []
+    for line in text.splitlines():
+        if line.startswith("[") and current:
+            sections.append(current)
+            current = []
+        current.append(line)
+    sections.append(current)
+    keep = []
+    for sec in sections:
+        if sec[0].strip() == "[[vectors]]" and any(
+                re.match(rf'\s*name\s*=\s*"{re.escape(n)}"', ln) for ln in sec for n in drop):
+            continue
+        keep += sec
+    path.write_text("\n".join(keep) + "\n" + extra, encoding="utf-8")
+    return path
