@@ -21,7 +21,7 @@ for pkg in python3-qgis qgis python3-pytest python3-scipy python3-matplotlib xvf
 done
 if [ "$need_apt" = 1 ]; then
   $SUDO apt-get update -q
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends \
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q \
     python3-qgis qgis qgis-providers python3-pytest python3-scipy python3-matplotlib xvfb xauth
 fi
 
