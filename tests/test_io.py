@@ -318,3 +318,38 @@ def test_csv_line_numbers_survive_blank_lines(copy):
     lines.insert(2, "")  # a blank line before the bad row: it is now line 5 of the file
     (copy / "gcps.csv").write_text("\n".join(lines) + "\n")
     _fails(copy, CSVError, r"gcps.csv, line 5: column X is 'abc'")
+
+
+def test_osm_pbf_input_gives_the_same_adjustment(sample_dir, tmp_path):
+    """An OpenStreetMap PBF (GDAL's OSM driver, layer 'lines') as road layer.
+
+    tests/data/osm/sample_roads.osm.pbf holds the sample project's single-part OSM-like
+    ways with their osm_id as way id (made by make_sample_pbf.py). PBF stores degrees to
+    1e-7, so positions agree with the shapefile to about a centimetre.
+    """
+    pbf = Path(__file__).resolve().parent / "data" / "osm" / "sample_roads.osm.pbf"
+    proj = tmp_path / "sample"
+    shutil.copytree(sample_dir, proj)
+    shutil.copy(pbf, proj / "roads.osm.pbf")
+    _edit(proj / "project.toml", 'path = "osm_roads.shp"', 'path = "roads.osm.pbf"')
+    got = run(load_project_data(proj / "project.toml"), vectors=["OSM"])
+    ref = run(load_project_data(sample_dir / "project.toml"), vectors=["OSM"])
+    layer = got.databases[0].shape.layer
+    assert layer.source.endswith("roads.osm.pbf") and layer.n_features == 25
+    assert {"highway", "name"} <= set(layer.attributes)
+    a, b = got.databases[0].vertices, ref.databases[0].vertices
+    ib = {pid: i for i, pid in enumerate(b["point_id"])}
+    common = [(i, ib[pid]) for i, pid in enumerate(a["point_id"]) if pid in ib]
+    ia, jb = np.array(common).T
+    assert len(ia) == len(a["point_id"])  # every PBF vertex id exists in the shapefile run
+    assert np.array_equal(a["Adjusted"][ia], b["Adjusted"][jb])
+    m = a["Adjusted"][ia] == 1
+    assert m.sum() > 150
+    assert np.abs(a["X"][ia] - b["X"][jb]).max() < 0.02
+    # the multi-part feature is not in the PBF (its measurements become tie points), and the
+    # two-pass sigmas differ a little: adjusted positions agree well within their 6 cm sigma
+    assert np.abs(a["AdjX"][ia][m] - b["AdjX"][jb][m]).max() < 0.01
+    assert np.abs(a["Vx"][ia][m] - b["Vx"][jb][m]).max() < 0.02
+    out = write_outputs(got, tmp_path / "o", bands=False)
+    feats = gpd.read_file(out["adjusted.gpkg"], layer="features")
+    assert len(feats) == 25 and "osm_id" in feats.columns
