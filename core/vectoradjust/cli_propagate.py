@@ -18,7 +18,6 @@ vectoradjust.cli_propagate`` runs them alone.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from collections.abc import Sequence
@@ -27,7 +26,7 @@ from typing import Optional
 
 import numpy as np
 
-from vectoradjust.clitools import run_command, write_json
+from vectoradjust.clitools import fmt_number, run_command, write_json
 
 __all__ = ["add_parsers", "cmd_propagate", "cmd_equal_error", "cmd_two_step", "main"]
 
@@ -47,13 +46,7 @@ def _adjust(project: str, quiet: bool):
 
 
 def _f(v, nd: int = 4) -> str:
-    if v is None:
-        return "-"
-    try:
-        v = float(v)
-    except (TypeError, ValueError):
-        return str(v)
-    return f"{v:.{nd}f}" if math.isfinite(v) else "-"
+    return fmt_number(v, nd)
 
 
 # ------------------------------------------------------------------------- propagate

@@ -13,13 +13,12 @@ vectoradjust.cli_qa`` runs it alone.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
 
-from vectoradjust.clitools import run_command, write_json
+from vectoradjust.clitools import fmt_number, run_command, write_json
 from vectoradjust.errors import VectorAdjustError
 
 __all__ = ["add_parser", "cmd_qa", "format_report", "write_qa_json", "main"]
@@ -93,13 +92,7 @@ def write_qa_json(report: dict, out_dir, extra: Optional[dict] = None) -> Path:
 
 
 def _f(v, nd: int = 3) -> str:
-    if v is None:
-        return "-"
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return str(v)
-    return f"{x:.{nd}f}" if math.isfinite(x) else "-"
+    return fmt_number(v, nd)
 
 
 def _table(heads: list, rows: list, indent: str = "  ") -> list:

@@ -11,7 +11,7 @@ import numpy as np
 
 from vectoradjust.errors import CancelledError, InputFileError, VectorAdjustError
 
-__all__ = ["clean_json", "write_json", "run_command"]
+__all__ = ["clean_json", "write_json", "run_command", "fmt_number"]
 
 
 def clean_json(obj):
@@ -67,3 +67,14 @@ def run_command(args) -> int:
     except KeyboardInterrupt:
         print("\nvectoradjust: interrupted", file=sys.stderr)
         return 130
+
+
+def fmt_number(v, nd: int = 3) -> str:
+    """A number for a printed table: ``nd`` decimals, ``-`` for None/NaN, text as is."""
+    if v is None:
+        return "-"
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return str(v)
+    return f"{x:.{nd}f}" if math.isfinite(x) else "-"
