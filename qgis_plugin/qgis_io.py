@@ -291,22 +291,9 @@ def read_line_source(source, name, id_field, target_crs, context, where):
             raise LayerError(f"{where}: the id {u[c > 1][0]!r} of field {id_field!r} is used by "
                              f"{int(c[c > 1][0])} features",
                              "Use a field with unique values as the id field")
-    if coords:
-        xyz = np.concatenate(coords)
-        vf_a, vi_a, vp_a = np.concatenate(vf), np.concatenate(vi), np.concatenate(vp)
-    else:
-        xyz = np.zeros((0, 3))
-        vf_a = vi_a = vp_a = np.zeros(0, np.int64)
-    bad = np.flatnonzero(~np.isfinite(xyz[:, :2]).all(axis=1))
-    if bad.size:
-        # NaN coordinates (e.g. failed transformation): the feature is unadjustable
-        for fi in np.unique(vf_a[bad]):
-            problems[int(fi)] = "NaN coordinates"
-        keep = ~np.isin(vf_a, list(problems))
-        xyz, vf_a, vi_a, vp_a = xyz[keep], vf_a[keep], vi_a[keep], vp_a[keep]
-    layer = LineLayer(name, np.asarray(ids, dtype=object).astype(str), attributes, xyz, vf_a,
-                      vi_a, vp_a, problems, target_crs.toWkt(), where,
-                      QgsWkbTypes.displayString(wkb))
+    layer = LineLayer.from_parts(name, np.asarray(ids, dtype=object).astype(str), attributes,
+                                 coords, vf, vi, vp, problems, target_crs.toWkt(), where,
+                                 QgsWkbTypes.displayString(wkb))
     return layer, fields
 
 

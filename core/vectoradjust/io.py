@@ -97,21 +97,8 @@ def layer_from_geometries(name, geoms, attributes: dict, feature_ids, crs, sourc
             count += len(c)
         if count == 0:
             problems[i] = "empty geometry"
-    if parts_coords:
-        coords = np.concatenate(parts_coords)
-        vf_a, vi_a, vp_a = np.concatenate(vf), np.concatenate(vi), np.concatenate(vp)
-    else:
-        coords = np.zeros((0, 3))
-        vf_a = vi_a = vp_a = np.zeros(0, np.int64)
-    bad = np.flatnonzero(~np.isfinite(coords[:, :2]).all(axis=1))
-    if bad.size:
-        # NaN coordinates: the whole feature is unadjustable, not silently mended
-        for f in np.unique(vf_a[bad]):
-            problems[int(f)] = "NaN coordinates"
-        keep = ~np.isin(vf_a, list(problems))
-        coords, vf_a, vi_a, vp_a = coords[keep], vf_a[keep], vi_a[keep], vp_a[keep]
-    return LineLayer(name, feature_ids, attributes, coords, vf_a, vi_a, vp_a, problems, crs,
-                     source, geometry_type)
+    return LineLayer.from_parts(name, feature_ids, attributes, parts_coords, vf, vi, vp,
+                                problems, crs, source, geometry_type)
 
 
 def read_line_layer(path: str, name: str, id_field: Optional[str], target_crs,

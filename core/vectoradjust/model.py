@@ -197,6 +197,31 @@ class LineLayer:
         """Number of features (including unadjustable ones)."""
         return len(self.feature_ids)
 
+    @classmethod
+    def from_parts(cls, name, feature_ids, attributes, parts, vertex_feature, vertex_index,
+                   vertex_part, problems, crs, source, geometry_type) -> LineLayer:
+        """Build a layer from per-part vertex arrays (as collected by a reader).
+
+        ``parts``, ``vertex_feature``, ``vertex_index`` and ``vertex_part`` are lists with
+        one array per feature part. A feature with a NaN coordinate becomes unadjustable
+        (listed in ``problems`` as "NaN coordinates", its vertices removed), never mended.
+        """
+        if parts:
+            xyz = np.concatenate(parts)
+            vf, vi, vp = (np.concatenate(a) for a in (vertex_feature, vertex_index, vertex_part))
+        else:
+            xyz = np.zeros((0, 3))
+            vf = vi = vp = np.zeros(0, np.int64)
+        problems = dict(problems)
+        bad = np.flatnonzero(~np.isfinite(xyz[:, :2]).all(axis=1))
+        if bad.size:
+            for f in np.unique(vf[bad]):
+                problems[int(f)] = "NaN coordinates"
+            keep = ~np.isin(vf, list(problems))
+            xyz, vf, vi, vp = xyz[keep], vf[keep], vi[keep], vp[keep]
+        return cls(name, feature_ids, attributes, xyz, vf, vi, vp, problems, crs, source,
+                   geometry_type)
+
 
 @dataclass
 class VectorSpec:
