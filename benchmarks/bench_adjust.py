@@ -28,9 +28,9 @@ def main(argv=None) -> int:
     p.add_argument("--keep", help="directory to keep the project and outputs in")
     args = p.parse_args(argv)
 
-    from vectoradjust.bundle import adjust  # noqa: F401  (import cost outside the timings)
-    from vectoradjust.io import load_project_data
-    from vectoradjust.outputs import write_outputs
+    from vectoradjust.adjust.bundle import adjust  # noqa: F401  (import cost outside the timings)
+    from vectoradjust.files.outputs import write_outputs
+    from vectoradjust.files.readers import load_project_data
     from vectoradjust.pipeline import run
     from vectoradjust.simulate import make_scenario, write_project
 

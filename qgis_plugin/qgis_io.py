@@ -1,6 +1,6 @@
 """QGIS layers, tables and rasters -> the core's arrays; core tables -> QGIS features.
 
-This is the QGIS twin of :mod:`vectoradjust.io` (which uses geopandas and rasterio and
+This is the QGIS twin of :mod:`vectoradjust.files.readers` (which uses geopandas and rasterio and
 must never be imported inside QGIS: they bring a second GDAL). Everything is read
 through the QGIS API and handed to the numerical core as numpy arrays, with the same
 semantics as the headless reader:
@@ -10,9 +10,9 @@ semantics as the headless reader:
   parts, null/empty geometries kept as features without vertices (``problems``),
   ids from the id field (integral floats written without ``.0``) or the 0-based
   feature index;
-* DEM heights by :func:`vectoradjust.dem.bilinear` on band 1 read with
+* DEM heights by :func:`vectoradjust.adjust.dem.bilinear` on band 1 read with
   ``QgsRasterDataProvider.block``;
-* measurement and control tables through :mod:`vectoradjust.tables` (a CSV file is
+* measurement and control tables through :mod:`vectoradjust.files.tables` (a CSV file is
   read by it directly; a table layer's contract columns go to its ``*_from_rows``
   functions, the same checks, with messages naming the layer and the row).
 
@@ -328,7 +328,7 @@ def _read_block(provider, band, extent, ncol, nrow, where):
 def dem_heights(raster, xy, xy_crs, context, where, band=1):
     """Heights of a DEM raster layer at ``xy`` by bilinear interpolation.
 
-    Mirrors :func:`vectoradjust.io.sample_dem`: points are transformed to the DEM's
+    Mirrors :func:`vectoradjust.files.readers.sample_dem`: points are transformed to the DEM's
     CRS when it differs, and uncovered points (outside, next to nodata) get NaN.
 
     Parameters
@@ -347,7 +347,7 @@ def dem_heights(raster, xy, xy_crs, context, where, band=1):
     -------
     numpy.ndarray, shape (n,)
     """
-    from vectoradjust.dem import bilinear
+    from vectoradjust.adjust.dem import bilinear
 
     if raster is None or not raster.isValid():
         raise DEMError(f"{where}: the raster cannot be read", "Give a readable DEM (GeoTIFF)")
@@ -453,7 +453,7 @@ def is_csv_path(value):
 def read_measurements_source(value, source, default_sigma, where, unit="mm"):
     """Measurements from a CSV path (``tables.read_measurements``) or a table source
     (as read: not refined yet; ``unit`` as ``[measurements] unit``)."""
-    from vectoradjust import tables
+    from vectoradjust.files import tables
 
     if is_csv_path(value):
         return tables.read_measurements(value, default_sigma, unit=unit)
@@ -470,7 +470,7 @@ def read_control_source(value, source, target_crs, context, where):
     transformed to the ground CRS and used (Z from the geometry when the layer has no
     ``Z`` field).
     """
-    from vectoradjust import tables
+    from vectoradjust.files import tables
 
     if is_csv_path(value):
         return tables.read_control(value)
@@ -514,7 +514,7 @@ def read_control_source(value, source, target_crs, context, where):
 
 def read_truth_source(value, source, where):
     """Truth points ``point_id,X,Y,Z`` from a CSV path or a table layer."""
-    from vectoradjust import tables
+    from vectoradjust.files import tables
 
     if is_csv_path(value):
         return tables.read_truth_points(value)

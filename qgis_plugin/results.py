@@ -1,7 +1,7 @@
-"""The adjustment's tables as QGIS features, mirroring :mod:`vectoradjust.outputs`.
+"""The adjustment's tables as QGIS features, mirroring :mod:`vectoradjust.files.outputs`.
 
 The layers have the contract's fields (``DESIGN.md`` section 9; the field lists are
-imported from :mod:`vectoradjust.outputs`, whose geopandas writers are never called
+imported from :mod:`vectoradjust.files.outputs`, whose geopandas writers are never called
 here) and the same nulls: floats that are NaN become NULL, and the per-point
 statistics of unmeasured vertices are NULL. Geometries are Z-aware; an unknown Z is
 written as 0, as the headless writer does.
@@ -37,7 +37,7 @@ _RESIDUAL_TYPES = {"point_id": "s", "feature_id": "s", "Database": "s"}
 
 
 def _outputs_module():
-    from vectoradjust import outputs
+    from vectoradjust.files import outputs
 
     return outputs
 

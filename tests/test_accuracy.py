@@ -1,4 +1,4 @@
-"""Accuracy statements (vectoradjust.accuracy) checked against their definitions.
+"""Accuracy statements (vectoradjust.accuracy.statements) checked against their definitions.
 
 Every expected value is recomputed here from the run's per-vertex arrays (or the raw
 control/truth arrays) with the formulas of DESIGN section 4, NSSDA and ASPRS 2023;
@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from vectoradjust import stats
-from vectoradjust.accuracy import accuracy_statements
+from vectoradjust.accuracy import stats
+from vectoradjust.accuracy.statements import accuracy_statements
 from vectoradjust.pipeline import run
 from vectoradjust.simulate import make_scenario
 

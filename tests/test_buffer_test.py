@@ -1,4 +1,4 @@
-"""Tests of vectoradjust.buffer_test against hand-computed geometry."""
+"""Tests of vectoradjust.accuracy.buffer against hand-computed geometry."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 shapely = pytest.importorskip("shapely")
 from shapely.geometry import LineString, MultiLineString, Point  # noqa: E402
 
-from vectoradjust.buffer_test import buffer_test  # noqa: E402
+from vectoradjust.accuracy.buffer import buffer_test  # noqa: E402
 from vectoradjust.errors import LayerError  # noqa: E402
 
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vectoradjust.bundle import BundleProblem, adjust, intersect, inv3x3
-from vectoradjust.collinearity import partials, project
+from vectoradjust.adjust.bundle import BundleProblem, adjust, intersect, inv3x3
 from vectoradjust.pipeline import run
+from vectoradjust.sensor.collinearity import partials, project
 from vectoradjust.simulate import make_scenario
 
 

@@ -1,12 +1,12 @@
-"""Tests of vectoradjust.camera: parsing the [camera] table and camera TOML files."""
+"""Tests of vectoradjust.sensor.camera: parsing the [camera] table and camera TOML files."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from vectoradjust.camera import CameraCalibration, load_camera_file
 from vectoradjust.errors import CameraError, VectorAdjustError
+from vectoradjust.sensor.camera import CameraCalibration, load_camera_file
 
 RC10_FILE = """\
 name = "Wild RC10 test"

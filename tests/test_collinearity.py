@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vectoradjust.collinearity import partials, project, rotation_matrix, rotation_to_angles
+from vectoradjust.sensor.collinearity import partials, project, rotation_matrix, rotation_to_angles
 
 
 def _random_config(seed, k=200):

@@ -3,11 +3,11 @@
 Truth used here, independent of the code under test:
 * the covariance of the unknowns as ``s0^2 N^-1`` from the full normal matrix, formed
   densely and inverted (DESIGN section 3) - the definition the batched formulas avoid;
-* ``BundleResult.joint_covariance`` and the Jacobians of :mod:`vectoradjust.propagate`
+* ``BundleResult.joint_covariance`` and the Jacobians of :mod:`vectoradjust.accuracy.propagate`
   (tested against finite differences by their own tests) for the dense checks;
-* finite differences of the forward intersection (:func:`vectoradjust.bundle.intersect`)
+* finite differences of the forward intersection (:func:`vectoradjust.adjust.bundle.intersect`)
   for the equal-error grid;
-* sampled error ellipses and :func:`vectoradjust.propagate.g_band` for the G-bands;
+* sampled error ellipses and :func:`vectoradjust.accuracy.propagate.g_band` for the G-bands;
 * the collinearity equations for the stereo overlap.
 """
 
@@ -21,12 +21,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from vectoradjust import derived
-from vectoradjust import propagate as prop
-from vectoradjust.bundle import intersect
-from vectoradjust.collinearity import project
+from vectoradjust.accuracy import derived
+from vectoradjust.accuracy import propagate as prop
+from vectoradjust.adjust.bundle import intersect
 from vectoradjust.errors import LayerError, MeasurementError, ProjectError
 from vectoradjust.pipeline import run
+from vectoradjust.sensor.collinearity import project
 from vectoradjust.simulate import make_scenario
 
 
@@ -518,7 +518,7 @@ def test_two_step_comparison(adj_run):
 def test_writers(adj_run, tmp_path):
     gpd = pytest.importorskip("geopandas")
     rasterio = pytest.importorskip("rasterio")
-    from vectoradjust.derived_io import (
+    from vectoradjust.files.derived_outputs import (
         EQUAL_ERROR_NODATA,
         write_equal_error_map,
         write_uncertainty_bands,
@@ -575,7 +575,7 @@ def written_project(tmp_path_factory):
 
 
 def _cli(argv):
-    from vectoradjust.cli_propagate import add_parsers
+    from vectoradjust.cli.propagate import add_parsers
 
     parser = argparse.ArgumentParser(prog="vectoradjust")
     sub = parser.add_subparsers(dest="command")
@@ -586,7 +586,7 @@ def _cli(argv):
 
 @pytest.mark.io
 def test_cli_propagate_equal_error_two_step(written_project, tmp_path, capsys):
-    from vectoradjust.io import load_project_data
+    from vectoradjust.files.readers import load_project_data
 
     r = run(load_project_data(written_project))
     db = r.databases[0]
@@ -613,7 +613,7 @@ def test_cli_propagate_equal_error_two_step(written_project, tmp_path, capsys):
     ts = json.loads((tmp_path / "two_step.json").read_text())
     assert ts["n_points"] > 0 and "sigma_ratio" in ts
     # a user error exits with 1 and one message
-    from vectoradjust.cli_propagate import main
+    from vectoradjust.cli.propagate import main
 
     assert main(["propagate", proj, "--out", str(tmp_path), "-q", "--distance", "nope",
                  ids[0]]) == 1

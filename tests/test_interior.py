@@ -1,4 +1,4 @@
-"""Image coordinate refinement wired into projects (vectoradjust.interior, DESIGN 5, 7, 9).
+"""Image coordinate refinement wired into projects (vectoradjust.sensor.interior, DESIGN 5, 7, 9).
 
 Independent truth: the simulator's TRUE ideal image coordinates (a scenario simulated
 with the same seed but without any physical effect draws the same noise), the truth
@@ -16,16 +16,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vectoradjust.camera import CameraCalibration
 from vectoradjust.errors import CameraError, CSVError, MeasurementError, ProjectError
-from vectoradjust.interior import (
+from vectoradjust.model import Camera, ControlPoints, ImageSpec, Measurements
+from vectoradjust.pipeline import run
+from vectoradjust.sensor.camera import CameraCalibration
+from vectoradjust.sensor.interior import (
     FiducialMeasurements,
     describe_interior,
     parse_corrections,
     refine_measurements,
 )
-from vectoradjust.model import Camera, ControlPoints, ImageSpec, Measurements
-from vectoradjust.pipeline import run
 from vectoradjust.simulate import EFFECTS, make_scenario
 
 # A scanned-film camera whose lens has the SMAC coefficients of the sample USGS
@@ -330,7 +330,7 @@ def _edit(path: Path, old: str, new: str) -> None:
 
 
 def _load(d: Path):
-    from vectoradjust.io import load_project_data
+    from vectoradjust.files.readers import load_project_data
 
     return load_project_data(d / "project.toml")
 
@@ -364,7 +364,7 @@ def test_scanned_project_files_give_the_in_memory_result(scan_project, distorted
 
 @pytest.mark.io
 def test_summary_carries_the_interior_orientation(scan_project, tmp_path, capsys):
-    from vectoradjust.cli import main
+    from vectoradjust.cli.commands import main
 
     assert main(["adjust", str(scan_project / "project.toml"), "--out", str(tmp_path / "o"),
                  "--vectors", "OSM", "-q"]) == 0
@@ -477,7 +477,7 @@ def test_project_key_errors(broken):
 def test_sample_project_camera_file_and_corrections(sample_dir):
     pytest.importorskip("geopandas")
     pytest.importorskip("rasterio")
-    from vectoradjust.io import load_project_data
+    from vectoradjust.files.readers import load_project_data
 
     if not (sample_dir / "rc10.toml").is_file():
         pytest.skip("sample without camera file")

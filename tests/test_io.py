@@ -12,7 +12,7 @@ import pytest
 pytestmark = pytest.mark.io
 gpd = pytest.importorskip("geopandas")
 
-from vectoradjust.cli import main  # noqa: E402
+from vectoradjust.cli.commands import main  # noqa: E402
 from vectoradjust.errors import (  # noqa: E402
     ControlError,
     CRSError,
@@ -23,8 +23,8 @@ from vectoradjust.errors import (  # noqa: E402
     ProjectError,
     VectorAdjustError,
 )
-from vectoradjust.io import load_project_data  # noqa: E402
-from vectoradjust.outputs import CONTROL_FIELDS, write_outputs  # noqa: E402
+from vectoradjust.files.outputs import CONTROL_FIELDS, write_outputs  # noqa: E402
+from vectoradjust.files.readers import load_project_data  # noqa: E402
 from vectoradjust.pipeline import run  # noqa: E402
 from vectoradjust.simulate import make_scenario, write_project  # noqa: E402
 

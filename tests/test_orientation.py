@@ -1,4 +1,4 @@
-"""Tests of vectoradjust.orientation: relative, absolute and two-step orientation.
+"""Tests of vectoradjust.adjust.orientation: relative, absolute and two-step orientation.
 
 Truth: B. Dewitt's published worked examples (relor.c, 3DCONF.c sample data), finite
 differences, synthetic data generated with known parameters, an independent
@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from vectoradjust.collinearity import project, rotation_matrix
-from vectoradjust.errors import ControlError, MeasurementError, VectorAdjustError
-from vectoradjust.orientation import (
+from vectoradjust.adjust.orientation import (
     conformal3d,
     relative_orientation,
     rotation_matrix_partials,
     two_step,
 )
+from vectoradjust.errors import ControlError, MeasurementError, VectorAdjustError
+from vectoradjust.sensor.collinearity import project, rotation_matrix
 
 DATA = Path(__file__).resolve().parent / "data" / "dewitt"  # B. Dewitt's public-domain samples
 
@@ -100,7 +100,7 @@ def test_relor_formulations_agree_with_unequal_weights():
     np.testing.assert_allclose(a.cov_model, b.cov_model, rtol=1e-5,
                                atol=1e-8 * np.abs(a.cov_model).max())
     # new points intersected from the oriented pair
-    from vectoradjust.orientation import model_intersection
+    from vectoradjust.adjust.orientation import model_intersection
 
     new = model_intersection(a, obs[:3, :2], obs[:3, 2:], f, sigma=sig[:3])
     np.testing.assert_allclose(new, a.model_xyz[:3], atol=1e-9)
@@ -131,7 +131,7 @@ def test_vertical_parallax_is_y_difference_for_normal_case():
     f, _, _, _, lxy, rxy = _synthetic_pair()
     rng = np.random.default_rng(5)
     rxy2 = rxy + rng.normal(0, 0.01, rxy.shape)
-    from vectoradjust.orientation import _vertical_parallax
+    from vectoradjust.adjust.orientation import _vertical_parallax
 
     eo_l = np.array([0.0, 0.0, f, 0, 0, 0])
     eo_r = np.array([90.0, 0.0, f, 0, 0, 0])
@@ -223,7 +223,7 @@ def test_3dconf_transform_covariance_vs_finite_differences():
     c = conformal3d(x, X)
     cov_pts = np.diag(np.tile([0.02, 0.03, 0.05], len(new)) ** 2)
     xyz, cov = c.transform(new, cov_pts)
-    from vectoradjust.orientation import _conf_apply
+    from vectoradjust.adjust.orientation import _conf_apply
 
     theta = np.concatenate([c.params, new.ravel()])
     h = 1e-7
@@ -248,7 +248,7 @@ def _similarity_case(seed=2, n=7, noise=1.0):
     x = rng.uniform(-100, 100, (n, 3))
     params = np.array([3.7, np.radians(4.0), np.radians(-7.0), np.radians(35.0), 5000.0, 2000.0,
                        120.0])
-    from vectoradjust.orientation import _conf_apply
+    from vectoradjust.adjust.orientation import _conf_apply
 
     X = _conf_apply(params, x)
     cm = rng.uniform(0.05, 0.2, (n, 3))
@@ -260,7 +260,7 @@ def test_gauss_helmert_equals_independent_gauss_markov():
     x, X, cm, cg, _ = _similarity_case()
     c = conformal3d(x, X, cov_model=cm, cov_ground=cg)
     assert c.method == "gauss-helmert"
-    from vectoradjust.orientation import _conf_apply
+    from vectoradjust.adjust.orientation import _conf_apply
 
     n = len(x)
 

@@ -1,4 +1,4 @@
-"""Tests of vectoradjust.propagate against independent truth.
+"""Tests of vectoradjust.accuracy.propagate against independent truth.
 
 Truth: the definition of the derived quantities (distance, mean, length, bilinear
 interpolation via scipy's RegularGridInterpolator), finite differences, Monte Carlo
@@ -12,8 +12,7 @@ import pytest
 from scipy.interpolate import RegularGridInterpolator
 from scipy.stats import chi2
 
-from vectoradjust.collinearity import partials, project
-from vectoradjust.propagate import (
+from vectoradjust.accuracy.propagate import (
     bilinear_coefficients,
     block_diagonal,
     confidence_scale,
@@ -28,6 +27,7 @@ from vectoradjust.propagate import (
     polyline_length,
     propagate,
 )
+from vectoradjust.sensor.collinearity import partials, project
 
 
 def _correlated_points(n, rho=0.95, sigma=(0.3, 0.3, 0.5), seed=0):

@@ -1,4 +1,4 @@
-"""Tests of the production accuracy-control tolerances (vectoradjust.qa).
+"""Tests of the production accuracy-control tolerances (vectoradjust.qa.tolerances).
 
 Sources of the expected numbers
 -------------------------------
@@ -32,9 +32,8 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from vectoradjust.collinearity import project
 from vectoradjust.errors import ControlError, ProjectError
-from vectoradjust.qa import (
+from vectoradjust.qa.tolerances import (
     QASpec,
     block_tolerances,
     check_stage,
@@ -55,6 +54,7 @@ from vectoradjust.qa import (
     triplet_tolerance,
     vertical_parallax,
 )
+from vectoradjust.sensor.collinearity import project
 
 # Manufacturers' public specifications: f (mm), pixel (mm), pixels along track,
 # pixels across track.

@@ -16,12 +16,11 @@ import math
 import numpy as np
 import pytest
 
-from vectoradjust.camera import CameraCalibration
 from vectoradjust.errors import ProjectError
 from vectoradjust.model import Camera
 from vectoradjust.pipeline import run
-from vectoradjust.qa import QASpec
-from vectoradjust.qa_run import (
+from vectoradjust.qa.tolerances import QASpec
+from vectoradjust.qa.verdict import (
     accuracy_control,
     control_qa_field,
     html_section,
@@ -32,6 +31,7 @@ from vectoradjust.qa_run import (
     triplet_discrepancies,
     working_radius_mm,
 )
+from vectoradjust.sensor.camera import CameraCalibration
 from vectoradjust.simulate import make_scenario
 
 MAP_2000 = QASpec("topographic map", map_scale=2000, contour_interval=1.0)
@@ -294,7 +294,7 @@ def test_two_images_have_no_triplet(noisy_run):
 
 # -------------------------------------------------------- interior orientation
 def test_interior_orientation_stage_names_the_bad_fiducial(block_sc):
-    from vectoradjust.interior import FiducialMeasurements, refine_measurements
+    from vectoradjust.sensor.interior import FiducialMeasurements, refine_measurements
 
     cal_fid = {"1": (-106.0, -106.0), "2": (106.0, 106.0), "3": (-106.0, 106.0),
                "4": (106.0, -106.0), "5": (0.0, 110.0), "6": (0.0, -110.0),
@@ -387,8 +387,8 @@ def written(tmp_path_factory):
 
 @pytest.mark.io
 def test_cli_writes_qa_json(written, tmp_path, capsys):
-    from vectoradjust.cli_qa import main
-    from vectoradjust.io import load_project_data
+    from vectoradjust.cli.qa import main
+    from vectoradjust.files.readers import load_project_data
 
     path, gid = written
     text = path.read_text()
@@ -420,7 +420,7 @@ def test_cli_writes_qa_json(written, tmp_path, capsys):
 
 @pytest.mark.io
 def test_cli_without_spec_is_a_clear_error(written, tmp_path, capsys):
-    from vectoradjust.cli_qa import main
+    from vectoradjust.cli.qa import main
 
     path, _ = written
     assert main([str(path), "--out", str(tmp_path / "x"), "-q"]) == 1

@@ -1,4 +1,4 @@
-"""Tests of vectoradjust.refine: interior orientation and image coordinate refinement.
+"""Tests of vectoradjust.sensor.refine: interior orientation and image coordinate refinement.
 
 Truth comes from published check values (DESIGN.md section 5; the SMAC sample of a
 USGS calibration report as used by Wolf & Dewitt), from exact geometry (earth
@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vectoradjust.camera import CameraCalibration
 from vectoradjust.errors import CameraError, MeasurementError
 from vectoradjust.model import Camera
-from vectoradjust.refine import (
+from vectoradjust.sensor.camera import CameraCalibration
+from vectoradjust.sensor.refine import (
     DEFAULT_CORRECTIONS,
     ardc_k,
     decentering_correction,

@@ -16,9 +16,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from vectoradjust.bundle import BundleProblem, adjust
-from vectoradjust.collinearity import project, rotation_matrix
-from vectoradjust.reliability import (
+from vectoradjust.adjust.bundle import BundleProblem, adjust
+from vectoradjust.adjust.reliability import (
     critical_value,
     data_snooping,
     detection_power,
@@ -26,6 +25,7 @@ from vectoradjust.reliability import (
     noncentrality,
     reliability,
 )
+from vectoradjust.sensor.collinearity import project, rotation_matrix
 from vectoradjust.simulate import DatabaseModel, make_scenario
 
 

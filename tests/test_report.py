@@ -18,7 +18,7 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
-from vectoradjust import report  # noqa: E402
+from vectoradjust.files import report  # noqa: E402
 from vectoradjust.errors import InputFileError  # noqa: E402
 from vectoradjust.pipeline import run  # noqa: E402
 from vectoradjust.simulate import make_scenario  # noqa: E402
@@ -372,7 +372,7 @@ def test_unwritable_path(adj_run, tmp_path):
 
 
 def test_with_the_reliability_module(adj_run, tmp_path, no_figures):
-    rel_mod = pytest.importorskip("vectoradjust.reliability")
+    rel_mod = pytest.importorskip("vectoradjust.adjust.reliability")
     rel = rel_mod.reliability(adj_run.result)
     expected = rel_mod.flagged_observations(rel, adj_run.result, adj_run.point_ids,
                                             adj_run.image_ids, adj_run.point_kind)

@@ -8,7 +8,7 @@ coordinates make sigma0 come out in millimetres as in the published solution.
 import numpy as np
 import pytest
 
-from vectoradjust.bundle import BundleProblem, adjust
+from vectoradjust.adjust.bundle import BundleProblem, adjust
 
 
 def _load(dewitt_dir):

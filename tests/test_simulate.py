@@ -15,11 +15,11 @@ import time
 import numpy as np
 import pytest
 
-from vectoradjust import simulate
-from vectoradjust.camera import CameraCalibration
-from vectoradjust.collinearity import project
-from vectoradjust.dem import bilinear
+from vectoradjust.adjust.dem import bilinear
+from vectoradjust.sensor.camera import CameraCalibration
+from vectoradjust.sensor.collinearity import project
 from vectoradjust.simulate import EFFECTS, make_scenario, terrain_height, write_project
+from vectoradjust.simulate import scenario as simulate
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -1,4 +1,4 @@
-"""Tests of vectoradjust.stats against independent truth.
+"""Tests of vectoradjust.accuracy.stats against independent truth.
 
 Truth used here: closed forms (Phi^-1(0.95), sqrt(-2 ln 0.1), the noncentral
 chi-square distribution for a circular error with bias, the 1-D formula for a
@@ -17,7 +17,7 @@ import pytest
 from scipy import integrate, optimize
 from scipy.stats import chi2, ncx2, norm
 
-from vectoradjust import stats as S
+from vectoradjust.accuracy import stats as S
 from vectoradjust.errors import ProjectError
 
 # ---------------------------------------------------------------------------

@@ -13,10 +13,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from vectoradjust.bundle import BundleProblem
+from vectoradjust.adjust.bundle import BundleProblem
+from vectoradjust.adjust.vce import variance_components
 from vectoradjust.errors import AdjustmentError
 from vectoradjust.simulate import DatabaseModel, make_scenario
-from vectoradjust.vce import variance_components
 
 
 def _dewitt_problem(dewitt_dir):
@@ -105,7 +105,7 @@ def test_iid_database_sigma_is_recovered(seed):
     # the realised per-axis RMS of the measured points' database errors: closer still
     s = (out.point_kind == "shape")
     tid, txyz = sc.truth["IID"]
-    from vectoradjust.shapepoints import lookup
+    from vectoradjust.adjust.shapepoints import lookup
 
     d = out.problem.prior_xyz[s, :2] - txyz[lookup(tid, out.point_ids[s]), :2]
     assert v.sigma["IID:h"] == pytest.approx(np.sqrt(np.mean(d**2)), rel=0.05)
@@ -192,9 +192,9 @@ def test_sample_project_database_sigmas(sample_dir):
     DEM; they are not asserted.
     """
     pytest.importorskip("geopandas")
-    from vectoradjust.io import load_project_data
+    from vectoradjust.adjust.shapepoints import lookup
+    from vectoradjust.files.readers import load_project_data
     from vectoradjust.pipeline import run
-    from vectoradjust.shapepoints import lookup
 
     data = load_project_data(sample_dir / "project.toml")
     data.settings.reweight = "none"

@@ -1,4 +1,4 @@
-"""On-demand validation of vectoradjust.reliability: the w-test's false alarms and power.
+"""On-demand validation of vectoradjust.adjust.reliability: the w-test's false alarms and power.
 
 Run:  PYTHONPATH=core python validation/blunder_detection.py [--seeds 200] [--blunder 5]
       [--alpha0 0.001] [--big]
@@ -44,9 +44,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from vectoradjust.bundle import BundleProblem, adjust
-from vectoradjust.collinearity import project, rotation_matrix
-from vectoradjust.reliability import critical_value, detection_power, reliability
+from vectoradjust.adjust.bundle import BundleProblem, adjust
+from vectoradjust.adjust.reliability import critical_value, detection_power, reliability
+from vectoradjust.sensor.collinearity import project, rotation_matrix
 
 FOCAL = 152.4
 SIGMA = 0.015

@@ -1,4 +1,4 @@
-"""On-demand validation of vectoradjust.stats CE90/LE90 (larger than the test suite).
+"""On-demand validation of vectoradjust.accuracy.stats CE90/LE90 (larger than the test suite).
 
 Run:  PYTHONPATH=core python validation/ce90_coverage.py [--n 1000000] [--seed 1]
 
@@ -22,7 +22,7 @@ import time
 import numpy as np
 from scipy.stats import ncx2
 
-from vectoradjust import stats as S
+from vectoradjust.accuracy import stats as S
 
 
 def _random_cov(rng, n):

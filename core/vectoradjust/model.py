@@ -1,7 +1,7 @@
 """In-memory description of an adjustment project: plain numpy arrays, no file I/O.
 
 These containers are what the numerical pipeline (:mod:`vectoradjust.pipeline`)
-consumes. The file readers (:mod:`vectoradjust.io`), the simulator
+consumes. The file readers (:mod:`vectoradjust.files.readers`), the simulator
 (:mod:`vectoradjust.simulate`) and the QGIS plugin all produce them, so the same
 numbers come out whichever way the data arrived.
 """

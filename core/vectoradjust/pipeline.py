@@ -15,8 +15,15 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from vectoradjust import stats
-from vectoradjust.bundle import BundleProblem, BundleResult, adjust, intersect, ray_intersection
+from vectoradjust.accuracy import stats
+from vectoradjust.adjust.bundle import (
+    BundleProblem,
+    BundleResult,
+    adjust,
+    intersect,
+    ray_intersection,
+)
+from vectoradjust.adjust.shapepoints import ShapePoints, extract_shape_points, lookup
 from vectoradjust.errors import (
     ControlError,
     DEMError,
@@ -25,7 +32,6 @@ from vectoradjust.errors import (
     ProjectError,
 )
 from vectoradjust.model import ProjectData, VectorSpec
-from vectoradjust.shapepoints import ShapePoints, extract_shape_points, lookup
 
 __all__ = ["AdjustmentRun", "DatabaseResult", "run", "LE90_FACTOR"]
 
@@ -177,7 +183,7 @@ def run(
     Parameters
     ----------
     data : ProjectData
-        Inputs as arrays (from :func:`vectoradjust.io.load_project_data`, the
+        Inputs as arrays (from :func:`vectoradjust.files.readers.load_project_data`, the
         simulator or QGIS).
     vectors : list of str, optional
         Names of the ``[[vectors]]`` entries to adjust (default: all). Measurements of
@@ -456,7 +462,7 @@ def run(
                        "sigma": {d.name: list(d.sigma_used) for d in db_results}})
     snooping_info = None
     if settings.snooping:
-        from vectoradjust.reliability import data_snooping
+        from vectoradjust.adjust.reliability import data_snooping
 
         report(0.65, "data snooping")
         sn = data_snooping(problem, alpha0=settings.alpha0, beta0=settings.beta0,
@@ -488,7 +494,7 @@ def run(
         _tabulate_database(out, d)
     if data.qa:
         # production accuracy control: pass/fail of every control/check point
-        from vectoradjust.qa_run import control_qa_field, spec_from_table
+        from vectoradjust.qa.verdict import control_qa_field, spec_from_table
 
         spec = spec_from_table(data.qa, source=data.source)
         out.control_points["QA"] = np.asarray(control_qa_field(out, spec), dtype=object)
@@ -498,7 +504,7 @@ def run(
         out.summary["variance_components"] = vce_info
     if snooping_info is not None:
         out.summary["data_snooping"] = snooping_info
-    from vectoradjust.accuracy import accuracy_statements
+    from vectoradjust.accuracy.statements import accuracy_statements
 
     out.summary["accuracy"] = accuracy_statements(out)
     report(1.0, "done")
@@ -511,7 +517,7 @@ MAX_FLAGGED_IN_SUMMARY = 1000
 
 def _reliability_summary(out: AdjustmentRun, settings) -> dict:
     """Redundancy numbers, w-tests and flagged observations (Baarda, a-priori sigma0)."""
-    from vectoradjust.reliability import flagged_observations, reliability
+    from vectoradjust.adjust.reliability import flagged_observations, reliability
 
     rel = reliability(out.result, alpha0=settings.alpha0, beta0=settings.beta0)
     out.reliability = rel
@@ -538,7 +544,7 @@ def _reliability_summary(out: AdjustmentRun, settings) -> dict:
 
 def _vce(problem, point_kind, point_db, db_results, adjust_kwargs, warnings):
     """Variance component estimation: image coordinates, GCPs, each database h / v."""
-    from vectoradjust.vce import variance_components
+    from vectoradjust.adjust.vce import variance_components
 
     m = problem.n_points
     labels = np.full((m, 3), "", dtype=object)
@@ -740,7 +746,7 @@ def _tabulate_database(out: AdjustmentRun, d: DatabaseResult) -> None:
         "Problem": problem_txt,
     }
     # sigma of the adjusted length, with and without the covariances between points
-    from vectoradjust.derived import feature_length_sigma
+    from vectoradjust.accuracy.derived import feature_length_sigma
 
     sd, sd_nc = feature_length_sigma(out, d)
     d.features["LengthSD"] = np.asarray(sd, float)

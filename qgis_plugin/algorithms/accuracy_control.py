@@ -157,7 +157,7 @@ class AccuracyControl(VectorAdjustAlgorithm):
     def _spec(self, parameters, context, qa_table, source):
         """The product specification: [qa] of the project overridden by the parameters."""
         from vectoradjust.errors import ProjectError
-        from vectoradjust.qa_run import spec_from_table
+        from vectoradjust.qa.verdict import spec_from_table
 
         def number(name):
             return inputs._number(self, parameters, name, context)
@@ -181,8 +181,8 @@ class AccuracyControl(VectorAdjustAlgorithm):
         return spec, pixel
 
     def run_algorithm(self, parameters, context, feedback):
-        from vectoradjust.cli_qa import format_report
-        from vectoradjust.qa_run import accuracy_control
+        from vectoradjust.cli.qa import format_report
+        from vectoradjust.qa.verdict import accuracy_control
 
         t0 = time.perf_counter()
         # the specification is checked before the (possibly long) adjustment, as the

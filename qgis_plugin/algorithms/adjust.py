@@ -187,8 +187,8 @@ def write_html_report(alg, parameters, context, feedback, key, run=None, runs=No
                       rows=None):
     """Write the HTML report (``report.html`` of the command line) when ``key`` is given.
 
-    One run: :func:`vectoradjust.report.write_report`; a comparison (``runs`` and
-    ``rows``): :func:`vectoradjust.report.write_compare_report`. Figures are drawn with
+    One run: :func:`vectoradjust.files.report.write_report`; a comparison (``runs`` and
+    ``rows``): :func:`vectoradjust.files.report.write_compare_report`. Figures are drawn with
     matplotlib's Agg canvas (no pyplot). Returns the path or None.
     """
     path = alg.parameterAsFileOutput(parameters, key, context)
@@ -196,7 +196,7 @@ def write_html_report(alg, parameters, context, feedback, key, run=None, runs=No
         return None
     feedback.setProgressText("writing the report")
     try:
-        from vectoradjust import report
+        from vectoradjust.files import report
     except ImportError as exc:  # pragma: no cover - depends on the machine
         from qgis.core import QgsProcessingException
 

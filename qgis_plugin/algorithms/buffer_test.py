@@ -41,7 +41,7 @@ the vectoradjust core), which makes round parts at most 0.03 % narrow.</p>
 <p>A table, one row per width: <code>width</code>, <code>share</code> (0..1),
 <code>percent</code>, <code>inside</code> (length inside, m) and <code>total</code> (total
 length of the tested lines, m).</p>
-<p>The same numbers as <code>vectoradjust.buffer_test.buffer_test</code> (computed here with
+<p>The same numbers as <code>vectoradjust.accuracy.buffer.buffer_test</code> (computed here with
 QGIS's GEOS instead of shapely).</p>
 """
 
@@ -100,7 +100,7 @@ def _lines(source, crs, context, where):
 def buffer_shares(tested, reference, widths, quad_segs=32, cap_style="round", feedback=None):
     """Share of the tested lines' length inside buffers of the reference lines.
 
-    The QGIS/GEOS twin of :func:`vectoradjust.buffer_test.buffer_test` (same result
+    The QGIS/GEOS twin of :func:`vectoradjust.accuracy.buffer.buffer_test` (same result
     dictionaries): the reference lines' parts are collected into one multi-line and
     buffered; each tested geometry is intersected with the buffer.
     """
@@ -145,7 +145,7 @@ def _vertex_lines(xy, feature, part):
 
 
 def truth_buffer(run, truth_path, widths, crs, context, feedback=None):
-    """The QGIS twin of :func:`vectoradjust.cli_buffer.truth_buffer` (which reads the
+    """The QGIS twin of :func:`vectoradjust.cli.buffer.truth_buffer` (which reads the
     true centrelines with geopandas): the share of each database's lines inside buffers
     of the true lines before and after the adjustment.
 
@@ -198,7 +198,7 @@ def truth_buffer(run, truth_path, widths, crs, context, feedback=None):
 def project_truth_buffer(prj, runs, context, feedback):
     """Apply :func:`truth_buffer` to every run when the project has a ``[truth]`` table
     (true centrelines), as ``vectoradjust adjust`` / ``compare`` do."""
-    from vectoradjust.cli_buffer import project_truth
+    from vectoradjust.cli.buffer import project_truth
 
     truth = project_truth(prj.spec)
     if truth is None:

@@ -56,19 +56,19 @@ QUANTITY = ("a-posteriori standard deviation of a point intersected from the ste
 def write_equal_error_raster(grid, path, crs, nodata=None):
     """Write an equal-error grid as a 3-band Float32 raster with QGIS's GDAL.
 
-    The same file as :func:`vectoradjust.derived_io.write_equal_error_map` (which uses
+    The same file as :func:`vectoradjust.files.derived_outputs.write_equal_error_map` (which uses
     rasterio and must not run inside QGIS): bands sigma X, Y, Z with their descriptions,
     nodata outside the overlap, the grid's geotransform, DEFLATE compression for a
     GeoTIFF, and the ``units`` / ``quantity`` metadata.
 
     Parameters
     ----------
-    grid : vectoradjust.derived.EqualErrorGrid
+    grid : vectoradjust.accuracy.derived.EqualErrorGrid
     path : str
         Output file; the format follows the extension (GeoTIFF by default).
     crs : QgsCoordinateReferenceSystem
     nodata : float, optional
-        Default :data:`vectoradjust.derived_io.EQUAL_ERROR_NODATA`.
+        Default :data:`vectoradjust.files.derived_outputs.EQUAL_ERROR_NODATA`.
 
     Returns
     -------
@@ -76,8 +76,8 @@ def write_equal_error_raster(grid, path, crs, nodata=None):
     """
     from osgeo import gdal
 
-    from vectoradjust.derived_io import EQUAL_ERROR_NODATA
     from vectoradjust.errors import InputFileError
+    from vectoradjust.files.derived_outputs import EQUAL_ERROR_NODATA
 
     nodata = EQUAL_ERROR_NODATA if nodata is None else float(nodata)
     bands = np.stack([grid.sigma_x, grid.sigma_y, grid.sigma_z]).astype(np.float32)
@@ -183,7 +183,7 @@ class EqualErrorMap(VectorAdjustAlgorithm):
         return z, f"the DEM {dem.source()}"
 
     def run_algorithm(self, parameters, context, feedback):
-        from vectoradjust import derived
+        from vectoradjust.accuracy import derived
         from vectoradjust.errors import ProjectError
 
         t0 = time.perf_counter()

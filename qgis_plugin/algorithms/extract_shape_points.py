@@ -86,7 +86,7 @@ class ExtractShapePoints(VectorAdjustAlgorithm):
         self.addOutput(QgsProcessingOutputNumber("UNCOVERED", "Shape points without height"))
 
     def run_algorithm(self, parameters, context, feedback):
-        from vectoradjust.shapepoints import extract_shape_points
+        from vectoradjust.adjust.shapepoints import extract_shape_points
 
         source = self.parameterAsSource(parameters, self.INPUT, context)
         if source is None:

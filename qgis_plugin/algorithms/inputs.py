@@ -4,7 +4,7 @@ The camera, images, measurements, control and settings come from a project file
 (TOML, the contract of ``DESIGN.md`` section 9) and/or from parameters. A parameter
 that is set wins over the project file; what neither gives is an error with the
 core's message. The project file is validated by the core
-(:func:`vectoradjust.project.parse_project`), and a parameter-only set-up is validated
+(:func:`vectoradjust.files.project.parse_project`), and a parameter-only set-up is validated
 the same way, so both routes give the same checks and the same numbers.
 
 Every ``[[vectors]]`` entry of the project file is read through QGIS (as the command
@@ -13,7 +13,7 @@ recognised and left out rather than taken for tie points. A road layer whose fil
 ``path`` of an entry takes that entry's place, name, id field, sigma, DEM and truth
 unless parameters say otherwise; a road layer that is not in the project is one more
 database. The tables are assembled into the core's ProjectData by
-:func:`vectoradjust.assemble.project_data`, the function the command line uses.
+:func:`vectoradjust.files.assemble.project_data`, the function the command line uses.
 """
 
 import os
@@ -141,10 +141,10 @@ class ProjectInputs:
 
     ``measurements`` and ``control`` are as read; :meth:`project_data` refines the
     measurements and assembles the core's ProjectData exactly as the command line does
-    (:func:`vectoradjust.assemble.project_data`).
+    (:func:`vectoradjust.files.assemble.project_data`).
     """
 
-    spec: object  # vectoradjust.project.ProjectSpec
+    spec: object  # vectoradjust.files.project.ProjectSpec
     crs: object  # QgsCoordinateReferenceSystem
     measurements: object
     control: object
@@ -154,7 +154,7 @@ class ProjectInputs:
 
     def project_data(self, vectors, truth):
         """The core's ProjectData for these road databases."""
-        from vectoradjust.assemble import project_data
+        from vectoradjust.files.assemble import project_data
 
         # the ground CRS is projected (checked): earth curvature applies when switched on
         return project_data(self.spec, self.measurements, self.control, vectors,
@@ -220,7 +220,7 @@ def _images_from_matrix(values, where):
 
 def _read_toml(path):
     from vectoradjust.errors import ProjectError
-    from vectoradjust.project import tomllib
+    from vectoradjust.files.project import tomllib
 
     p = Path(path)
     if not p.is_file():
@@ -244,8 +244,8 @@ def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectI
         layer's CRS).
     """
     from vectoradjust.errors import ProjectError
-    from vectoradjust.project import parse_project
-    from vectoradjust.tables import read_control, read_fiducials, read_measurements
+    from vectoradjust.files.project import parse_project
+    from vectoradjust.files.tables import read_control, read_fiducials, read_measurements
 
     project_path = alg.parameterAsFile(parameters, PROJECT, context) if _is_set(
         parameters, PROJECT) else ""
@@ -328,7 +328,7 @@ def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectI
     elif spec.control is not None:
         control = read_control(spec.control["path"])
     else:
-        control = None  # an empty table (vectoradjust.assemble)
+        control = None  # an empty table (vectoradjust.files.assemble)
     fid_path = spec.measurements.get("fiducials")
     fiducials = read_fiducials(fid_path, unit) if fid_path else None
     return ProjectInputs(spec=spec, crs=crs, measurements=raw_meas, control=control,
@@ -430,8 +430,8 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
     -------
     RoadDatabase
     """
+    from vectoradjust.files.tables import read_truth_points
     from vectoradjust.model import VectorSpec
-    from vectoradjust.tables import read_truth_points
 
     entry = matching_vector_spec(prj, vlayer)
     name = (name or "").strip() or (entry.name if entry else source.sourceName())
@@ -482,7 +482,7 @@ def read_project_entry(prj, entry, context, feedback, dems=None):
     -------
     (VectorSpec, LineLayer, truth or None)
     """
-    from vectoradjust.tables import read_truth_points
+    from vectoradjust.files.tables import read_truth_points
 
     where = f"[[vectors]] entry {entry.name!r} of {prj.source}"
     feedback.setProgressText(f"reading {entry.name} ({entry.path})")

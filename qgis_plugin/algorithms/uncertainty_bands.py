@@ -52,8 +52,8 @@ BAND_TYPES = {"database": "s", "feature_id": "s", "NSeg": "i"}
 
 
 def band_fields():
-    """Fields of the bands layer (:data:`vectoradjust.derived_io.BAND_FIELDS`)."""
-    from vectoradjust.derived_io import BAND_FIELDS
+    """Fields of the bands layer (:data:`vectoradjust.files.derived_outputs.BAND_FIELDS`)."""
+    from vectoradjust.files.derived_outputs import BAND_FIELDS
 
     return qgis_io.fields_for(BAND_FIELDS, BAND_TYPES)
 
@@ -78,10 +78,10 @@ def _polygon_parts(geom):
 def band_features(run, fields, confidence, feedback=None):
     """Features of the bands layer: one MultiPolygon per feature with a band.
 
-    The segment rings come from :func:`vectoradjust.derived.uncertainty_bands`; they are
+    The segment rings come from :func:`vectoradjust.accuracy.derived.uncertainty_bands`; they are
     made valid and united per feature with QGIS's GEOS (``QgsGeometry.unaryUnion``).
     """
-    from vectoradjust.derived import uncertainty_bands
+    from vectoradjust.accuracy.derived import uncertainty_bands
 
     out = []
     for d in run.databases:

@@ -14,8 +14,8 @@ import numpy as np
 
 
 def extract(out, layer, id_field, dem, crs, tolerance):
-    from vectoradjust.io import check_projected_crs, read_line_layer, sample_dem
-    from vectoradjust.shapepoints import extract_shape_points
+    from vectoradjust.adjust.shapepoints import extract_shape_points
+    from vectoradjust.files.readers import check_projected_crs, read_line_layer, sample_dem
 
     target = check_projected_crs(crs, "reference")
     lyr = read_line_layer(layer, "ref", None if id_field == "-" else id_field, target)
@@ -39,7 +39,7 @@ def extract(out, layer, id_field, dem, crs, tolerance):
 def buffer(out, tested, reference, widths):
     import geopandas as gpd
 
-    from vectoradjust.buffer_test import buffer_test
+    from vectoradjust.accuracy.buffer import buffer_test
 
     t = gpd.read_file(tested)
     r = gpd.read_file(reference)

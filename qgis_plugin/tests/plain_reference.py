@@ -2,24 +2,24 @@
 
 Road layers and the DEM are read with GDAL's own Python bindings (``osgeo``: the same
 GDAL library QGIS uses, so nothing second is loaded), the tables with the core's
-plain-Python readers (:mod:`vectoradjust.tables`), the project with
-:func:`vectoradjust.project.load_project`. Feeding these arrays to
+plain-Python readers (:mod:`vectoradjust.files.tables`), the project with
+:func:`vectoradjust.files.project.load_project`. Feeding these arrays to
 :func:`vectoradjust.pipeline.run` in the QGIS test process gives the numbers the plugin
 must reproduce exactly: it checks the plugin's layer -> array conversion.
 """
 
 import numpy as np
 
-from vectoradjust.assemble import project_data as assemble_project_data
-from vectoradjust.dem import bilinear
-from vectoradjust.model import LineLayer
-from vectoradjust.project import load_project
-from vectoradjust.tables import (
+from vectoradjust.adjust.dem import bilinear
+from vectoradjust.files.assemble import project_data as assemble_project_data
+from vectoradjust.files.project import load_project
+from vectoradjust.files.tables import (
     read_control,
     read_fiducials,
     read_measurements,
     read_truth_points,
 )
+from vectoradjust.model import LineLayer
 
 
 def _id_text(v):
@@ -88,7 +88,7 @@ def dem_heights(path, xy):
 
 def project_data(project_path, names=None):
     """ProjectData of the project's [[vectors]] entries (all, or ``names``), read without
-    the QGIS layer API and assembled by the core (:mod:`vectoradjust.assemble`)."""
+    the QGIS layer API and assembled by the core (:mod:`vectoradjust.files.assemble`)."""
     spec = load_project(project_path)
     unit = spec.measurements.get("unit", "mm")
     raw = read_measurements(spec.measurements["path"], spec.measurements.get("sigma"), unit=unit)

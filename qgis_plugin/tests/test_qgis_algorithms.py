@@ -55,7 +55,7 @@ def adjusted(qgis_app, sample, tmp_path_factory):
 
 # --------------------------------------------------------------------------- extract
 def _plain_extract(sample, unique_tol=0.001):
-    from vectoradjust.shapepoints import extract_shape_points
+    from vectoradjust.adjust.shapepoints import extract_shape_points
 
     from .plain_reference import dem_heights, read_lines
 
@@ -296,7 +296,7 @@ def _memory_control(sample):
 
 
 def _images_matrix(sample):
-    from vectoradjust.project import load_project
+    from vectoradjust.files.project import load_project
 
     spec = load_project(sample / "project.toml")
     m = []
@@ -309,7 +309,7 @@ def _images_matrix(sample):
 def _plain_project(sample, path):
     """A project file with the sample's images, tables and settings but a plain camera
     (focal length and principal point only, no corrections): what parameters can say."""
-    from vectoradjust.project import load_project
+    from vectoradjust.files.project import load_project
 
     spec = load_project(sample / "project.toml")
     lines = ['crs = "EPSG:32616"', "[camera]", "focal_length = 152.4",

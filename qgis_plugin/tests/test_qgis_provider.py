@@ -225,7 +225,7 @@ def test_zip_installs_and_runs(qgis_app, sample, tmp_path):
         "app = QgsApplication([], False); app.initQgis()\n"
         "import vectoradjust_qgis as p\n"
         "plugin = p.classFactory(None); plugin.initProcessing()\n"
-        "import vectoradjust, vectoradjust.pipeline, vectoradjust.assemble\n"
+        "import vectoradjust, vectoradjust.pipeline, vectoradjust.files.assemble\n"
         "assert vectoradjust.__file__.startswith(sys.argv[1]), vectoradjust.__file__\n"
         "print(sorted(a.id() for a in plugin.provider.algorithms()))\n"
     )

@@ -1,0 +1,65 @@
+"""Old module names (vectoradjust 0.1) that still import, for one release.
+
+0.2 moved the flat modules into subpackages (``docs/architecture.md``). ``import
+vectoradjust.bundle`` still works: it returns the module ``vectoradjust.adjust.bundle``
+itself (same object, so attributes and monkeypatching behave as before) and warns with
+a :class:`DeprecationWarning` naming the new place.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.abc
+import importlib.machinery
+import sys
+import warnings
+
+#: old module name -> new module name (both relative to ``vectoradjust``)
+MOVED = {
+    "collinearity": "sensor.collinearity", "camera": "sensor.camera",
+    "refine": "sensor.refine", "interior": "sensor.interior",
+    "bundle": "adjust.bundle", "vce": "adjust.vce", "reliability": "adjust.reliability",
+    "orientation": "adjust.orientation", "shapepoints": "adjust.shapepoints",
+    "dem": "adjust.dem",
+    "stats": "accuracy.stats", "propagate": "accuracy.propagate",
+    "derived": "accuracy.derived", "buffer_test": "accuracy.buffer",
+    "qa_run": "qa.verdict",
+    "project": "files.project", "tables": "files.tables", "assemble": "files.assemble",
+    "io": "files.readers", "outputs": "files.outputs", "report": "files.report",
+    "derived_io": "files.derived_outputs",
+    "cli_buffer": "cli.buffer", "cli_propagate": "cli.propagate", "cli_qa": "cli.qa",
+    "clitools": "cli.tools",
+}
+# ``accuracy``, ``qa``, ``cli`` and ``simulate`` are packages now; their __init__ modules
+# give the old modules' public names.
+
+_PREFIX = "vectoradjust."
+
+
+class _AliasLoader(importlib.abc.Loader):
+    def __init__(self, target: str) -> None:
+        self.target = target
+
+    def create_module(self, spec):
+        warnings.warn(f"{spec.name} is deprecated: import {self.target} instead",
+                      DeprecationWarning, stacklevel=2)
+        return importlib.import_module(self.target)
+
+    def exec_module(self, module) -> None:  # the target module is already executed
+        return None
+
+
+class _AliasFinder(importlib.abc.MetaPathFinder):
+    def find_spec(self, fullname, path=None, target=None):
+        if not fullname.startswith(_PREFIX):
+            return None
+        new = MOVED.get(fullname[len(_PREFIX):])
+        if new is None:
+            return None
+        return importlib.machinery.ModuleSpec(fullname, _AliasLoader(_PREFIX + new))
+
+
+def install() -> None:
+    """Put the alias finder on ``sys.meta_path`` (once)."""
+    if not any(isinstance(f, _AliasFinder) for f in sys.meta_path):
+        sys.meta_path.append(_AliasFinder())

@@ -1,0 +1,1257 @@
+"""Derived quantities of an adjustment run with their sigmas (``DESIGN.md`` section 6).
+
+Everything computed from adjusted points - the length of a road, the distance between
+two points, a height profile, the G-band of a road segment, the equal-error map of a
+stereo pair - gets its standard deviation from the FULL a-posteriori covariance of the
+points involved, and beside it the value "without covariances" (each point's own 3x3
+block only), to show what the covariances between points change.
+
+The covariances come from the reduced camera system of the bundle adjustment
+(:class:`~vectoradjust.adjust.bundle.BundleResult`), never from a full inverse. With
+``D_j = N_pp,j^-1`` (the point's own cofactor block), ``Z_j = N_pp,j^-1 N_pe,j``
+(3 x 6n, nonzero only at the images that see point ``j``) and ``S^-1`` the inverse of
+the reduced camera system, the cross covariance of two points is
+
+    C_jl = s0^2 [delta_jl D_j + Z_j S^-1 Z_l']
+
+and the variance of a linear function ``L = sum_j J_j x_j`` (1 x 3 gradients ``J_j``)
+
+    sigma_L^2 = s0^2 [sum_j J_j D_j J_j' + b S^-1 b'],   b = sum_j J_j Z_j.
+
+Both are evaluated for many points or functions at once (:func:`cross_covariance`,
+:func:`feature_length_sigma`): the ``b`` rows are accumulated over the observations of
+the points with ``bincount``, so the cost grows with the number of observations, not
+with the number of images squared per point.
+
+Heart module: numpy and scipy only (and other vectoradjust heart modules).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable, NamedTuple, Optional, Union
+
+import numpy as np
+
+from vectoradjust.accuracy import propagate as prop
+from vectoradjust.adjust.orientation import two_step
+from vectoradjust.errors import (
+    ControlError,
+    LayerError,
+    MeasurementError,
+    ProjectError,
+)
+from vectoradjust.sensor.collinearity import rotation_matrix
+
+if TYPE_CHECKING:  # pragma: no cover
+    from vectoradjust.adjust.bundle import BundleResult
+    from vectoradjust.pipeline import AdjustmentRun, DatabaseResult
+
+__all__ = [
+    "cross_covariance",
+    "feature_length_sigma",
+    "g_band_batch",
+    "SegmentBands",
+    "segment_bands",
+    "uncertainty_bands",
+    "DerivedValue",
+    "resolve_points",
+    "distance_between",
+    "length_between",
+    "mean_height_between",
+    "FeatureProfile",
+    "profile",
+    "EqualErrorGrid",
+    "equal_error_grid",
+    "equal_error_range",
+    "image_footprint",
+    "compare_two_step",
+]
+
+DEFAULT_FRAME_MM = 230.0  # 23 x 23 cm aerial film (DESIGN section 1)
+_CHUNK = 200_000  # rows of temporary (rows, 3, 3)-sized arrays per chunk
+
+
+# ---------------------------------------------------------------------------- helpers
+def _block_sum(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Sum ``values`` (k, ...) into ``n`` bins by ``index`` (k,), vectorised."""
+    k = values.shape[0]
+    inner = values.shape[1:]
+    size = int(np.prod(inner)) if inner else 1
+    if k == 0:
+        return np.zeros((n,) + inner)
+    flat = values.reshape(k, size)
+    idx = (index[:, None] * size + np.arange(size)[None, :]).ravel()
+    out = np.bincount(idx, weights=flat.ravel(), minlength=n * size)
+    return out.reshape((n,) + inner)
+
+
+@dataclass
+class _ObsIndex:
+    """Observations of the bundle grouped by point (CSR layout)."""
+
+    order: np.ndarray  # observation indices sorted by point
+    starts: np.ndarray  # first position in ``order`` of each point
+    counts: np.ndarray  # observations per point
+
+    @classmethod
+    def of(cls, result: BundleResult) -> _ObsIndex:
+        prob = result.problem
+        order = np.argsort(prob.obs_point, kind="stable")
+        counts = np.bincount(prob.obs_point, minlength=prob.n_points)
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        return cls(order, starts, counts)
+
+    def expand(self, points: np.ndarray):
+        """Every observation of every entry of ``points``: ``(entry, observation)``."""
+        c = self.counts[points]
+        entry = np.repeat(np.arange(len(points)), c)
+        offs = np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c)
+        return entry, self.order[np.repeat(self.starts[points], c) + offs]
+
+
+def _check_result(result: BundleResult) -> None:
+    if result.s_inv is None or result.npp_inv is None or result.nep_obs is None \
+            or result.problem is None:
+        raise ProjectError(
+            "The adjustment result holds no factorisation (s_inv, npp_inv, nep_obs), so "
+            "covariances between points cannot be computed",
+            "Use a BundleResult from vectoradjust.adjust.bundle.adjust (pipeline.run keeps them)",
+        )
+
+
+def cross_covariance(result: BundleResult, pa, pb) -> np.ndarray:
+    """A-posteriori cross covariances ``C_jl`` of many pairs of bundle points at once.
+
+    ``C_jl = s0^2 [delta_jl N_pp,j^-1 + Z_j S^-1 Z_l']`` with ``Z_j = N_pp,j^-1 N_pe,j``
+    (module docstring); ``pa[i] == pb[i]`` gives the point's own covariance block.
+    The work is one small product per pair of observations of the two points.
+
+    Parameters
+    ----------
+    result : BundleResult
+    pa, pb : array_like of int, shape (m,)
+        Bundle point indices.
+
+    Returns
+    -------
+    numpy.ndarray, shape (m, 3, 3)
+        ``Cov(x_pa[i], x_pb[i])``.
+    """
+    _check_result(result)
+    pa = np.asarray(pa, np.int64).reshape(-1)
+    pb = np.asarray(pb, np.int64).reshape(-1)
+    if pa.shape != pb.shape:
+        raise ValueError("cross_covariance: pa and pb must have the same length")
+    prob = result.problem
+    n = prob.n_images
+    m = len(pa)
+    sinv = result.s_inv.reshape(n, 6, n, 6)
+    idx = _ObsIndex.of(result)
+    ca, cb = idx.counts[pa], idx.counts[pb]
+    nt = ca * cb
+    acc = np.zeros((m, 3, 3))
+    if m == 0:
+        return acc
+    # chunks of pairs so that the per-observation-pair temporaries stay small
+    ends = np.cumsum(nt)
+    cuts = np.searchsorted(ends, np.arange(_CHUNK, int(ends[-1]), _CHUNK), side="left") + 1
+    cuts = np.unique(np.concatenate([[0], np.clip(cuts, 1, m), [m]]))
+    for lo, hi in zip(cuts[:-1], cuts[1:]):
+        ntc = nt[lo:hi]
+        entry = np.repeat(np.arange(lo, hi), ntc)
+        local = np.arange(int(ntc.sum())) - np.repeat(np.cumsum(ntc) - ntc, ntc)
+        ia = local // cb[entry]
+        ib = local % cb[entry]
+        ka = idx.order[idx.starts[pa[entry]] + ia]
+        kb = idx.order[idx.starts[pb[entry]] + ib]
+        blk = sinv[prob.obs_image[ka], :, prob.obs_image[kb], :]  # (T, 6, 6)
+        t = np.einsum("tia,tij,tjb->tab", result.nep_obs[ka], blk, result.nep_obs[kb])
+        acc[lo:hi] = _block_sum(entry - lo, t, hi - lo)
+    cov = np.einsum("mij,mjk,mkl->mil", result.npp_inv[pa], acc, result.npp_inv[pb])
+    same = pa == pb
+    cov[same] += result.npp_inv[pa[same]]
+    return result.variance_factor * cov
+
+
+def _adjusted_coords(run: AdjustmentRun, db: DatabaseResult) -> np.ndarray:
+    if db.adjusted_coords is not None:
+        return np.asarray(db.adjusted_coords, float)
+    adj = np.array(db.shape.layer.coords, float)
+    m = db.vertex_point >= 0
+    adj[m] = run.result.xyz[db.vertex_point[m]]
+    return adj
+
+
+def _segments(db: DatabaseResult):
+    """Start vertex of every segment within a part of a feature (``a`` -> ``a + 1``)."""
+    layer = db.shape.layer
+    fi, part = layer.vertex_feature, layer.vertex_part
+    if len(fi) < 2:
+        return np.zeros(0, np.int64)
+    same = (fi[1:] == fi[:-1]) & (part[1:] == part[:-1])
+    return np.flatnonzero(same)
+
+
+# ------------------------------------------------------------------- length of features
+def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult,
+                         dims: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Standard deviation of the length of every feature of a road database.
+
+    The length is that of the adjusted geometry, the sum of the segment lengths within
+    each part (the ``Length`` field of the ``features`` layer); horizontal by default.
+    Its gradient with respect to vertex ``i`` is ``u_{i-1} - u_i`` (unit vectors of the
+    adjacent segments; a zero-length segment contributes nothing). Vertices that share
+    one object point are one point (their gradients are added).
+
+    Vertices that were not measured keep their database position and are treated as
+    fixed (zero covariance): the sigma is that of the length change the adjustment can
+    account for. Features without any measured vertex get NaN.
+
+    All features at once (module docstring): ``sigma^2 = s0^2 [sum_j J_j D_j J_j' +
+    b S^-1 b']`` with ``b`` accumulated per feature with ``bincount``.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    db : DatabaseResult
+        One of ``run.databases``.
+    dims : {2, 3}
+        Horizontal (2, the ``Length`` field) or 3D (3) length.
+
+    Returns
+    -------
+    length_sd : numpy.ndarray, shape (nf,)
+        With the full covariance of the feature's points (``LengthSD``).
+    length_sd_nocov : numpy.ndarray, shape (nf,)
+        With each point's own covariance block only (``LengthSDnc``).
+    """
+    if dims not in (2, 3):
+        raise ValueError("dims must be 2 or 3")
+    res = run.result
+    _check_result(res)
+    prob = res.problem
+    layer = db.shape.layer
+    nf = layer.n_features
+    vp = np.asarray(db.vertex_point, np.int64)
+    fi = layer.vertex_feature
+    sd = np.full(nf, np.nan)
+    sd_nc = np.full(nf, np.nan)
+    has = np.bincount(fi[vp >= 0], minlength=nf) > 0 if len(fi) else np.zeros(nf, bool)
+    sd[has] = 0.0
+    sd_nc[has] = 0.0
+    a = _segments(db)
+    if a.size == 0 or not has.any():
+        return sd, sd_nc
+    adj = _adjusted_coords(run, db)
+    b = a + 1
+    d = adj[b, :dims] - adj[a, :dims]
+    length = np.sqrt(np.sum(d**2, axis=1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.where(length[:, None] > 0, d / length[:, None], 0.0)
+    grad = np.zeros((2 * a.size, 3))
+    grad[: a.size, :dims] = -u
+    grad[a.size:, :dims] = u
+    vert = np.concatenate([a, b])
+    keep = vp[vert] >= 0
+    ent_f = fi[vert][keep]
+    ent_p = vp[vert][keep]
+    grad = grad[keep]
+    n_pts = prob.n_points
+    key = ent_f.astype(np.int64) * n_pts + ent_p
+    uniq, inv = np.unique(key, return_inverse=True)
+    g = _block_sum(np.asarray(inv).reshape(-1), grad, len(uniq))  # (m, 3) per (feature, point)
+    pf = uniq // n_pts
+    pp = uniq % n_pts
+    # without covariances between points: each point's own block
+    blocks = res.point_cov[pp] if res.point_cov is not None else cross_covariance(res, pp, pp)
+    var_nc = np.bincount(pf, weights=np.einsum("mi,mij,mj->m", g, blocks, g), minlength=nf)
+    # full: s0^2 [sum g' D g + b S^-1 b']
+    h = np.einsum("mij,mj->mi", res.npp_inv[pp], g)
+    diag = np.bincount(pf, weights=np.einsum("mi,mi->m", g, h), minlength=nf)
+    idx = _ObsIndex.of(res)
+    ent, obs = idx.expand(pp)
+    contrib = np.einsum("kij,kj->ki", res.nep_obs[obs], h[ent])  # (K, 6) at image of obs
+    n = prob.n_images
+    feat = pf[ent]
+    quad = np.zeros(nf)
+    order = np.argsort(feat, kind="stable")
+    feat_s = feat[order]
+    rows = max(1, int(2_000_000 // (6 * n)))  # features per chunk of the dense b rows
+    for f0 in range(0, nf, rows):
+        f1 = min(nf, f0 + rows)
+        lo, hi = np.searchsorted(feat_s, [f0, f1])
+        if hi <= lo:
+            continue
+        sel = order[lo:hi]
+        bm = _block_sum((feat[sel] - f0) * n + prob.obs_image[obs[sel]], contrib[sel],
+                        (f1 - f0) * n).reshape(f1 - f0, 6 * n)
+        quad[f0:f1] = np.einsum("fi,fi->f", bm @ res.s_inv, bm)
+    var = res.variance_factor * (diag + quad)
+    sd[has] = np.sqrt(np.clip(var[has], 0.0, None))
+    sd_nc[has] = np.sqrt(np.clip(var_nc[has], 0.0, None))
+    return sd, sd_nc
+
+
+# ------------------------------------------------------------------------------ G-band
+def _batched_interp(cu: np.ndarray, cw: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Piecewise-linear ``w(u)`` of many chains evaluated at many abscissae.
+
+    ``cu, cw``: (m, P, K), ``cu`` ascending along the last axis; ``q``: (m, Q).
+    Returns (m, P, Q); ``-inf`` where ``q`` is outside a chain's range.
+    """
+    m, p, k = cu.shape
+    nq = q.shape[1]
+    base = float(min(cu.min(), q.min()))
+    span = float(max(cu.max(), q.max()) - base) + 1.0
+    off = (np.arange(m * p, dtype=float) * (2.0 * span)).reshape(m, p, 1)
+    xp = ((cu - base) + off).ravel()
+    qq = ((q[:, None, :] - base) + off).ravel()
+    pos = np.searchsorted(xp, qq, side="right") - 1
+    row = np.repeat(np.arange(m * p), nq)
+    local = np.clip(pos - row * k, 0, k - 2)
+    cu2 = cu.reshape(m * p, k)
+    cw2 = cw.reshape(m * p, k)
+    x0, x1 = cu2[row, local], cu2[row, local + 1]
+    f0, f1 = cw2[row, local], cw2[row, local + 1]
+    qr = np.broadcast_to(q[:, None, :], (m, p, nq)).ravel()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.where(x1 > x0, (qr - x0) / (x1 - x0), 1.0)
+    t = np.clip(t, 0.0, 1.0)
+    val = (f0 + t * (f1 - f0)).reshape(m, p, nq)
+    inside = (q[:, None, :] >= cu[:, :, :1]) & (q[:, None, :] <= cu[:, :, -1:])
+    return np.where(inside, val, -np.inf)
+
+
+def _upper_envelope(cu: np.ndarray, cw: np.ndarray):
+    """Upper envelope of P piecewise-linear chains per row, as an outer polyline.
+
+    The envelope is evaluated exactly at every vertex of every chain (the stations);
+    between two consecutive stations every chain is linear, so the envelope there is
+    a maximum of linear functions, convex, and the chord through the two station
+    values lies on or above it: the polyline through the stations is an outer bound.
+    Stations on a straight run (within ``1e-9`` of the scale) are then dropped.
+
+    ``cu, cw``: (m, P, K), ``cu`` ascending. Returns ``(u, w, valid)`` of shape
+    (m, P K): the polyline's points in ascending ``u`` where ``valid``.
+    """
+    m, p, k = cu.shape
+    su = np.sort(cu.reshape(m, p * k), axis=1)
+    env = _batched_interp(cu, cw, su).max(axis=1)
+    valid = np.isfinite(env)
+    scale = np.maximum(np.abs(cw).reshape(m, -1).max(axis=1), np.ptp(su, axis=1))
+    tol = (1e-9 * np.maximum(scale, 1e-300))[:, None]
+    # drop repeated abscissae (keep the highest value: env is equal there anyway)
+    dup = np.zeros_like(valid)
+    dup[:, 1:] = su[:, 1:] <= su[:, :-1]
+    valid &= ~dup
+    w = np.where(valid, env, 0.0)
+    idx = np.broadcast_to(np.arange(p * k), (m, p * k))
+    for sweep in range(64):  # remove every other collinear station per pass
+        prev = np.maximum.accumulate(np.where(valid, idx, -1), axis=1)
+        prev = np.concatenate([np.full((m, 1), -1), prev[:, :-1]], axis=1)
+        nxt = np.minimum.accumulate(np.where(valid, idx, p * k)[:, ::-1], axis=1)[:, ::-1]
+        nxt = np.concatenate([nxt[:, 1:], np.full((m, 1), p * k)], axis=1)
+        inner = valid & (prev >= 0) & (nxt < p * k)
+        pi = np.clip(prev, 0, p * k - 1)
+        ni = np.clip(nxt, 0, p * k - 1)
+        u0 = np.take_along_axis(su, pi, 1)
+        u1 = np.take_along_axis(su, ni, 1)
+        w0 = np.take_along_axis(w, pi, 1)
+        w1 = np.take_along_axis(w, ni, 1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            chord = w0 + (w1 - w0) * (su - u0) / (u1 - u0)
+        cand = inner & (np.abs(w - chord) <= tol)
+        rank = np.cumsum(valid, axis=1)
+        rem = cand & (rank % 2 == sweep % 2)
+        if not rem.any():
+            if not cand.any():
+                break
+            continue
+        valid &= ~rem
+    return su, w, valid
+
+
+def _tangent_normal(tl: np.ndarray, ql: np.ndarray, k: float, centre: float,
+                    du: float) -> np.ndarray:
+    """Normal direction of the common tangent of consecutive ellipses near ``centre``.
+
+    The support functions ``h_j(theta) = tl_j cos(theta) + k sqrt(d' Q_j d)`` of the
+    ellipses ``j`` and ``j + 1`` are equal at the normal of their common tangent; it is
+    searched by bisection within ``centre +- du`` (one uniform direction step). Where
+    there is none (one ellipse reaches farther on the whole interval) or it is within
+    ``1e-6`` of a uniform direction, ``centre + du / 2`` is returned (any extra direction
+    keeps the circumscribed polygon valid).
+
+    ``tl``: (m, P+1) centres; ``ql``: (m, P+1, 2, 2) local covariances. Returns (m, P).
+    """
+    q00, q01, q11 = ql[..., 0, 0], ql[..., 0, 1], ql[..., 1, 1]
+    dt = tl[:, :-1] - tl[:, 1:]
+
+    def g(th):
+        c, s = np.cos(th), np.sin(th)
+        cc, cs2, ss = c * c, 2.0 * c * s, s * s
+        v0 = cc * q00[:, :-1] + cs2 * q01[:, :-1] + ss * q11[:, :-1]  # d' Q_j d
+        v1 = cc * q00[:, 1:] + cs2 * q01[:, 1:] + ss * q11[:, 1:]  # d' Q_j+1 d
+        return dt * c + k * (np.sqrt(np.clip(v0, 0.0, None)) - np.sqrt(np.clip(v1, 0.0, None)))
+
+    shape = (tl.shape[0], tl.shape[1] - 1)
+    lo = np.full(shape, centre - du)
+    hi = np.full(shape, centre + du)
+    glo = g(lo)
+    ghi = g(hi)
+    ok = np.sign(glo) * np.sign(ghi) < 0
+    for _ in range(40):  # bisection of the 2 du bracket to ~1e-12 rad
+        mid = 0.5 * (lo + hi)
+        gm = g(mid)
+        left = np.sign(gm) == np.sign(glo)
+        lo = np.where(left, mid, lo)
+        glo = np.where(left, gm, glo)
+        hi = np.where(left, hi, mid)
+    root = 0.5 * (lo + hi)
+    near = np.abs(root - np.round(root / du) * du) < 1e-6
+    return np.where(ok & ~near, root, centre + 0.5 * du)
+
+
+def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
+                 n_directions: int = 24) -> list:
+    """G-bands (Shi & Liu 2000) of many line segments at once.
+
+    The band of a segment is the union over ``t`` in ``[0, 1]`` of the error ellipses
+    (scaled by ``k = sqrt(chi2_2(confidence))``) of ``P(t) = (1 - t) P1 + t P2``, whose
+    covariance is ``F(t) C F(t)'`` with ``F(t) = [(1 - t) I, t I]``.
+
+    Construction (outer approximation, vectorised over segments): the support function
+    of the ellipse of ``P(t)`` is convex in ``t`` (a norm of an affine function of ``t``
+    plus an affine term), so every ellipse between two samples ``t_j, t_{j+1}`` lies in
+    the convex hull of the two sampled ellipses. Each of the ``n_pairs`` hulls is
+    replaced by the polygon circumscribed at ``n_directions`` uniform directions plus the
+    normals of the two common tangents along the band's sides (found by bisection), so
+    it contains the hull, follows its straight sides exactly and exceeds its round caps
+    by at most ``1 / cos(pi / n_directions) - 1`` of the ellipse size. The band's ring
+    is the upper and lower envelope of these polygons along the segment, evaluated at
+    every polygon vertex; between two such stations the envelope is a maximum of linear
+    pieces, which the chord bounds from outside. The ring therefore contains every
+    ellipse of the band, in particular those of the two end points. It exceeds the exact
+    band where the band narrows between samples (the waist, ``O(1 / n_pairs^2)``): on
+    road segments about 0.5 % of the area with the defaults, 0.3 % with 8 pairs and 32
+    directions. Like :func:`vectoradjust.accuracy.propagate.g_band` it assumes that every line
+    normal to the segment cuts the band in one interval (true unless the segment is
+    shorter than its ellipses).
+
+    Parameters
+    ----------
+    p1, p2 : array_like, shape (m, 2) or (m, d)
+        End points (X, Y used).
+    cov_joint : array_like, shape (m, 4, 4)
+        Joint covariance of ``[X1, Y1, X2, Y2]`` per segment.
+    confidence : float
+        Probability of the ellipses (2 degrees of freedom); 0.9 gives ``k = 2.146``.
+    n_pairs : int
+        Number of ``t`` intervals (``n_pairs + 1`` sampled ellipses).
+    n_directions : int
+        Uniform directions of the circumscribed polygons (a multiple of 4, >= 8).
+
+    Returns
+    -------
+    list of numpy.ndarray
+        One closed ring ``(k, 2)`` per segment (first point repeated), counter-clockwise.
+    """
+    a = np.asarray(p1, float)
+    b = np.asarray(p2, float)
+    a = a.reshape(-1, a.shape[-1])[:, :2]
+    b = b.reshape(-1, b.shape[-1])[:, :2]
+    c4 = np.asarray(cov_joint, float).reshape(-1, 4, 4)
+    m = a.shape[0]
+    if b.shape[0] != m or c4.shape[0] != m:
+        raise ValueError("g_band_batch: p1, p2 and cov_joint must describe the same segments")
+    if n_pairs < 1 or n_directions < 8 or n_directions % 4:
+        raise ValueError("g_band_batch needs n_pairs >= 1 and n_directions a multiple of 4, >= 8")
+    if m == 0:
+        return []
+    chunk = 1024
+    if m > chunk:  # bounded temporaries: (chunk, n_pairs, n_pairs * n_directions / 2)
+        out: list = []
+        for i in range(0, m, chunk):
+            out += g_band_batch(a[i:i + chunk], b[i:i + chunk], c4[i:i + chunk], confidence,
+                                n_pairs, n_directions)
+        return out
+    k = prop.confidence_scale(confidence, 2)
+    delta = b - a
+    length = np.hypot(delta[:, 0], delta[:, 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        e_u = np.where(length[:, None] > 0, delta / length[:, None], [1.0, 0.0])
+    e_n = np.column_stack([-e_u[:, 1], e_u[:, 0]])
+    rot = np.stack([e_u, e_n], axis=1)  # (m, 2, 2): world -> local rows
+    c4 = 0.5 * (c4 + np.swapaxes(c4, 1, 2))
+    ca, cab, cb = c4[:, :2, :2], c4[:, :2, 2:], c4[:, 2:, 2:]
+    t = np.linspace(0.0, 1.0, n_pairs + 1)
+    q = ((1 - t)[None, :, None, None] ** 2 * ca[:, None]
+         + ((1 - t) * t)[None, :, None, None] * (cab + np.swapaxes(cab, 1, 2))[:, None]
+         + (t**2)[None, :, None, None] * cb[:, None])  # (m, P+1, 2, 2)
+    ql = np.einsum("mia,mtab,mjb->mtij", rot, q, rot)
+    tl = t[None, :] * length[:, None]  # (m, P+1) centres along the segment
+    # directions: M uniform ones plus, per pair, the normals of the two common tangents
+    # of the pair's ellipses near the segment's normal (the sides of the band), so the
+    # polygons follow the sides without a staircase
+    du = 2.0 * np.pi / n_directions
+    extra = np.stack([_tangent_normal(tl, ql, k, 0.5 * np.pi, du),
+                      _tangent_normal(tl, ql, k, 1.5 * np.pi, du)], axis=-1)  # (m, P, 2)
+    theta = np.concatenate([np.broadcast_to(du * np.arange(n_directions),
+                                            extra.shape[:2] + (n_directions,)), extra], axis=2)
+    theta = np.sort(theta, axis=2)  # (m, P, M + 2), theta[..., 0] = 0
+    cs, sn = np.cos(theta), np.sin(theta)
+    dirs = np.stack([cs, sn], axis=-1)
+    h0 = tl[:, :-1, None] * cs + k * np.sqrt(np.clip(np.einsum(
+        "mpia,mpab,mpib->mpi", dirs, ql[:, :-1], dirs), 0.0, None))
+    h1 = tl[:, 1:, None] * cs + k * np.sqrt(np.clip(np.einsum(
+        "mpia,mpab,mpib->mpi", dirs, ql[:, 1:], dirs), 0.0, None))
+    hp = np.maximum(h0, h1)  # (m, P, M + 2): support of the pair hulls
+    hn = np.roll(hp, -1, axis=2)
+    c1, s1 = np.roll(cs, -1, axis=2), np.roll(sn, -1, axis=2)
+    det = np.sin(np.diff(np.concatenate([theta, theta[..., :1] + 2 * np.pi], axis=2), axis=2))
+    vu = (hp * s1 - hn * sn) / det  # vertex between directions i and i + 1
+    vw = (hn * cs - hp * c1) / det
+    half = n_directions // 2 + 1  # directions in [0, pi) incl. the upper tangent
+    # upper chain: vertices 0 .. half - 1 (u descending); lower: the others (u ascending)
+    uu, uw = vu[:, :, :half][:, :, ::-1], vw[:, :, :half][:, :, ::-1]
+    lu, lw = vu[:, :, half:], vw[:, :, half:]
+    up_u, up_w, up_v = _upper_envelope(uu, uw)
+    lo_u, lo_w, lo_v = _upper_envelope(lu, -lw)
+    lo_w = -lo_w
+    # ring: lower envelope left -> right, then upper envelope right -> left
+    ru = np.concatenate([lo_u, up_u[:, ::-1]], axis=1)
+    rw = np.concatenate([lo_w, up_w[:, ::-1]], axis=1)
+    rv = np.concatenate([lo_v, up_v[:, ::-1]], axis=1)
+    world = a[:, None, :] + ru[..., None] * e_u[:, None, :] + rw[..., None] * e_n[:, None, :]
+    pts = world[rv]
+    sid = np.broadcast_to(np.arange(m)[:, None], rv.shape)[rv]
+    # drop repeated points, then close every ring with its first point
+    keep = np.ones(len(pts), bool)
+    keep[1:] = (sid[1:] != sid[:-1]) | np.any(np.abs(np.diff(pts, axis=0)) > 0, axis=1)
+    pts, sid = pts[keep], sid[keep]
+    counts = np.bincount(sid, minlength=m)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    ends = np.cumsum(counts)
+    pts = np.insert(pts, ends, pts[first], axis=0)
+    return np.split(pts, (ends + np.arange(1, m + 1))[:-1])
+
+
+@dataclass
+class SegmentBands:
+    """G-bands of the segments of a road database (:func:`segment_bands`).
+
+    Attributes
+    ----------
+    feature : numpy.ndarray of int, shape (s,)
+        Feature index of each segment.
+    start_vertex : numpy.ndarray of int, shape (s,)
+        First vertex of each segment (the segment runs to ``start_vertex + 1``).
+    rings : list of numpy.ndarray
+        Closed ring ``(k, 2)`` of each segment's band.
+    cov_joint : numpy.ndarray, shape (s, 6, 6)
+        Joint a-posteriori covariance of the segment's end points (X1, Y1, Z1, X2, ...).
+    confidence : float
+    """
+
+    feature: np.ndarray
+    start_vertex: np.ndarray
+    rings: list
+    cov_joint: np.ndarray
+    confidence: float
+
+
+def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.9,
+                  **kwargs) -> SegmentBands:
+    """G-band of every segment of a road database whose two end points were measured.
+
+    The joint 6x6 covariance of the end points comes from :func:`cross_covariance`
+    (their own blocks and the cross block), all segments at once. Segments with an
+    unmeasured end point have no a-posteriori covariance there and get no band; a
+    segment whose two vertices are one object point is skipped too.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    db : DatabaseResult
+    confidence : float
+        Probability of the error ellipses (0.9 = 90 %).
+    **kwargs
+        ``n_pairs``, ``n_directions`` of :func:`g_band_batch`.
+
+    Returns
+    -------
+    SegmentBands
+    """
+    res = run.result
+    _check_result(res)
+    vp = np.asarray(db.vertex_point, np.int64)
+    a = _segments(db)
+    if a.size:
+        a = a[(vp[a] >= 0) & (vp[a + 1] >= 0) & (vp[a] != vp[a + 1])]
+    pa, pb = vp[a], vp[a + 1]
+    cov = np.zeros((a.size, 6, 6))
+    if a.size:
+        cov[:, :3, :3] = res.point_cov[pa] if res.point_cov is not None else \
+            cross_covariance(res, pa, pa)
+        cov[:, 3:, 3:] = res.point_cov[pb] if res.point_cov is not None else \
+            cross_covariance(res, pb, pb)
+        cab = cross_covariance(res, pa, pb)
+        cov[:, :3, 3:] = cab
+        cov[:, 3:, :3] = np.swapaxes(cab, 1, 2)
+    sel = [0, 1, 3, 4]
+    rings = g_band_batch(res.xyz[pa], res.xyz[pb], cov[:, sel][:, :, sel], confidence,
+                         **kwargs)
+    return SegmentBands(db.shape.layer.vertex_feature[a], a, rings, cov, confidence)
+
+
+def uncertainty_bands(run: AdjustmentRun, db: DatabaseResult,
+                      confidence: float = 0.9, **kwargs) -> list:
+    """G-band rings of the measured segments of every feature (Shi & Liu 2000).
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    db : DatabaseResult
+    confidence : float
+        Probability of the error ellipses (default 90 %).
+    **kwargs
+        ``n_pairs``, ``n_directions`` of :func:`g_band_batch`.
+
+    Returns
+    -------
+    list of (int, numpy.ndarray)
+        ``(feature index, closed ring (k, 2))`` per segment; the union of a feature's
+        rings is its uncertainty band (:mod:`vectoradjust.files.derived_outputs` forms it).
+    """
+    sb = segment_bands(run, db, confidence, **kwargs)
+    return [(int(f), r) for f, r in zip(sb.feature, sb.rings)]
+
+
+# --------------------------------------------------------------- quantities between ids
+@dataclass
+class DerivedValue:
+    """A derived quantity with its sigma with and without covariances between points.
+
+    Attributes
+    ----------
+    quantity : str
+        What it is (``"distance 2D"``, ``"length"``, ``"mean height"``).
+    value : float
+    sigma : float
+        With the full covariance of the points.
+    sigma_no_cov : float
+        With each point's own covariance block only.
+    point_ids : list of str
+        The ids as given.
+    points : numpy.ndarray of int
+        Bundle point indices.
+    """
+
+    quantity: str
+    value: float
+    sigma: float
+    sigma_no_cov: float
+    point_ids: list
+    points: np.ndarray
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict."""
+        return {"quantity": self.quantity, "value": float(self.value),
+                "sigma": float(self.sigma), "sigma_no_cov": float(self.sigma_no_cov),
+                "ratio": (float(self.sigma / self.sigma_no_cov)
+                          if self.sigma_no_cov > 0 else None),
+                "point_ids": [str(p) for p in self.point_ids],
+                "points": [int(p) for p in self.points]}
+
+
+def resolve_points(run: AdjustmentRun, ids: Sequence[str]) -> np.ndarray:
+    """Bundle point index of each given point id.
+
+    An id may be a control or tie point id, the canonical id of a shape point or the
+    id ``<feature id>_<vertex index>`` of any vertex of an object point, optionally
+    qualified by its database (``OSM:123_4``).
+
+    Raises
+    ------
+    MeasurementError
+        For an id that is not an adjusted point, or a shape point id that several
+        databases share.
+    """
+    ids = np.asarray([str(i) for i in ids], dtype=object).astype(str)
+    from vectoradjust.adjust.shapepoints import lookup
+
+    out = lookup(run.point_ids, ids)
+    for i in np.flatnonzero(out < 0):
+        pid = str(ids[i])
+        found = []
+        for d in run.databases:
+            q = pid
+            if ":" in pid:
+                name, _, rest = pid.partition(":")
+                if name != d.name:
+                    continue
+                q = rest
+            v = lookup(d.shape.vertex_ids, np.array([q]))[0]
+            if v >= 0:
+                found.append((d.name, int(d.vertex_point[v])))
+        if len(found) > 1:
+            raise MeasurementError(
+                f"Point id {pid!r} is a shape point id of several road databases "
+                f"({', '.join(n for n, _ in found)})",
+                f"Qualify it with the database name, e.g. '{found[0][0]}:{pid}'",
+            )
+        if not found:
+            raise MeasurementError(
+                f"Point id {pid!r} is not a point of the adjustment (not a control, tie or "
+                "shape point id of this project)",
+                "Give the id of a measured point: a control or tie point id, or a shape point "
+                "id '<feature id>_<vertex index>' (qualified 'NAME:...' if ambiguous)",
+            )
+        name, p = found[0]
+        if p < 0:
+            raise MeasurementError(
+                f"Shape point {pid!r} of {name} was not measured on the images, so it was not "
+                "adjusted and has no covariance",
+                "Choose a shape point that was measured (Adjusted = 1 in shape_points)",
+            )
+        out[i] = p
+    return out
+
+
+def _joint(run: AdjustmentRun, points: np.ndarray) -> np.ndarray:
+    """Joint covariance ``(3p, 3p)`` of ``points``; a point may be repeated."""
+    pts = np.asarray(points, np.int64).reshape(-1)
+    upts, inv = np.unique(pts, return_inverse=True)
+    c = run.result.joint_covariance(upts).reshape(len(upts), 3, len(upts), 3)
+    inv = np.asarray(inv).reshape(-1)
+    return c[np.ix_(inv, [0, 1, 2], inv, [0, 1, 2])].reshape(3 * len(pts), 3 * len(pts))
+
+
+def distance_between(run: AdjustmentRun, id_a: str, id_b: str, dims: int = 2) -> DerivedValue:
+    """Distance between two adjusted points (2D or 3D) with its sigma.
+
+    ``F = [dx/D, dy/D, (dz/D), -dx/D, ...]`` applied to the joint 6x6 covariance
+    (:func:`vectoradjust.accuracy.propagate.distance`).
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    id_a, id_b : str
+        Point ids (see :func:`resolve_points`).
+    dims : {2, 3}
+    """
+    pts = resolve_points(run, [id_a, id_b])
+    xyz = run.result.xyz[pts]
+    r = prop.distance(xyz[0], xyz[1], _joint(run, pts), dims=dims)
+    return DerivedValue(f"distance {dims}D", float(r.value), float(r.sigma),
+                        float(r.sigma_no_cov), [id_a, id_b], pts)
+
+
+def length_between(run: AdjustmentRun, ids: Sequence[str], dims: int = 2) -> DerivedValue:
+    """Length of the polyline through the given adjusted points, with its sigma.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    ids : sequence of str
+        At least two point ids, in order along the line.
+    dims : {2, 3}
+        Horizontal (default) or 3D length.
+    """
+    if len(ids) < 2:
+        raise MeasurementError("A length needs at least two point ids",
+                               "Give the ids of the points in order along the line")
+    pts = resolve_points(run, ids)
+    r = prop.polyline_length(run.result.xyz[pts], _joint(run, pts), dims=dims)
+    return DerivedValue("length" if dims == 2 else "length 3D", float(r.value), float(r.sigma),
+                        float(r.sigma_no_cov), list(ids), pts)
+
+
+def mean_height_between(run: AdjustmentRun, ids: Sequence[str]) -> DerivedValue:
+    """Average height of a set of adjusted points, with its sigma."""
+    if len(ids) < 1:
+        raise MeasurementError("A mean height needs at least one point id",
+                               "Give the ids of the points")
+    pts = resolve_points(run, ids)
+    c = _joint(run, pts)
+    iz = 3 * np.arange(len(pts)) + 2
+    r = prop.mean_height(run.result.xyz[pts, 2], c[np.ix_(iz, iz)])
+    return DerivedValue("mean height", float(r.value), float(r.sigma), float(r.sigma_no_cov),
+                        list(ids), pts)
+
+
+@dataclass
+class FeatureProfile:
+    """Height profile along one feature of the adjusted geometry (:func:`profile`).
+
+    Per vertex (all vertices of the feature, in order): ``part``, ``chainage``
+    (horizontal distance from the start of its part), ``z``, ``sigma_z``,
+    ``sigma_chainage`` and ``sigma_chainage_no_cov``, ``adjusted`` (measured or not;
+    unmeasured vertices are fixed: zero sigma). Plus the mean height of the adjusted
+    vertices and the rise (last minus first adjusted vertex) with their sigmas with and
+    without covariances.
+    """
+
+    database: str
+    feature_id: str
+    feature: int
+    vertex_ids: np.ndarray
+    part: np.ndarray
+    chainage: np.ndarray
+    z: np.ndarray
+    sigma_z: np.ndarray
+    sigma_chainage: np.ndarray
+    sigma_chainage_no_cov: np.ndarray
+    adjusted: np.ndarray
+    mean_height: Optional[DerivedValue] = None
+    rise: Optional[DerivedValue] = None
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict (NaN as None)."""
+        def col(a):
+            return [None if (isinstance(v, float) and not np.isfinite(v)) else v
+                    for v in np.asarray(a).tolist()]
+        return {
+            "database": self.database, "feature_id": self.feature_id,
+            "vertices": [
+                {"point_id": str(i), "part": int(p), "chainage": c, "z": z,
+                 "sigma_z": s, "sigma_chainage": sc, "sigma_chainage_no_cov": sn,
+                 "adjusted": bool(a)}
+                for i, p, c, z, s, sc, sn, a in zip(
+                    self.vertex_ids, self.part, col(self.chainage), col(self.z),
+                    col(self.sigma_z), col(self.sigma_chainage),
+                    col(self.sigma_chainage_no_cov), self.adjusted)],
+            "mean_height": self.mean_height.to_dict() if self.mean_height else None,
+            "rise": self.rise.to_dict() if self.rise else None,
+        }
+
+
+def _find_feature(run: AdjustmentRun, feature_id: str, database: Optional[str]):
+    dbs = run.databases
+    if database is not None:
+        dbs = [d for d in dbs if d.name == database]
+        if not dbs:
+            raise ProjectError(
+                f"There is no road database named {database!r} in this run",
+                f"Use one of: {', '.join(d.name for d in run.databases) or '(none)'}",
+            )
+    hits = []
+    for d in dbs:
+        f = np.flatnonzero(d.shape.layer.feature_ids == str(feature_id))
+        if f.size:
+            hits.append((d, int(f[0])))
+    if not hits:
+        raise LayerError(
+            f"No feature with id {feature_id!r} in "
+            + (f"database {database!r}" if database else "the road databases of this run"),
+            "Give a feature id of the id field (id_field of the [[vectors]] entry) or a "
+            "0-based feature index when the layer has no id field",
+        )
+    if len(hits) > 1:
+        raise LayerError(
+            f"Feature id {feature_id!r} exists in several road databases "
+            f"({', '.join(d.name for d, _ in hits)})",
+            "Name the database (--database NAME)",
+        )
+    return hits[0]
+
+
+def profile(run: AdjustmentRun, feature_id: str,
+            database: Optional[str] = None) -> FeatureProfile:
+    """Height profile along a feature with the sigma of every vertex.
+
+    Each part of the feature is profiled with
+    :func:`vectoradjust.accuracy.propagate.height_profile` on the joint covariance of its
+    measured vertices (unmeasured vertices fixed). Also the mean height of the
+    adjusted vertices and the rise between the first and last adjusted vertex.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    feature_id : str
+        Feature id (the id field's value).
+    database : str, optional
+        Road database; needed only when the id exists in several.
+
+    Returns
+    -------
+    FeatureProfile
+    """
+    db, f = _find_feature(run, feature_id, database)
+    layer = db.shape.layer
+    verts = np.flatnonzero(layer.vertex_feature == f)
+    if verts.size == 0:
+        raise LayerError(f"Feature {feature_id!r} of {db.name} has no vertices "
+                         f"({layer.problems.get(f, 'empty geometry')})",
+                         "Choose a feature with a line geometry")
+    adj = _adjusted_coords(run, db)[verts]
+    vp = np.asarray(db.vertex_point, np.int64)[verts]
+    meas = vp >= 0
+    nv = verts.size
+    cov = np.zeros((3 * nv, 3 * nv))
+    if meas.any():
+        mi = np.flatnonzero(meas)
+        full = np.zeros((nv, 3, nv, 3))
+        full[np.ix_(mi, [0, 1, 2], mi, [0, 1, 2])] = \
+            _joint(run, vp[mi]).reshape(mi.size, 3, mi.size, 3)
+        cov = full.reshape(3 * nv, 3 * nv)
+    part = layer.vertex_part[verts]
+    chain = np.zeros(nv)
+    sz = np.zeros(nv)
+    sc = np.zeros(nv)
+    scn = np.zeros(nv)
+    for p in np.unique(part):  # parts of one feature (usually one)
+        sel = np.flatnonzero(part == p)
+        ci = (3 * sel[:, None] + np.arange(3)).ravel()
+        pr = prop.height_profile(adj[sel], cov[np.ix_(ci, ci)])
+        chain[sel], sz[sel] = pr.chainage, pr.sigma_z
+        sc[sel], scn[sel] = pr.sigma_chainage, pr.sigma_chainage_no_cov
+    sz = np.where(meas, sz, np.nan)
+    out = FeatureProfile(db.name, str(feature_id), f, db.shape.vertex_ids[verts], part, chain,
+                         adj[:, 2].copy(), sz, sc, scn, meas)
+    if meas.any():
+        mi = np.flatnonzero(meas)
+        iz = 3 * mi + 2
+        mh = prop.mean_height(adj[mi, 2], cov[np.ix_(iz, iz)])
+        ids = list(db.shape.vertex_ids[verts][mi])
+        out.mean_height = DerivedValue("mean height", mh.value, mh.sigma, mh.sigma_no_cov,
+                                       ids, vp[mi])
+        if mi.size >= 2:
+            i0, i1 = iz[0], iz[-1]
+            c2 = cov[np.ix_([i0, i1], [i0, i1])]
+            g = np.array([-1.0, 1.0])
+            out.rise = DerivedValue(
+                "rise", float(adj[mi[-1], 2] - adj[mi[0], 2]),
+                float(np.sqrt(max(g @ c2 @ g, 0.0))),
+                float(np.sqrt(max(c2[0, 0] + c2[1, 1], 0.0))),
+                [ids[0], ids[-1]], vp[[mi[0], mi[-1]]])
+    return out
+
+
+# ----------------------------------------------------------------------- equal error map
+class EqualErrorGrid(NamedTuple):
+    """Equal-error map of a stereo pair (:func:`equal_error_grid`).
+
+    ``X, Y`` are the grid nodes (pixel centres; row 0 is the northernmost), the sigmas
+    (m) are NaN outside the stereo overlap, ``transform`` is the affine geotransform of
+    the pixel grid in ``Affine(a, b, c, d, e, f)`` order:
+    ``x = a col + b row + c``, ``y = d col + e row + f`` (pixel corners).
+    """
+
+    X: np.ndarray
+    Y: np.ndarray
+    sigma_x: np.ndarray
+    sigma_y: np.ndarray
+    sigma_z: np.ndarray
+    transform: tuple
+
+
+def _frame_mm(run: AdjustmentRun, frame_mm) -> np.ndarray:
+    if frame_mm is not None:
+        return np.broadcast_to(np.asarray(frame_mm, float), (2,)).copy()
+    cal = getattr(run.data.camera, "calibration", None)
+    px = getattr(cal, "pixel_size", None) if not isinstance(cal, dict) else cal.get("pixel_size")
+    sz = getattr(cal, "image_size", None) if not isinstance(cal, dict) else cal.get("image_size")
+    if px is not None and sz is not None:
+        return np.broadcast_to(np.asarray(px, float), (2,)) * np.asarray(sz, float)
+    return np.array([DEFAULT_FRAME_MM, DEFAULT_FRAME_MM])
+
+
+def image_footprint(eo, focal_length: float, frame_mm, z: float,
+                    principal_point=(0.0, 0.0)) -> np.ndarray:
+    """Ground footprint of a frame image on the plane ``Z = z``.
+
+    Parameters
+    ----------
+    eo : array_like, shape (6,)
+        ``XL, YL, ZL, omega, phi, kappa`` (m, rad).
+    focal_length : float
+        mm.
+    frame_mm : float or (float, float)
+        Width and height of the image format (mm), centred on the principal point.
+    z : float
+        Terrain height of the plane.
+    principal_point : (float, float)
+
+    Returns
+    -------
+    numpy.ndarray, shape (4, 2)
+        Corners X, Y (counter-clockwise when the image is not mirrored).
+    """
+    e = np.asarray(eo, float)
+    w, h = np.broadcast_to(np.asarray(frame_mm, float), (2,)) / 2.0
+    corners = np.array([[-w, -h], [w, -h], [w, h], [-w, h]])
+    v = np.column_stack([corners, np.full(4, -float(focal_length))])
+    m = rotation_matrix(e[3], e[4], e[5])
+    d = v @ m  # M' v for each corner (ground direction)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (z - e[2]) / d[:, 2]
+    if not np.all(np.isfinite(s) & (s > 0)):
+        raise ProjectError(
+            "An image corner's ray does not reach the terrain (the image looks above the "
+            "horizon or the terrain is above the camera)",
+            "Check the exterior orientation and the terrain height of the equal-error map",
+        )
+    return e[None, :2] + s[:, None] * d[:, :2]
+
+
+def _inside_convex(poly: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Points inside (or on) a convex polygon of either orientation."""
+    p0 = poly
+    p1 = np.roll(poly, -1, axis=0)
+    cross = ((p1[:, 0] - p0[:, 0])[:, None] * (y.ravel()[None, :] - p0[:, 1][:, None])
+             - (p1[:, 1] - p0[:, 1])[:, None] * (x.ravel()[None, :] - p0[:, 0][:, None]))
+    inside = np.all(cross >= 0, axis=0) | np.all(cross <= 0, axis=0)
+    return inside.reshape(x.shape)
+
+
+def _pair_indices(run: AdjustmentRun, image_pair) -> tuple[int, int]:
+    ids = list(run.image_ids)
+    if image_pair is None:
+        if len(ids) < 2:
+            raise ProjectError("The adjustment has fewer than two images, so there is no "
+                               "stereo pair", "Measure points on at least two images")
+        return 0, 1
+    pair = [str(i) for i in image_pair]
+    bad = [i for i in pair if i not in ids]
+    if len(pair) != 2 or bad or pair[0] == pair[1]:
+        raise ProjectError(
+            f"Image pair {pair} is not two different images of this adjustment"
+            + (f" (unknown: {', '.join(bad)})" if bad else ""),
+            f"Name two of: {', '.join(ids)}",
+        )
+    return ids.index(pair[0]), ids.index(pair[1])
+
+
+def equal_error_grid(
+    run: AdjustmentRun,
+    spacing: float = 10.0,
+    image_pair: Optional[Sequence[str]] = None,
+    z: Union[None, float, np.ndarray, Callable[[np.ndarray, np.ndarray], np.ndarray]] = None,
+    *,
+    frame_mm=None,
+) -> EqualErrorGrid:
+    """Equal-error map: sigma X, Y, Z of a new point intersected from a stereo pair.
+
+    Over the stereo overlap of the pair (the two image footprints on the plane of the
+    mean terrain height, intersected), every grid node is projected into both images and
+    intersected back (:func:`vectoradjust.accuracy.propagate.point_sigma_grid`): the covariance
+    ``s0^2 N_pp^-1 + N_pp^-1 N_pe C_ee N_ep N_pp^-1`` includes the adjusted exterior
+    orientation's 12x12 joint covariance ``C_ee = s0^2 S^-1`` of the pair. The photo
+    coordinate sigma is the median of the pair's measurement sigmas.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    spacing : float
+        Grid spacing (m); nodes at multiples of it.
+    image_pair : (str, str), optional
+        Image ids (default: the first two images of the adjustment).
+    z : None, float, array or callable, optional
+        Terrain height of the nodes: ``None`` = mean height of the adjusted points, a
+        constant, an array of the grid's shape, or ``z(X, Y)`` (e.g. a DEM sampler;
+        NaN heights fall back to the mean).
+    frame_mm : float or (float, float), optional
+        Image format (mm); default from the camera calibration (pixel size x image
+        size), else 230 mm.
+
+    Returns
+    -------
+    EqualErrorGrid
+    """
+    if not spacing > 0:
+        raise ProjectError(f"Grid spacing {spacing!r} is not positive",
+                           "Give a spacing in metres, e.g. --spacing 10")
+    res = run.result
+    _check_result(res)
+    prob = res.problem
+    ia, ib = _pair_indices(run, image_pair)
+    eo = res.eo[[ia, ib]]
+    sel = np.r_[6 * ia:6 * ia + 6, 6 * ib:6 * ib + 6]
+    cee = res.variance_factor * res.s_inv[np.ix_(sel, sel)]
+    on_pair = np.isin(prob.obs_image, [ia, ib])
+    sig = float(np.median(prob.obs_sigma[on_pair])) if on_pair.any() else \
+        float(np.median(prob.obs_sigma))
+    sig *= np.sqrt(res.variance_factor)
+    zmean = float(np.mean(res.xyz[:, 2]))
+    frame = _frame_mm(run, frame_mm)
+    f = prob.focal_length
+    fa = image_footprint(eo[0], f, frame, zmean)
+    fb = image_footprint(eo[1], f, frame, zmean)
+    x0 = max(fa[:, 0].min(), fb[:, 0].min())
+    x1 = min(fa[:, 0].max(), fb[:, 0].max())
+    y0 = max(fa[:, 1].min(), fb[:, 1].min())
+    y1 = min(fa[:, 1].max(), fb[:, 1].max())
+    xs = np.arange(np.ceil(x0 / spacing), np.floor(x1 / spacing) + 1) * spacing
+    ys = (np.arange(np.ceil(y0 / spacing), np.floor(y1 / spacing) + 1) * spacing)[::-1]
+    if xs.size == 0 or ys.size == 0:
+        raise ProjectError(
+            f"Images {run.image_ids[ia]!r} and {run.image_ids[ib]!r} do not overlap (or the "
+            f"overlap is smaller than the spacing {spacing} m)",
+            "Choose a stereo pair with overlap (--images) or a smaller spacing",
+        )
+    X, Y = np.meshgrid(xs, ys)
+    inside = _inside_convex(fa, X, Y) & _inside_convex(fb, X, Y)
+    if z is None:
+        Z = np.full(X.shape, zmean)
+    elif callable(z):
+        Z = np.asarray(z(X, Y), float).reshape(X.shape)
+    else:
+        Z = np.broadcast_to(np.asarray(z, float), X.shape).astype(float)
+    Z = np.where(np.isfinite(Z), Z, zmean)
+    sx = np.full(X.shape, np.nan)
+    sy = np.full(X.shape, np.nan)
+    sz = np.full(X.shape, np.nan)
+    if inside.any():
+        gs = prop.point_sigma_grid(eo, cee, f, sig, X[inside], Y[inside], Z[inside])
+        sx[inside], sy[inside], sz[inside] = gs.sigma_x, gs.sigma_y, gs.sigma_z
+    transform = (float(spacing), 0.0, float(xs[0] - spacing / 2), 0.0, -float(spacing),
+                 float(ys[0] + spacing / 2))
+    return EqualErrorGrid(X, Y, sx, sy, sz, transform)
+
+
+def equal_error_range(grid: EqualErrorGrid) -> dict:
+    """Range of an equal-error grid inside the overlap.
+
+    Returns
+    -------
+    dict
+        ``nodes`` (inside the overlap), ``spacing`` and for ``sigma_x``, ``sigma_y``,
+        ``sigma_z`` and ``sigma_h`` (``sqrt(sx^2 + sy^2)``) the ``min``, ``max``,
+        ``mean`` and ``median`` (m).
+    """
+    sh = np.hypot(grid.sigma_x, grid.sigma_y)
+    out: dict = {"nodes": int(np.isfinite(grid.sigma_z).sum()),
+                 "spacing": float(grid.transform[0])}
+    for name, a in (("sigma_x", grid.sigma_x), ("sigma_y", grid.sigma_y),
+                    ("sigma_z", grid.sigma_z), ("sigma_h", sh)):
+        st = _stats(a)
+        out[name] = {k: st[k] for k in ("min", "max", "mean", "median")}
+    return out
+
+
+# -------------------------------------------------------------------- two-step vs bundle
+def _stats(a: np.ndarray) -> dict:
+    a = np.asarray(a, float)
+    a = a[np.isfinite(a)]
+    if a.size == 0:
+        return {"count": 0, "mean": None, "median": None, "min": None, "max": None}
+    return {"count": int(a.size), "mean": float(a.mean()), "median": float(np.median(a)),
+            "min": float(a.min()), "max": float(a.max())}
+
+
+def compare_two_step(run: AdjustmentRun, image_pair: Optional[Sequence[str]] = None,
+                     method: str = "collinearity") -> dict:
+    """Two-step orientation of a stereo pair compared with the bundle adjustment.
+
+    The points measured on both images of the pair (default: the first two images)
+    are oriented with :func:`vectoradjust.adjust.orientation.two_step` (relative orientation,
+    then a 7-parameter similarity to the run's control points measured on both images,
+    with their prior covariances), from the same refined photo coordinates and sigmas
+    the bundle used. The two-step sigmas are a-priori (variance factor 1); the bundle's
+    are compared on the same footing (its a-posteriori covariance divided by
+    ``s0^2``). Both two-step covariances are reported: the rigorous one and the
+    textbook ``F1 Sigma_aa F1' + F2 Sigma_mm F2'``, which counts the control points'
+    model coordinates twice (they enter the transformation parameters and are
+    transformed again) and so overstates their sigma.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    image_pair : (str, str), optional
+    method : {"collinearity", "coplanarity"}
+        Relative orientation formulation.
+
+    Returns
+    -------
+    dict
+        ``images``, counts (``n_points``, ...), ``relative_s0``, ``absolute_s0``,
+        ``bundle_sigma0_squared``,
+        ``difference`` (two-step minus bundle, shape points: ``xy`` and ``z``
+        statistics of the absolute differences, m), ``sigma_ratio`` (two-step /
+        bundle, per axis, for ``rigorous`` and ``classical``, shape points),
+        ``tie_sigma_ratio`` and ``control_sigma_ratio`` (the same for tie and control
+        points), ``classical_over_rigorous`` and ``points`` (per point rows). Shape
+        points carry their coordinate priors in the bundle but not in the two-step
+        orientation; tie points are the like-for-like comparison (when the run has
+        only the two images: otherwise the bundle also used the others).
+    """
+    res = run.result
+    prob = res.problem
+    ia, ib = _pair_indices(run, image_pair)
+    npnt = prob.n_points
+    # first observation of each point on each image of the pair
+    obs_a = np.full(npnt, -1, np.int64)
+    obs_b = np.full(npnt, -1, np.int64)
+    ka = np.flatnonzero(prob.obs_image == ia)
+    kb = np.flatnonzero(prob.obs_image == ib)
+    obs_a[prob.obs_point[ka[::-1]]] = ka[::-1]
+    obs_b[prob.obs_point[kb[::-1]]] = kb[::-1]
+    pts = np.flatnonzero((obs_a >= 0) & (obs_b >= 0))
+    kind = run.point_kind[pts]
+    ctrl = pts[kind == "control"]
+    if ctrl.size < 3:
+        raise ControlError(
+            f"Only {ctrl.size} control point(s) are measured on both images "
+            f"{run.image_ids[ia]!r} and {run.image_ids[ib]!r}; the two-step orientation needs 3",
+            "Measure at least 3 control points on both images of the pair",
+        )
+    pp = np.asarray(prob.principal_point, float)
+    left = prob.obs_xy[obs_a[pts]] - pp
+    right = prob.obs_xy[obs_b[pts]] - pp
+    isig = np.column_stack([prob.obs_sigma[obs_a[pts]], prob.obs_sigma[obs_b[pts]]])
+    ids = run.point_ids[pts]
+    ccov = np.linalg.inv(prob.prior_weight[ctrl])
+    ts = two_step(left, right, ids, prob.focal_length, run.point_ids[ctrl],
+                  prob.prior_xyz[ctrl], ccov, isig, method=method)
+    vf = res.variance_factor
+    bundle_cov = (res.point_cov[pts] if res.point_cov is not None
+                  else cross_covariance(res, pts, pts)) / vf
+    b_sig = np.sqrt(np.einsum("mii->mi", bundle_cov))
+    n = len(pts)
+    rig = np.sqrt(np.clip(np.diag(ts.cov), 0, None)).reshape(n, 3)
+    cla = np.sqrt(np.clip(np.diag(ts.cov_classical), 0, None)).reshape(n, 3)
+    diff = ts.ground_xyz - res.xyz[pts]
+    shape = kind == "shape"
+    con = kind == "control"
+    tie = kind == "tie"
+    dxy = np.hypot(diff[:, 0], diff[:, 1])
+    dz = np.abs(diff[:, 2])
+
+    def ratios(s, m):
+        return {ax: _stats(s[m, i] / b_sig[m, i]) for i, ax in enumerate("xyz")}
+
+    return {
+        "images": [run.image_ids[ia], run.image_ids[ib]],
+        "method": method,
+        "n_points": int(n), "control_points": int(con.sum()), "shape_points": int(shape.sum()),
+        "tie_points": int(tie.sum()),
+        "relative_s0": float(ts.relative.s0), "absolute_s0": float(ts.absolute.s0),
+        "bundle_sigma0_squared": float(res.sigma0_squared),
+        "difference": {
+            "xy": _stats(dxy[shape]), "z": _stats(dz[shape]),
+            "rmse_xy": float(np.sqrt(np.mean(dxy[shape] ** 2))) if shape.any() else None,
+            "rmse_z": float(np.sqrt(np.mean(dz[shape] ** 2))) if shape.any() else None,
+            "tie_xy": _stats(dxy[tie]), "tie_z": _stats(dz[tie]),
+            "control_xy": _stats(dxy[con]), "control_z": _stats(dz[con]),
+        },
+        "sigma_ratio": {"rigorous": ratios(rig, shape), "classical": ratios(cla, shape)},
+        "tie_sigma_ratio": {"rigorous": ratios(rig, tie), "classical": ratios(cla, tie)},
+        "control_sigma_ratio": {"rigorous": ratios(rig, con), "classical": ratios(cla, con)},
+        "classical_over_rigorous": {
+            "shape": {ax: _stats(cla[shape, i] / rig[shape, i]) for i, ax in enumerate("xyz")},
+            "tie": {ax: _stats(cla[tie, i] / rig[tie, i]) for i, ax in enumerate("xyz")},
+            "control": {ax: _stats(cla[con, i] / rig[con, i]) for i, ax in enumerate("xyz")},
+        },
+        "points": [
+            {"point_id": str(ids[i]), "kind": str(kind[i]),
+             "two_step": ts.ground_xyz[i].tolist(), "bundle": res.xyz[pts[i]].tolist(),
+             "sigma_two_step": rig[i].tolist(), "sigma_classical": cla[i].tolist(),
+             "sigma_bundle": b_sig[i].tolist()}
+            for i in range(n)
+        ],
+    }
+

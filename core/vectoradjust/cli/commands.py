@@ -1,0 +1,318 @@
+"""The ``vectoradjust`` command line.
+
+Subcommands (``DESIGN.md`` section 9): ``demo``, ``adjust``, ``compare``. User errors
+print one clear message and exit with status 1; usage errors exit with 2; an
+interrupted run exits with 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Optional
+
+from vectoradjust import __version__
+from vectoradjust.cli import buffer as cli_buffer
+from vectoradjust.cli import propagate as cli_propagate
+from vectoradjust.cli import qa as cli_qa
+from vectoradjust.cli.progress import ProgressBar
+from vectoradjust.cli.tools import run_command
+from vectoradjust.errors import VectorAdjustError
+
+__all__ = ["main", "ProgressBar", "sample_project_dir", "compare", "compare_row", "print_table"]
+
+
+def sample_project_dir() -> Path:
+    """Directory of the embedded sample project."""
+    try:
+        from importlib.resources import files
+
+        p = Path(str(files("vectoradjust.resources"))) / "sample"
+        if (p / "project.toml").is_file():
+            return p
+    except (ModuleNotFoundError, TypeError):
+        pass
+    p = Path(__file__).resolve().parents[3] / "resources" / "sample"
+    if (p / "project.toml").is_file():
+        return p
+    raise VectorAdjustError("The sample project is not installed (resources/sample/project.toml "
+                            "is missing)", "Reinstall vectoradjust with 'pip install .'")
+
+
+def _fmt(v, nd=3) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, (int,)):
+        return str(v)
+    try:
+        return f"{float(v):.{nd}f}"
+    except (TypeError, ValueError):
+        return str(v)
+
+
+def _print_summary(summary: dict, out=None) -> None:
+    out = out or sys.stdout
+    chi = summary["chi_square"]
+    print(f"  sigma0^2 = {_fmt(summary['sigma0_squared'], 4)} with {summary['degrees_of_freedom']}"
+          f" degrees of freedom, {summary['iterations']} iterations", file=out)
+    if chi.get("lower") is not None:
+        print(f"  chi-square test (alpha = {chi['alpha']}): v'Pv = {_fmt(chi['statistic'], 2)} in "
+              f"[{_fmt(chi['lower'], 2)}, {_fmt(chi['upper'], 2)}]: "
+              f"{'passed' if chi['passed'] else 'FAILED'}", file=out)
+    for key, label in (("shape_points", "shape points (residuals)"),
+                       ("control_points", "control points"),
+                       ("check_points", "check points")):
+        s = summary.get(key) or {}
+        if s.get("count"):
+            print(f"  {label:26s} n = {s['count']:5d}  RMSE x {_fmt(s['rmse_x'])}  y "
+                  f"{_fmt(s['rmse_y'])}  z {_fmt(s['rmse_z'])}  horizontal "
+                  f"{_fmt(s['rmse_horizontal'])} m", file=out)
+    if summary.get("mean_ce90") is not None:
+        print(f"  mean CE90 {_fmt(summary['mean_ce90'])} m, mean LE90 "
+              f"{_fmt(summary['mean_le90'])} m", file=out)
+    interior = summary.get("interior_orientation")
+    if interior:
+        from vectoradjust.sensor.interior import describe_interior
+
+        for line in describe_interior(interior):
+            print(f"  {line}", file=out)
+    for w in summary.get("warnings", []):
+        print(f"  warning: {w}", file=out)
+
+
+COMPARE_COLUMNS = [
+    ("database", "database"), ("adjusted", "adjusted"), ("rmse_x", "RMSE x"),
+    ("rmse_y", "RMSE y"), ("rmse_z", "RMSE z"), ("rmse_horizontal", "RMSE h"),
+    ("mean_ce90", "CE90"), ("mean_le90", "LE90"), ("sigma0_squared", "s0^2"),
+    ("chi_square_passed", "chi2 ok"), ("check_rmse_horizontal", "check h"),
+    ("true_rmse", "true RMSE"), ("recovery", "recovery"), ("adjusted_truth_rmse", "adj-truth"),
+    ("improvement", "improve"),
+]
+
+
+def compare_row(summary: dict) -> dict:
+    """One row of the comparison table (``compare.csv``) from a run's summary."""
+    db = summary["databases"][0] if summary["databases"] else {}
+    res = db.get("residuals", {})
+    truth = db.get("truth") or {}
+    return {
+        "database": db.get("name"), "adjusted": db.get("adjusted_vertices"),
+        "rmse_x": res.get("rmse_x"), "rmse_y": res.get("rmse_y"), "rmse_z": res.get("rmse_z"),
+        "rmse_horizontal": res.get("rmse_horizontal"), "mean_ce90": db.get("mean_ce90"),
+        "mean_le90": db.get("mean_le90"), "sigma0_squared": summary.get("sigma0_squared"),
+        "chi_square_passed": summary["chi_square"].get("passed"),
+        "check_rmse_horizontal": summary["check_points"].get("rmse_horizontal"),
+        "true_rmse": truth.get("rmse_database_truth_horizontal"),
+        "recovery": truth.get("recovery_rate"),
+        "adjusted_truth_rmse": truth.get("rmse_adjusted_truth_horizontal"),
+        "improvement": truth.get("improvement"),
+        **_buffer_columns(truth.get("buffer")),
+    }
+
+
+def _buffer_columns(buf) -> dict:
+    """``in 1m before`` / ``in 1m after`` ... from a truth buffer test (shares, 0-1)."""
+    if not buf:
+        return {}
+    out = {}
+    for w, b, a in zip(buf["widths"], buf["before"], buf["after"]):
+        out[f"in_{w:g}m_before"] = b
+        out[f"in_{w:g}m_after"] = a
+    return out
+
+
+def compare_columns(rows: list) -> list:
+    """The table's (key, heading) pairs: the fixed columns, then any buffer-test shares."""
+    cols = list(COMPARE_COLUMNS)
+    known = {k for k, _ in cols}
+    for r in rows:
+        for k in r:
+            if k not in known:
+                known.add(k)
+                cols.append((k, k.replace("in_", "in ").replace("_", " ")))
+    return cols
+
+
+def print_table(rows: list, out=None) -> None:
+    """Print the side-by-side comparison table."""
+    out = out or sys.stdout
+    cols = compare_columns(rows)
+    heads = [h for _, h in cols]
+    cells = [[_fmt(r.get(k)) if k != "database" else str(r.get(k)) for k, _ in cols]
+             for r in rows]
+    widths = [max(len(h), *(len(c[i]) for c in cells)) for i, h in enumerate(heads)]
+    print("  ".join(h.rjust(w) for h, w in zip(heads, widths)), file=out)
+    for c in cells:
+        print("  ".join(v.rjust(w) for v, w in zip(c, widths)), file=out)
+
+
+def cmd_adjust(args) -> int:
+    from vectoradjust.files.outputs import write_outputs
+    from vectoradjust.files.project import load_project
+    from vectoradjust.files.readers import load_project_data
+    from vectoradjust.pipeline import run
+
+    bar = ProgressBar("adjust", enabled=not args.quiet)
+    bar(0.0, "reading inputs")
+    # every database is read, so that measurements of the databases not selected with
+    # --vectors are recognised as their shape points and left out (as in compare),
+    # not turned into tie points
+    spec = load_project(args.project)
+    data = load_project_data(spec)
+    result = run(data, vectors=args.vectors, progress=bar)
+    truth = cli_buffer.project_truth(spec)
+    if truth is not None:  # true centrelines: buffer test before/after the adjustment
+        cli_buffer.truth_buffer(result, *truth)
+    written = write_outputs(result, args.out, fmt=args.format,
+                            bands=not getattr(args, "no_bands", False))
+    from vectoradjust.files.report import write_report
+
+    qa_doc = None
+    if data.qa:  # [qa] in the project: the accuracy-control verdict goes with the outputs
+        from vectoradjust.cli.qa import write_qa_json
+        from vectoradjust.qa.verdict import accuracy_control, spec_from_table
+
+        qa_doc = accuracy_control(result, spec_from_table(data.qa, source=data.source)).as_dict()
+        written["qa.json"] = str(write_qa_json(qa_doc, args.out,
+                                               extra={"project": str(args.project)}))
+    written["report.html"] = str(write_report(result, Path(args.out) / "report.html",
+                                              reliability=result.reliability, qa=qa_doc))
+    if not args.quiet:
+        print(f"vectoradjust adjust: {args.project}")
+        _print_summary(result.summary)
+        for name in written.values():
+            print(f"  wrote {name}")
+    return 0
+
+
+def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
+    """Adjust every ``[[vectors]]`` entry alone and tabulate the results.
+
+    Returns
+    -------
+    list of dict
+        One row per database (the columns of ``compare.csv``).
+    """
+    from vectoradjust.files.outputs import write_outputs
+    from vectoradjust.files.project import load_project
+    from vectoradjust.files.readers import load_project_data
+    from vectoradjust.pipeline import run
+
+    spec = load_project(project)
+    if not spec.vectors:
+        raise VectorAdjustError(f"{project}: there are no [[vectors]] entries to compare",
+                                "Add [[vectors]] entries (one per road database)")
+    from vectoradjust.files.report import write_compare_report, write_report
+
+    data = load_project_data(spec)
+    truth = cli_buffer.project_truth(spec)
+    rows = []
+    runs = []
+    out = Path(out_dir)
+    for i, v in enumerate(spec.vectors):
+        bar = ProgressBar(f"{v.name:>8s} ({i + 1}/{len(spec.vectors)})", enabled=not quiet)
+        result = run(data, vectors=[v.name], progress=bar)
+        if truth is not None:
+            cli_buffer.truth_buffer(result, *truth)
+        write_outputs(result, out / v.name, fmt=fmt)
+        write_report(result, out / v.name / "report.html", reliability=result.reliability)
+        rows.append(compare_row(result.summary))
+        runs.append(result)
+    out.mkdir(parents=True, exist_ok=True)
+    write_compare_report(runs, rows, out / "report.html")
+    with open(out / "compare.csv", "w", newline="", encoding="utf-8") as fh:
+        cols = compare_columns(rows)
+        w = csv.DictWriter(fh, fieldnames=[k for k, _ in cols])
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k, _ in cols})
+    with open(out / "compare.json", "w", encoding="utf-8") as fh:
+        json.dump(rows, fh, indent=2)
+    return rows
+
+
+def cmd_compare(args) -> int:
+    rows = compare(args.project, args.out, fmt=args.format, quiet=args.quiet)
+    print(f"vectoradjust compare: {args.project} (each database adjusted alone)")
+    print_table(rows)
+    print(f"  wrote {Path(args.out) / 'compare.csv'} and {Path(args.out) / 'report.html'}")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    project = sample_project_dir() / "project.toml"
+    out = Path(args.out)
+    print(f"vectoradjust demo: sample project {project}")
+    print("  all road databases adjusted together ->", out / "all")
+    ns = argparse.Namespace(project=str(project), out=str(out / "all"), format=args.format,
+                            vectors=None, quiet=args.quiet)
+    cmd_adjust(ns)
+    print("\n  each database alone (compare) ->", out / "compare")
+    rows = compare(project, out / "compare", fmt=args.format, quiet=args.quiet)
+    print_table(rows)
+    print("\n  (RMSE x/y/z/h: of the residuals V = adjusted - database; recovery = the smaller "
+          "of RMSE(V) and RMSE(database - truth) over the larger; improvement = 1 - "
+          "RMSE(adjusted - truth) / RMSE(database - truth))")
+    print(f"  reports: {out / 'all' / 'report.html'}, {out / 'compare' / 'report.html'}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``vectoradjust`` command."""
+    p = argparse.ArgumentParser(
+        prog="vectoradjust",
+        description="Photogrammetric adjustment of road vectors: how far each vertex is from "
+                    "the truth, where it belongs, and how sure that is.",
+    )
+    p.add_argument("--version", action="version", version=f"vectoradjust {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    def common(sp):
+        sp.add_argument("--format", choices=("gpkg", "shp"), default="gpkg",
+                        help="output format (default gpkg)")
+        sp.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+
+    d = sub.add_parser("demo", help="run the embedded sample project end to end")
+    d.add_argument("--out", default="vectoradjust-demo", help="output directory "
+                   "(default ./vectoradjust-demo)")
+    common(d)
+    d.set_defaults(func=cmd_demo)
+
+    a = sub.add_parser("adjust", help="adjust the road vectors of a project")
+    a.add_argument("project", help="project file (TOML)")
+    a.add_argument("--out", required=True, help="output directory")
+    a.add_argument("--vectors", action="append", metavar="NAME",
+                   help="adjust only this [[vectors]] entry (repeatable)")
+    a.add_argument("--no-bands", action="store_true",
+                   help="do not write the uncertainty_bands layer (saves time on large runs)")
+    common(a)
+    a.set_defaults(func=cmd_adjust)
+
+    c = sub.add_parser("compare", help="adjust each road database alone and compare")
+    c.add_argument("project", help="project file (TOML)")
+    c.add_argument("--out", required=True, help="output directory")
+    common(c)
+    c.set_defaults(func=cmd_compare)
+
+    cli_qa.add_parser(sub)
+    cli_propagate.add_parsers(sub)
+    cli_buffer.add_parser(sub)
+    return p
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Entry point of the ``vectoradjust`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return run_command(args)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

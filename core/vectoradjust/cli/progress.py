@@ -1,0 +1,38 @@
+"""The console progress bar shared by every command."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+__all__ = ["ProgressBar"]
+
+
+class ProgressBar:
+    """A one-line progress bar on stderr (plain lines when stderr is not a terminal)."""
+
+    def __init__(self, label: str, enabled: bool = True, stream=None, width: int = 30) -> None:
+        self.label = label
+        self.enabled = enabled
+        self.stream = stream or sys.stderr
+        self.width = width
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self._last_msg = None
+        self.t0 = time.perf_counter()
+
+    def __call__(self, fraction: float, message: str = "") -> None:
+        if not self.enabled:
+            return
+        fraction = min(max(float(fraction), 0.0), 1.0)
+        filled = int(round(fraction * self.width))
+        bar = "#" * filled + "-" * (self.width - filled)
+        elapsed = time.perf_counter() - self.t0
+        line = f"{self.label} [{bar}] {fraction * 100:5.1f}% {elapsed:6.1f}s {message}"
+        if self.tty:
+            self.stream.write("\r" + line[:120].ljust(120))
+            if fraction >= 1.0:
+                self.stream.write("\n")
+        elif message != self._last_msg:
+            self.stream.write(line + "\n")
+        self._last_msg = message
+        self.stream.flush()

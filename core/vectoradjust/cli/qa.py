@@ -1,0 +1,232 @@
+"""``vectoradjust qa``: accuracy control of a project's adjustment (``DESIGN.md`` section 7).
+
+``vectoradjust qa PROJECT.toml --out DIR [--product P] [--scale M] [--contour-interval H]
+[--terrain T] [--pixel-size MM]`` adjusts the project, judges every stage against the
+tolerances of the product specification (``[qa]`` in the project; the options override
+it), writes ``DIR/qa.json`` and prints the verdict, the non-conformities with the point
+ids to re-measure, and a table of the stages.
+
+The console script registers the subcommand with :func:`add_parser`; ``python -m
+vectoradjust.cli.qa`` runs it alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Optional
+
+from vectoradjust.cli.tools import fmt_number, run_command, write_json
+from vectoradjust.errors import VectorAdjustError
+
+__all__ = ["add_parser", "cmd_qa", "format_report", "write_qa_json", "main"]
+
+_MAX_IDS = 20  # failing point ids printed per stage (all are in qa.json)
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``qa`` subcommand to the ``vectoradjust`` sub-parsers.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        From ``ArgumentParser.add_subparsers()``.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        The ``qa`` parser (its ``func`` default is :func:`cmd_qa`).
+    """
+    q = subparsers.add_parser(
+        "qa", help="accuracy control: judge the adjustment against production tolerances",
+        description="Adjust the project and judge every stage (interior and relative "
+                    "orientation, triplets, control and check points) against the tolerances "
+                    "that follow from the product specification ([qa] in the project; the "
+                    "options below override it). Writes qa.json.")
+    q.add_argument("project", help="project file (TOML)")
+    q.add_argument("--out", required=True, help="output directory (qa.json is written there)")
+    q.add_argument("--product", help='"topographic map" (or topographic-map), "orthophoto" or '
+                                     '"orthomosaic"')
+    q.add_argument("--scale", help="scale denominator of the product, e.g. 2000 or 1:2000")
+    q.add_argument("--contour-interval", type=float, metavar="H",
+                   help="contour interval of the map (m)")
+    q.add_argument("--terrain", help="flat, hilly or mountainous (orthomosaic tolerances)")
+    q.add_argument("--pixel-size", type=float, metavar="MM",
+                   help="scanning / sensor pixel size (mm), e.g. 0.012; default [qa] pixel_size "
+                        "or the camera's")
+    q.add_argument("--pairs", choices=("consecutive", "all"), default="consecutive",
+                   help="stereo pairs: consecutive images of [[images]] (default) or every pair "
+                        "with common points")
+    q.add_argument("--point-rule", choices=("limit", "mean"), default="limit",
+                   help="a control/check point fails over twice the mean tolerance (limit, "
+                        "default) or over the mean tolerance itself")
+    q.add_argument("--vectors", action="append", metavar="NAME",
+                   help="adjust only this [[vectors]] entry (repeatable)")
+    q.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    q.set_defaults(func=cmd_qa)
+    return q
+
+
+def write_qa_json(report: dict, out_dir, extra: Optional[dict] = None) -> Path:
+    """Write ``qa.json`` (verdict and non-conformities first) into ``out_dir``.
+
+    Parameters
+    ----------
+    report : dict
+        ``QAReport.as_dict()``.
+    out_dir : str or os.PathLike
+        Created if missing.
+    extra : dict, optional
+        Keys appended (e.g. ``project``).
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    doc = dict(report)
+    if extra:
+        doc.update(extra)
+    return write_json(out_dir, "qa.json", doc)
+
+
+def _f(v, nd: int = 3) -> str:
+    return fmt_number(v, nd)
+
+
+def _table(heads: list, rows: list, indent: str = "  ") -> list:
+    widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h)
+              for i, h in enumerate(heads)]
+    lines = [indent + "  ".join(h.ljust(w) if i == 0 else h.rjust(w)
+                                for i, (h, w) in enumerate(zip(heads, widths)))]
+    for r in rows:
+        lines.append(indent + "  ".join(c.ljust(w) if i == 0 else c.rjust(w)
+                                        for i, (c, w) in enumerate(zip(r, widths))))
+    return lines
+
+
+def format_report(report: dict) -> str:
+    """A readable text rendering of a QA report (``QAReport.as_dict()``).
+
+    Verdict first, then the non-conformities with the ids to re-measure, the stage
+    table, the vertical parallax per stereo pair, the triplets, the control points and
+    the notes.
+    """
+    spec = report["specification"]
+    lines = []
+    if spec["product"] == "topographic map":
+        what = (f"topographic map 1:{_f(spec['map_scale'], 0)}, contour interval "
+                f"{_f(spec['contour_interval'], 2)} m")
+    else:
+        scale = spec.get("orthophoto_scale") or spec.get("map_scale")
+        what = f"{spec['product']} 1:{_f(scale, 0)}, terrain {spec['terrain']}"
+    px = report.get("pixel_size_mm")
+    pxt = (f"pixel size {_f(px, 4)} mm ({report.get('pixel_size_source')})" if px
+           else "pixel size unknown")
+    lines.append(f"  product: {what}; {pxt}")
+    n_nc = len(report["nonconformities"])
+    n_na = len(report["not_evaluated"])
+    verdict = "PASS" if report["passed"] else "FAIL"
+    tail = []
+    if n_nc:
+        tail.append(f"{n_nc} non-conformit{'y' if n_nc == 1 else 'ies'}")
+    if n_na:
+        tail.append(f"{n_na} stage(s) not evaluated")
+    lines.append(f"  VERDICT: {verdict}" + (f" ({'; '.join(tail)})" if tail else ""))
+    if n_nc:
+        lines.append("  Non-conformities (re-measure these points):")
+        for n in report["nonconformities"]:
+            ids = n["ids"]
+            shown = ", ".join(str(i) for i in ids[:_MAX_IDS])
+            if len(ids) > _MAX_IDS:
+                shown += f", ... ({len(ids) - _MAX_IDS} more in qa.json)"
+            lines.append(f"    {n['stage']}: {n['statistic']} {_f(n['measured'])} {n['unit']} "
+                         f"(tolerance {_f(n['tolerance'])}, point limit "
+                         f"{_f(n['point_tolerance'])}); "
+                         f"{len(ids)} point(s) over the limit" + (f": {shown}" if ids else ""))
+    lines.append("  Stages:")
+    rows = [[s["name"], s["statistic"], _f(s["measured"]), _f(s["tolerance"]),
+             _f(s["point_tolerance"]), s["unit"], str(len(s["points"])), s["status"].upper()]
+            for s in report["stages"]]
+    lines += _table(["stage", "stat", "measured", "tolerance", "pt limit", "unit", "n",
+                     "status"], rows, "    ")
+    if report["stereo_pairs"]:
+        lines.append("  Vertical parallax after the adjustment (|py|):")
+        rows = [[f"{p['left']}-{p['right']}", str(p["n"]), _f(p["mean_um"], 2), _f(p["rms_um"], 2),
+                 _f(p["max_um"], 2), _f(p["mean_px"], 2), _f(p["rms_px"], 2), _f(p["max_px"], 2)]
+                for p in report["stereo_pairs"]]
+        lines += _table(["pair", "n", "mean um", "rms um", "max um", "mean px", "rms px",
+                         "max px"], rows, "    ")
+    if report["triplets"]:
+        lines.append("  Triplets (discrepancies between adjacent models, image scale):")
+        rows = [["-".join(t["images"]), str(t["n"]), _f(t["base_mm"], 1),
+                 _f(t["mean_e_xy_um"], 2), _f(t.get("tolerance_e_xy_um"), 2),
+                 _f(t["mean_e_z_um"], 2), _f(t.get("tolerance_e_z_um"), 2)]
+                for t in report["triplets"]]
+        lines += _table(["triplet", "n", "b mm", "E_xy um", "tol", "E_z um", "tol"], rows,
+                        "    ")
+    if report["control_points"]:
+        lines.append("  Control and check points (m):")
+        rows = [[c["id"], c["role"], _f(c["e_xy"]), _f(c["tolerance_xy"]), _f(c["e_z"]),
+                 _f(c["tolerance_z"]), c["qa"].upper()] for c in report["control_points"]]
+        lines += _table(["point", "role", "e_xy", "limit", "e_z", "limit", "QA"], rows, "    ")
+    for n in report["notes"]:
+        lines.append(f"  note: {n}")
+    return "\n".join(lines)
+
+
+def cmd_qa(args) -> int:
+    """Run ``vectoradjust qa`` (see :func:`add_parser` for the arguments).
+
+    Returns
+    -------
+    int
+        0 when the accuracy control ran (whatever the verdict; it is in ``qa.json``).
+    """
+    from vectoradjust.cli.progress import ProgressBar
+    from vectoradjust.files.project import load_project
+    from vectoradjust.files.readers import load_project_data
+    from vectoradjust.pipeline import run
+    from vectoradjust.qa.verdict import accuracy_control, spec_from_table
+
+    project = load_project(args.project)
+    # the specification is checked before the (possibly long) adjustment
+    spec = spec_from_table(project.raw.get("qa"), product=args.product, scale=args.scale,
+                           contour_interval=args.contour_interval, terrain=args.terrain,
+                           source=str(args.project))
+    if args.pixel_size is not None and not args.pixel_size > 0:
+        raise VectorAdjustError(f"--pixel-size {args.pixel_size} is not a pixel size",
+                                "Give the pixel size in millimetres, e.g. --pixel-size 0.012")
+    bar = ProgressBar("qa", enabled=not args.quiet)
+    bar(0.0, "reading inputs")
+    data = load_project_data(project)
+    result = run(data, vectors=args.vectors, progress=bar)
+    report = accuracy_control(result, spec, pixel_size=args.pixel_size, pairs=args.pairs,
+                              point_rule=args.point_rule)
+    doc = report.as_dict()
+    path = write_qa_json(doc, args.out, extra={"project": str(args.project)})
+    from vectoradjust.files.report import write_report
+
+    html = write_report(result, Path(args.out) / "report.html", qa=doc,
+                        reliability=result.reliability)
+    print(f"vectoradjust qa: {args.project}")
+    print(format_report(doc))
+    print(f"  wrote {path} and {html}")
+    return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Run the ``qa`` subcommand alone: ``python -m vectoradjust.cli.qa PROJECT --out DIR``."""
+    parser = argparse.ArgumentParser(prog="vectoradjust")
+    sub = parser.add_subparsers(dest="command")
+    add_parser(sub)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] != "qa":
+        argv = ["qa", *argv]
+    args = parser.parse_args(argv)
+    return run_command(args)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,193 @@
+"""Writing the derived products: uncertainty bands (polygons) and the equal-error map.
+
+* :func:`uncertainty_bands_frame` / :func:`write_uncertainty_bands`: the G-bands
+  (:func:`vectoradjust.accuracy.derived.segment_bands`) of every road feature, the segments'
+  bands united per feature with shapely, as a polygon layer ``uncertainty_bands``
+  (fields ``database``, ``feature_id``, ``confidence``, ``NSeg``) - in
+  ``adjusted.gpkg`` beside the contract's layers, or as a shapefile.
+* :func:`write_equal_error_map`: the equal-error grid
+  (:func:`vectoradjust.accuracy.derived.equal_error_grid`) as a 3-band float32 GeoTIFF
+  (sigma X, sigma Y, sigma Z in metres; nodata outside the stereo overlap).
+
+Geodata libraries (geopandas, shapely, rasterio) are imported inside the functions.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Optional
+
+import numpy as np
+
+from vectoradjust.accuracy.derived import EqualErrorGrid, segment_bands
+from vectoradjust.errors import InputFileError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from vectoradjust.pipeline import AdjustmentRun
+
+__all__ = [
+    "BAND_FIELDS",
+    "uncertainty_bands_frame",
+    "write_uncertainty_bands",
+    "write_equal_error_map",
+    "EQUAL_ERROR_NODATA",
+]
+
+BAND_FIELDS = ["database", "feature_id", "confidence", "NSeg"]
+EQUAL_ERROR_NODATA = -9999.0
+
+
+def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, **kwargs):
+    """GeoDataFrame of the uncertainty bands: one (Multi)Polygon per road feature.
+
+    Each feature's band is the union of the G-bands of its segments whose two end points
+    were measured (segments with an unmeasured end have no band); features without such
+    a segment are left out.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    confidence : float
+        Probability of the error ellipses (default 0.9).
+    **kwargs
+        ``n_pairs``, ``n_directions`` of :func:`vectoradjust.accuracy.derived.g_band_batch`.
+
+    Returns
+    -------
+    geopandas.GeoDataFrame
+        Columns :data:`BAND_FIELDS` and the geometry (always MultiPolygon), in the
+        run's CRS.
+    """
+    import geopandas as gpd
+    import pandas as pd
+    import shapely
+
+    cols: dict = {f: [] for f in BAND_FIELDS}
+    geoms: list = []
+    for d in run.databases:
+        sb = segment_bands(run, d, confidence, **kwargs)
+        if not sb.rings:
+            continue
+        sizes = np.array([len(r) for r in sb.rings])
+        coords = np.concatenate(sb.rings)
+        rings = shapely.linearrings(coords, indices=np.repeat(np.arange(len(sizes)), sizes))
+        polys = shapely.make_valid(shapely.polygons(rings))
+        order = np.argsort(sb.feature, kind="stable")
+        feats, starts, counts = np.unique(sb.feature[order], return_index=True,
+                                          return_counts=True)
+        fids = d.shape.layer.feature_ids
+        for f, s, c in zip(feats, starts, counts):  # one union per feature
+            union = shapely.get_parts(shapely.union_all(polys[order[s:s + c]]))
+            geoms.append(shapely.MultiPolygon(
+                [g for g in union if g.geom_type == "Polygon" and not g.is_empty]))
+            cols["database"].append(d.name)
+            cols["feature_id"].append(str(fids[f]))
+            cols["confidence"].append(float(confidence))
+            cols["NSeg"].append(int(c))
+    frame = pd.DataFrame(cols)
+    frame["NSeg"] = frame["NSeg"].astype("int64")
+    frame["confidence"] = frame["confidence"].astype(float)
+    return gpd.GeoDataFrame(frame, geometry=gpd.GeoSeries(geoms, crs=run.data.crs),
+                            crs=run.data.crs)
+
+
+def write_uncertainty_bands(run: AdjustmentRun, path, layer: str = "uncertainty_bands",
+                            fmt: Optional[str] = None, confidence: float = 0.9,
+                            **kwargs) -> str:
+    """Write the uncertainty bands as a polygon layer.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    path : str or os.PathLike
+        A GeoPackage (the layer is added to it, or replaces a layer of that name; the
+        other layers are kept) or a shapefile.
+    layer : str
+        Layer name in a GeoPackage.
+    fmt : {"gpkg", "shp"}, optional
+        Default: from the file extension (``.shp`` -> shapefile, else GeoPackage).
+    confidence : float
+    **kwargs
+        Passed to :func:`uncertainty_bands_frame`.
+
+    Returns
+    -------
+    str
+        The path written.
+
+    Raises
+    ------
+    InputFileError
+        If the file cannot be written.
+    """
+    p = Path(path)
+    if fmt is None:
+        fmt = "shp" if p.suffix.lower() == ".shp" else "gpkg"
+    if fmt not in ("gpkg", "shp"):
+        raise InputFileError(f"Output format {fmt!r} is not supported", "Use gpkg or shp")
+    gdf = uncertainty_bands_frame(run, confidence, **kwargs)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        if fmt == "gpkg":
+            gdf.to_file(p, layer=layer, driver="GPKG", engine="pyogrio")
+        else:
+            gdf.to_file(p, driver="ESRI Shapefile", engine="pyogrio", encoding="UTF-8")
+    except Exception as exc:  # pyogrio/GDAL errors: report the file and the cause
+        raise InputFileError(
+            f"Cannot write the uncertainty bands to {str(p)!r} ({exc})",
+            "Choose a writable output path (and close the file in other programs)",
+            path=str(p),
+        ) from exc
+    return str(p)
+
+
+def write_equal_error_map(grid: EqualErrorGrid, path, crs,
+                          nodata: float = EQUAL_ERROR_NODATA) -> str:
+    """Write an equal-error grid as a 3-band float32 GeoTIFF.
+
+    Bands: 1 sigma X, 2 sigma Y, 3 sigma Z (m, a posteriori), with band descriptions;
+    cells outside the stereo overlap hold ``nodata``.
+
+    Parameters
+    ----------
+    grid : EqualErrorGrid
+        From :func:`vectoradjust.accuracy.derived.equal_error_grid`.
+    path : str or os.PathLike
+    crs : str or pyproj.CRS or rasterio CRS
+        The project CRS.
+    nodata : float
+
+    Returns
+    -------
+    str
+        The path written.
+    """
+    import rasterio
+    from rasterio.errors import RasterioError
+    from rasterio.transform import Affine
+
+    p = Path(path)
+    bands = np.stack([grid.sigma_x, grid.sigma_y, grid.sigma_z]).astype(np.float32)
+    bands = np.where(np.isfinite(bands), bands, np.float32(nodata))
+    if hasattr(crs, "to_wkt"):
+        crs = crs.to_wkt()
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        with rasterio.open(
+            p, "w", driver="GTiff", height=bands.shape[1], width=bands.shape[2], count=3,
+            dtype="float32", crs=crs, transform=Affine(*grid.transform), nodata=nodata,
+            compress="deflate",
+        ) as dst:
+            dst.write(bands)
+            for i, name in enumerate(("sigma X (m)", "sigma Y (m)", "sigma Z (m)"), start=1):
+                dst.set_band_description(i, name)
+            dst.update_tags(units="m", quantity="a-posteriori standard deviation of a point "
+                            "intersected from the stereo pair (equal-error map)")
+    except (OSError, RasterioError) as exc:
+        raise InputFileError(
+            f"Cannot write the equal-error map {str(p)!r} ({exc})",
+            "Choose a writable output path",
+            path=str(p),
+        ) from exc
+    return os.fspath(p)

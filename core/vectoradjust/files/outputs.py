@@ -1,0 +1,262 @@
+"""Writing the contract's outputs: ``adjusted.gpkg`` (or shapefiles) and ``summary.json``.
+
+Everything is written to a temporary directory first and moved into place only when
+all files were written, so a failing run leaves nothing half-written.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from vectoradjust.errors import InputFileError
+from vectoradjust.files.jsonfile import clean_json
+from vectoradjust.pipeline import AdjustmentRun
+
+__all__ = ["write_outputs", "shape_points_frame", "features_frame", "control_points_frame",
+           "json_default"]
+
+SHAPE_FIELDS = ["point_id", "feature_id", "X", "Y", "Z", "Vx", "Vy", "Vz", "AdjX", "AdjY", "AdjZ",
+                "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "NImages", "Adjusted", "Database"]
+FEATURE_FIELDS = ["NPts", "NAdj", "RMSE_X", "RMSE_Y", "RMSE_Z", "RMSE", "Length", "LengthSD",
+                  "LengthSDnc", "FirstX",
+                  "FirstY", "LastX", "LastY", "Images", "ImgDate", "Database", "Problem"]
+CONTROL_FIELDS = ["point_id", "role", "X", "Y", "Z", "AdjX", "AdjY", "AdjZ", "Vx", "Vy", "Vz",
+                  "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "NImages", "Used"]
+
+
+def json_default(o):
+    """JSON encoder fallback for numpy scalars and arrays (NaN -> null)."""
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        v = float(o)
+        return v if math.isfinite(v) else None
+    if isinstance(o, np.bool_):
+        return bool(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+def _nullable(col: np.ndarray, mask: Optional[np.ndarray] = None):
+    """A column for writing: floats as nullable ``Float64`` (NaN or ``~mask`` -> null)."""
+    import pandas as pd
+
+    arr = np.asarray(col)
+    if arr.dtype.kind == "f":
+        valid = np.isfinite(arr)
+        if mask is not None:
+            valid &= mask
+        return pd.arrays.FloatingArray(np.where(valid, arr, 0.0), ~valid)
+    if arr.dtype.kind in "iub":
+        out = pd.array(arr.astype(np.int64), dtype="Int64")
+        if mask is not None:
+            out[~mask] = pd.NA
+        return out
+    out = arr.astype(object)
+    if mask is not None:
+        out[~mask] = None
+    return out
+
+
+def shape_points_frame(run: AdjustmentRun):
+    """GeoDataFrame of the ``shape_points`` layer (Point Z at the adjusted position)."""
+    import geopandas as gpd
+    import pandas as pd
+    import shapely
+
+    frames = []
+    for d in run.databases:
+        v = d.vertices
+        adj = v["Adjusted"] == 1
+        cols = {}
+        for f in SHAPE_FIELDS:
+            col = v[f]
+            if f in ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90"):
+                col = _nullable(col, adj)
+            else:
+                col = _nullable(col)
+            cols[f] = col
+        geom = shapely.points(np.column_stack([v["AdjX"], v["AdjY"],
+                                               np.nan_to_num(v["AdjZ"], nan=0.0)]))
+        frames.append(gpd.GeoDataFrame(pd.DataFrame(cols), geometry=geom, crs=run.data.crs))
+    if not frames:
+        return gpd.GeoDataFrame(pd.DataFrame({f: [] for f in SHAPE_FIELDS}),
+                                geometry=gpd.GeoSeries([], crs=run.data.crs), crs=run.data.crs)
+    return pd.concat(frames, ignore_index=True)
+
+
+def _feature_geometries(d) -> list:
+    import shapely
+
+    layer = d.shape.layer
+    nf = layer.n_features
+    out = [None] * nf
+    if len(layer.coords) == 0:
+        return out
+    adj = d.adjusted_coords
+    z = np.nan_to_num(adj[:, 2], nan=0.0)
+    xyz = np.column_stack([adj[:, :2], z])
+    fi, part = layer.vertex_feature, layer.vertex_part
+    key = fi * 100000 + part
+    brk = np.flatnonzero(np.diff(key)) + 1
+    starts = np.r_[0, brk]
+    ends = np.r_[brk, len(key)]
+    parts_by_feature: dict = {}
+    for s, e in zip(starts, ends):
+        parts_by_feature.setdefault(int(fi[s]), []).append(xyz[s:e])
+    for f, parts in parts_by_feature.items():
+        parts = [p for p in parts if len(p) >= 2] or parts
+        if len(parts) == 1:
+            out[f] = shapely.linestrings(parts[0]) if len(parts[0]) >= 2 else shapely.points(
+                parts[0][0])
+        else:
+            out[f] = shapely.multilinestrings(
+                [shapely.linestrings(p) for p in parts if len(p) >= 2])
+    return out
+
+
+def features_frame(run: AdjustmentRun):
+    """GeoDataFrame of the ``features`` layer: every input feature and attribute kept."""
+    import geopandas as gpd
+    import pandas as pd
+
+    frames = []
+    for d in run.databases:
+        layer = d.shape.layer
+        cols: dict = {}
+        ours = set(FEATURE_FIELDS)
+        for name, values in layer.attributes.items():
+            out_name = name
+            if name in ours or name.lower() == "geometry":
+                out_name = (name[:7] + "_in")
+            cols[out_name] = list(values)
+        for f in FEATURE_FIELDS:
+            if f == "Database":
+                cols[f] = [d.name] * layer.n_features
+            else:
+                cols[f] = _nullable(d.features[f])
+        geoms = _feature_geometries(d)
+        frames.append(gpd.GeoDataFrame(pd.DataFrame(cols), geometry=gpd.GeoSeries(
+            geoms, crs=run.data.crs), crs=run.data.crs))
+    if not frames:
+        return gpd.GeoDataFrame(pd.DataFrame({f: [] for f in FEATURE_FIELDS}),
+                                geometry=gpd.GeoSeries([], crs=run.data.crs), crs=run.data.crs)
+    return pd.concat(frames, ignore_index=True)
+
+
+def control_points_frame(run: AdjustmentRun):
+    """GeoDataFrame of the ``control_points`` layer (at the adjusted, else surveyed, place)."""
+    import geopandas as gpd
+    import pandas as pd
+    import shapely
+
+    c = run.control_points
+    used = c["Used"] == 1
+    cols = {}
+    for f in CONTROL_FIELDS + (["QA"] if "QA" in c else []):
+        col = c[f]
+        cols[f] = _nullable(col)
+    xyz = np.where(used[:, None], np.column_stack([c["AdjX"], c["AdjY"], c["AdjZ"]]),
+                   np.column_stack([c["X"], c["Y"], c["Z"]]))
+    geom = shapely.points(xyz) if len(xyz) else gpd.GeoSeries([], crs=run.data.crs)
+    return gpd.GeoDataFrame(pd.DataFrame(cols), geometry=geom, crs=run.data.crs)
+
+
+def _write_layer(gdf, path: Path, layer: Optional[str], fmt: str) -> None:
+    if fmt == "gpkg":
+        gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio")
+    else:
+        gdf.to_file(path, driver="ESRI Shapefile", engine="pyogrio", encoding="UTF-8")
+
+
+FLAGGED_COLUMNS = ["kind", "image", "point", "point_kind", "component", "unit", "residual", "w",
+                   "redundancy", "suspected_error", "mdb", "line", "observation"]
+
+
+def _write_flagged(rows: list, path: Path) -> None:
+    """The flagged observations (w-test) as CSV, largest |w| first."""
+    import csv
+
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=FLAGGED_COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in FLAGGED_COLUMNS})
+
+
+def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
+                  extra_json: Optional[dict] = None, bands: bool = True) -> dict:
+    """Write ``adjusted.gpkg`` (or three shapefiles) and ``summary.json`` into ``out_dir``.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    out_dir : str or os.PathLike
+        Created if missing; existing outputs of the same names are replaced.
+    fmt : {"gpkg", "shp"}
+    extra_json : dict, optional
+        More keys for summary.json.
+    bands : bool
+        Also write the ``uncertainty_bands`` layer (90 % G-band of every measured
+        road segment, Shi & Liu 2000).
+
+    Returns
+    -------
+    dict
+        Paths written, by name.
+    """
+    if fmt not in ("gpkg", "shp"):
+        raise InputFileError(f"Output format {fmt!r} is not supported", "Use gpkg or shp")
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputFileError(f"Cannot create the output directory {str(out)!r} ({exc})",
+                             "Choose a writable directory with --out") from exc
+    frames = {
+        "shape_points": shape_points_frame(run),
+        "features": features_frame(run),
+        "control_points": control_points_frame(run),
+    }
+    if bands and run.databases:
+        from vectoradjust.files.derived_outputs import uncertainty_bands_frame
+
+        frames["uncertainty_bands"] = uncertainty_bands_frame(run)
+    tmp = Path(tempfile.mkdtemp(prefix=".vectoradjust-", dir=out))
+    written = {}
+    try:
+        if fmt == "gpkg":
+            for name, gdf in frames.items():
+                _write_layer(gdf, tmp / "adjusted.gpkg", name, fmt)
+            names = ["adjusted.gpkg"]
+        else:
+            names = []
+            for name, gdf in frames.items():
+                _write_layer(gdf, tmp / f"{name}.shp", None, fmt)
+                names += [p.name for p in tmp.glob(f"{name}.*")]
+        if run.flagged:
+            _write_flagged(run.flagged, tmp / "flagged_observations.csv")
+            names.append("flagged_observations.csv")
+        summary = dict(run.summary)
+        if extra_json:
+            summary.update(extra_json)
+        with open(tmp / "summary.json", "w", encoding="utf-8") as fh:
+            json.dump(clean_json(summary), fh, indent=2, default=json_default)
+        names.append("summary.json")
+        for n in names:
+            os.replace(tmp / n, out / n)
+            written[n] = str(out / n)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return written

@@ -1,0 +1,13 @@
+"""The sensor: from pixels to refined photo coordinates and the collinearity model.
+
+- :mod:`~vectoradjust.sensor.collinearity` - rotation matrix, projection, analytic partials
+  (DESIGN sections 2-3).
+- :mod:`~vectoradjust.sensor.camera` - the camera calibration file (focal length,
+  principal point, distortion, fiducials, pixels).
+- :mod:`~vectoradjust.sensor.refine` - fiducial affine, lens distortion, refraction,
+  earth curvature (DESIGN section 5).
+- :mod:`~vectoradjust.sensor.interior` - the interior-orientation step applied to a
+  project's measurements.
+
+Imports numpy and scipy only.
+"""
