@@ -195,13 +195,13 @@ def test_build_zip(tmp_path):
                  "vectoradjust_qgis/algorithms/accuracy_control.py",
                  "vectoradjust_qgis/algorithms/uncertainty_bands.py",
                  "vectoradjust_qgis/algorithms/equal_error_map.py",
-                 "vectoradjust_qgis/ext/vectoradjust/assemble.py",
-                 "vectoradjust_qgis/ext/vectoradjust/derived.py",
-                 "vectoradjust_qgis/ext/vectoradjust/qa_run.py",
-                 "vectoradjust_qgis/ext/vectoradjust/report.py",
+                 "vectoradjust_qgis/ext/vectoradjust/files/assemble.py",
+                 "vectoradjust_qgis/ext/vectoradjust/accuracy/derived.py",
+                 "vectoradjust_qgis/ext/vectoradjust/qa/verdict.py",
+                 "vectoradjust_qgis/ext/vectoradjust/files/report.py",
                  "vectoradjust_qgis/styles/residual_arrows.qml",
                  "vectoradjust_qgis/ext/vectoradjust/pipeline.py",
-                 "vectoradjust_qgis/ext/vectoradjust/bundle.py"):
+                 "vectoradjust_qgis/ext/vectoradjust/adjust/bundle.py"):
         assert must in names, must
     assert not any("/tests/" in n or "__pycache__" in n or n.endswith(".pyc") for n in names)
     assert all(n.startswith("vectoradjust_qgis/") for n in names)
