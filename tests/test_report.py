@@ -18,8 +18,8 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
-from vectoradjust.files import report  # noqa: E402
 from vectoradjust.errors import InputFileError  # noqa: E402
+from vectoradjust.files import report  # noqa: E402
 from vectoradjust.pipeline import run  # noqa: E402
 from vectoradjust.simulate import make_scenario  # noqa: E402
 

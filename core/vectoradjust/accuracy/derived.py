@@ -46,7 +46,7 @@ from vectoradjust.sensor.collinearity import rotation_matrix
 
 if TYPE_CHECKING:  # pragma: no cover
     from vectoradjust.adjust.bundle import BundleResult
-    from vectoradjust.pipeline import AdjustmentRun, DatabaseResult
+    from vectoradjust.results import AdjustmentRun, DatabaseResult
 
 __all__ = [
     "cross_covariance",

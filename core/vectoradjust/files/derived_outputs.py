@@ -24,7 +24,7 @@ from vectoradjust.accuracy.derived import EqualErrorGrid, segment_bands
 from vectoradjust.errors import InputFileError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from vectoradjust.pipeline import AdjustmentRun
+    from vectoradjust.results import AdjustmentRun
 
 __all__ = [
     "BAND_FIELDS",

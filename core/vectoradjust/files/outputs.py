@@ -18,7 +18,7 @@ import numpy as np
 
 from vectoradjust.errors import InputFileError
 from vectoradjust.files.jsonfile import clean_json
-from vectoradjust.pipeline import AdjustmentRun
+from vectoradjust.results import AdjustmentRun
 
 __all__ = ["write_outputs", "shape_points_frame", "features_frame", "control_points_frame",
            "json_default"]

@@ -1,0 +1,186 @@
+"""The summary stage: the JSON-ready run summary (summary.json, DESIGN section 9).
+
+:func:`run_summary` gives the contract's fields (sigma0^2, degrees of freedom, chi-square
+test, RMSE of shape, check and control points, the adjusted images) and more (per
+database, observations, passes); :func:`reliability_summary` the redundancy numbers and
+flagged observations. Numpy only.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from vectoradjust.accuracy import stats
+from vectoradjust.results import AdjustmentRun
+
+__all__ = ["MAX_FLAGGED_IN_SUMMARY", "float_or_none", "rmse_dict", "run_summary",
+           "reliability_summary"]
+
+MAX_FLAGGED_IN_SUMMARY = 1000
+
+
+def float_or_none(x) -> Optional[float]:
+    """A finite float, or None (for JSON)."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def rmse_dict(d: np.ndarray) -> dict:
+    """RMSE summary of an (n, 3) array of differences (NaN rows ignored)."""
+    ok = np.isfinite(d).all(axis=1) if len(d) else np.zeros(0, bool)
+    s = stats.rmse_summary(d[ok, 0], d[ok, 1], d[ok, 2])
+    return {k: (float_or_none(v) if k != "count" else int(v)) for k, v in s.items()}
+
+
+def reliability_summary(out: AdjustmentRun, settings) -> dict:
+    """Redundancy numbers, w-tests and flagged observations (Baarda, a-priori sigma0).
+
+    Sets ``out.reliability`` and ``out.flagged`` (with the CSV line of each flagged
+    image observation).
+    """
+    from vectoradjust.adjust.reliability import flagged_observations, reliability
+
+    rel = reliability(out.result, alpha0=settings.alpha0, beta0=settings.beta0)
+    out.reliability = rel
+    flagged = flagged_observations(rel, out.result, out.point_ids, out.image_ids,
+                                   out.point_kind)
+    meas = out.data.measurements
+    for f in flagged:
+        k = f.get("observation")
+        if f.get("kind") == "image" and k is not None:
+            f["line"] = int(meas.rows[out.obs_rows[int(k)]])
+    out.flagged = flagged
+    r_img = rel.r_image[np.isfinite(rel.r_image)]
+    return {
+        "test": "Baarda w-test with the a-priori sigma0 = 1",
+        "alpha0": settings.alpha0, "beta0": settings.beta0,
+        "critical_value": float(rel.critical), "delta0": float(rel.delta0),
+        "sum_of_redundancy_numbers": float(rel.sum_r), "degrees_of_freedom": int(rel.dof),
+        "mean_redundancy_image": float_or_none(r_img.mean()) if r_img.size else None,
+        "n_flagged": len(flagged),
+        "flagged": flagged[:MAX_FLAGGED_IN_SUMMARY],
+        "flagged_truncated": len(flagged) > MAX_FLAGGED_IN_SUMMARY,
+    }
+
+
+def _chi_square(res, alpha: float) -> dict:
+    """The global test of v'Pv, JSON-ready."""
+    chi = stats.chi_square_test(res.vtpv, res.dof, alpha) if res.dof > 0 else {
+        "statistic": res.vtpv, "lower": None, "upper": None, "alpha": alpha,
+        "passed": None}
+    return {k: (bool(v) if k == "passed" and v is not None else
+                (float_or_none(v) if v is not None else None)) for k, v in chi.items()}
+
+
+def _images(out: AdjustmentRun) -> list:
+    """Adjusted EO and its sigmas per image (unused images with their approximations)."""
+    res = out.result
+    images = []
+    used = {iid: j for j, iid in enumerate(out.image_ids)}
+    for im in out.data.images:
+        if im.id in used:
+            j = used[im.id]
+            sd = np.sqrt(np.diag(res.eo_cov[j]))
+            images.append({
+                "id": im.id, "position": res.eo[j, :3].tolist(),
+                "attitude": np.degrees(res.eo[j, 3:]).tolist(),
+                "sigma_position": sd[:3].tolist(), "sigma_attitude": np.degrees(sd[3:]).tolist(),
+                "date": im.date, "used": True,
+            })
+        else:
+            images.append({"id": im.id, "position": list(map(float, im.position)),
+                           "attitude": list(map(float, im.attitude)), "sigma_position": None,
+                           "sigma_attitude": None, "date": im.date, "used": False})
+    return images
+
+
+def _database_entry(d) -> dict:
+    """Summary of one database: counts, prior sigma, residual RMSE, mean CE90/LE90, truth."""
+    adjm = d.vertices["Adjusted"] == 1
+    entry = {
+        "name": d.name,
+        "vertices": int(len(adjm)),
+        "adjusted_vertices": int(adjm.sum()),
+        "features": int(d.shape.layer.n_features),
+        "unadjustable_features": int(len(d.shape.layer.problems)),
+        "sigma_prior": list(map(float, d.sigma_used)),
+        "residuals": rmse_dict(np.column_stack([d.vertices["Vx"], d.vertices["Vy"],
+                                                d.vertices["Vz"]])[adjm]),
+        "mean_ce90": float_or_none(np.mean(d.vertices["CE90"][adjm])) if adjm.any() else None,
+        "mean_le90": float_or_none(np.mean(d.vertices["LE90"][adjm])) if adjm.any() else None,
+    }
+    if d.truth is not None:
+        entry["truth"] = d.truth
+    return entry
+
+
+def _observations(out: AdjustmentRun) -> dict:
+    res, kinds = out.result, out.point_kind
+    return {
+        "image_coordinates": int(2 * len(out.problem.obs_point)),
+        "point_priors": int(3 * out.problem.has_prior.sum()),
+        "eo_priors": int((out.problem.eo_weight > 0).sum()),
+        "total": int(res.n_obs), "unknowns": int(res.n_unknowns),
+        "control_points": int((kinds == "control").sum()),
+        "shape_points": int((kinds == "shape").sum()),
+        "tie_points": int((kinds == "tie").sum()),
+    }
+
+
+def _adjusted(out: AdjustmentRun, column: str) -> np.ndarray:
+    """A shape-point column over every database's adjusted vertices."""
+    if not out.databases:
+        return np.zeros(0)
+    return np.concatenate([d.vertices[column][d.vertices["Adjusted"] == 1]
+                           for d in out.databases])
+
+
+def run_summary(out: AdjustmentRun) -> dict:
+    """The run summary (summary.json without reliability, VCE, snooping and accuracy).
+
+    Parameters
+    ----------
+    out : AdjustmentRun
+        With its tables filled (:mod:`vectoradjust.accuracy.tables`).
+
+    Returns
+    -------
+    dict
+        JSON-ready.
+    """
+    res = out.result
+    data = out.data
+    cp = out.control_points
+    vv = np.column_stack([cp["Vx"], cp["Vy"], cp["Vz"]])
+    chk = (cp["role"] == "check") & (cp["Used"] == 1)
+    con = (cp["role"] == "control") & (cp["Used"] == 1)
+    shape_rows = [np.column_stack([d.vertices["Vx"], d.vertices["Vy"], d.vertices["Vz"]])
+                  [d.vertices["Adjusted"] == 1] for d in out.databases]
+    all_v = np.concatenate(shape_rows) if shape_rows else np.zeros((0, 3))
+    allce, allle = _adjusted(out, "CE90"), _adjusted(out, "LE90")
+    return {
+        "project": data.source,
+        "crs": data.crs,
+        "sigma0_squared": float_or_none(res.sigma0_squared),
+        "sigma0": float_or_none(np.sqrt(res.sigma0_squared)) if res.dof > 0 else None,
+        "degrees_of_freedom": int(res.dof),
+        "iterations": int(res.iterations),
+        "converged": bool(res.converged),
+        "chi_square": _chi_square(res, data.settings.alpha),
+        "observations": _observations(out),
+        "shape_points": rmse_dict(all_v),
+        "check_points": rmse_dict(vv[chk]),
+        "control_points": rmse_dict(vv[con]),
+        "mean_ce90": float_or_none(allce.mean()) if allce.size else None,
+        "mean_le90": float_or_none(allle.mean()) if allle.size else None,
+        "images": _images(out),
+        "databases": [_database_entry(d) for d in out.databases],
+        "reweight": data.settings.reweight,
+        "passes": out.passes,
+        "interior_orientation": data.interior or None,
+        "warnings": list(out.warnings),
+    }

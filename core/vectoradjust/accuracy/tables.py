@@ -1,0 +1,274 @@
+"""The statistics stage: a run's tables in the contract's fields (DESIGN section 9).
+
+- :func:`tabulate_control` - control points from the bundle, check points intersected
+  from the adjusted exterior orientation (with its covariance), CE90/LE90.
+- :func:`tabulate_database` - per vertex (``shape_points``: V = adjusted - database,
+  sigmas, CE90/LE90) and per feature (``features``: RMSE, length, ends, provenance),
+  and the comparison with the truth where a simulation gives it.
+
+Numpy only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vectoradjust.accuracy import stats
+from vectoradjust.adjust.bundle import intersect
+from vectoradjust.adjust.shapepoints import lookup
+from vectoradjust.results import AdjustmentRun, DatabaseResult
+
+__all__ = ["LE90_FACTOR", "cov_stats", "tabulate_control", "tabulate_database"]
+
+LE90_FACTOR = 1.6448536269514722  # Phi^-1(0.95)
+
+
+def cov_stats(cov: np.ndarray):
+    """Sigmas, CE90 and LE90 of (..., 3, 3) covariances."""
+    sig = np.sqrt(np.maximum(np.einsum("...ii->...i", cov), 0.0))
+    ce = stats.ce90(cov[..., :2, :2])
+    le = LE90_FACTOR * sig[..., 2]
+    return sig, ce, le
+
+
+def n_images_per_point(out: AdjustmentRun) -> np.ndarray:
+    """Number of images measuring each bundle point."""
+    return np.bincount(out.problem.obs_point, minlength=out.problem.n_points)
+
+
+# --------------------------------------------------------------------------- control
+def _intersect_check_points(out: AdjustmentRun, ctrl_of_obs, is_check, img_of_obs, imap,
+                            adj, cov, nimg) -> None:
+    """Check points intersected from the adjusted EO (not in the adjustment), in place."""
+    data, res = out.data, out.result
+    meas = data.measurements
+    chk = np.flatnonzero(is_check & (imap[img_of_obs] >= 0))
+    if not chk.size:
+        return
+    cids, cinv = np.unique(ctrl_of_obs[chk], return_inverse=True)
+    cinv = np.asarray(cinv).reshape(-1)
+    cnt = np.bincount(cinv, minlength=len(cids))
+    n_img = res.eo.shape[0]
+    eo_cov_full = res.variance_factor * res.s_inv
+    assert eo_cov_full.shape == (6 * n_img, 6 * n_img)
+    xyz_c, cov_c = intersect(res.eo, cinv, imap[img_of_obs[chk]], meas.xy[chk],
+                             meas.sigma[chk], len(cids), data.camera.focal_length,
+                             data.camera.principal_point, eo_cov_full=eo_cov_full,
+                             variance_factor=res.variance_factor)
+    ok = cnt >= 2
+    adj[cids[ok]] = xyz_c[ok]
+    cov[cids[ok]] = cov_c[ok]
+    nimg[cids] = cnt
+    for j in cids[~ok]:
+        out.warnings.append(f"check point {str(data.control.point_id[j])!r} is measured on one "
+                            "image only "
+                            "and cannot be intersected; it was not used")
+
+
+def tabulate_control(out: AdjustmentRun, ctrl_of_obs, is_check, img_of_obs, imap) -> None:
+    """Fill ``out.control_points`` (control and check points, the contract's fields).
+
+    Parameters
+    ----------
+    out : AdjustmentRun
+        With ``result`` and ``point_ids``; its warnings are appended to.
+    ctrl_of_obs : numpy.ndarray of int
+        Control-file row of each measurement (-1: none).
+    is_check : numpy.ndarray of bool
+        Measurements of check points.
+    img_of_obs : numpy.ndarray of int
+        ``[[images]]`` index of each measurement.
+    imap : numpy.ndarray of int
+        Adjusted-image index of each ``[[images]]`` entry (-1: not adjusted).
+    """
+    res = out.result
+    ctrl = out.data.control
+    n = len(ctrl.point_id)
+    adj = np.full((n, 3), np.nan)
+    cov = np.full((n, 3, 3), np.nan)
+    nimg = np.zeros(n, np.int64)
+    # control points: from the bundle
+    pidx = lookup(out.point_ids[out.point_kind == "control"], ctrl.point_id)
+    has = pidx >= 0
+    adj[has] = res.xyz[pidx[has]]
+    cov[has] = res.point_cov[pidx[has]]
+    nimg[has] = n_images_per_point(out)[pidx[has]]
+    _intersect_check_points(out, ctrl_of_obs, is_check, img_of_obs, imap, adj, cov, nimg)
+    for j in np.flatnonzero((ctrl.role == "check") & (nimg == 0)):
+        out.warnings.append(f"check point {str(ctrl.point_id[j])!r} is measured on no image "
+                            "and was "
+                            "not used")
+    sig, ce, le = cov_stats(cov)
+    v = adj - ctrl.xyz
+    out.control_points = {
+        "point_id": ctrl.point_id, "role": ctrl.role,
+        "X": ctrl.xyz[:, 0], "Y": ctrl.xyz[:, 1], "Z": ctrl.xyz[:, 2],
+        "AdjX": adj[:, 0], "AdjY": adj[:, 1], "AdjZ": adj[:, 2],
+        "Vx": v[:, 0], "Vy": v[:, 1], "Vz": v[:, 2],
+        "SigmaX": sig[:, 0], "SigmaY": sig[:, 1], "SigmaZ": sig[:, 2],
+        "CE90": ce, "LE90": le, "NImages": nimg,
+        "Used": np.isfinite(adj).all(axis=1).astype(np.int64),
+    }
+
+
+# --------------------------------------------------------------------------- databases
+def _vertex_table(out: AdjustmentRun, d: DatabaseResult):
+    """``d.vertices`` and ``d.adjusted_coords``; returns (adj, v, ce, le, measured)."""
+    res = out.result
+    sp = d.shape
+    layer = sp.layer
+    nv = len(sp.vertex_ids)
+    vp = d.vertex_point
+    meas_v = vp >= 0
+    db_xyz = layer.coords
+    adj = db_xyz.copy()
+    adj[meas_v] = res.xyz[vp[meas_v]]
+    cov = np.full((nv, 3, 3), np.nan)
+    cov[meas_v] = res.point_cov[vp[meas_v]]
+    sig, ce, le = cov_stats(cov)
+    v = np.full((nv, 3), np.nan)
+    v[meas_v] = adj[meas_v] - db_xyz[meas_v]
+    nimg = np.zeros(nv, np.int64)
+    nimg[meas_v] = n_images_per_point(out)[vp[meas_v]]
+    d.adjusted_coords = adj
+    d.vertices = {
+        "point_id": sp.vertex_ids, "feature_id": layer.feature_ids[layer.vertex_feature],
+        "X": db_xyz[:, 0], "Y": db_xyz[:, 1], "Z": db_xyz[:, 2],
+        "Vx": v[:, 0], "Vy": v[:, 1], "Vz": v[:, 2],
+        "AdjX": adj[:, 0], "AdjY": adj[:, 1], "AdjZ": adj[:, 2],
+        "SigmaX": sig[:, 0], "SigmaY": sig[:, 1], "SigmaZ": sig[:, 2],
+        "CE90": ce, "LE90": le, "NImages": nimg, "Adjusted": meas_v.astype(np.int64),
+        "Database": np.full(nv, d.name, dtype=object),
+    }
+    return adj, v, ce, le, meas_v
+
+
+def _feature_rmse(layer, v: np.ndarray, meas_v: np.ndarray):
+    """Per feature: number of vertices, adjusted vertices and the RMSE of V per axis."""
+    nf = layer.n_features
+    fi = layer.vertex_feature
+    npts = np.bincount(fi, minlength=nf)
+    nadj = np.bincount(fi, weights=meas_v, minlength=nf).astype(np.int64)
+    vz = np.where(meas_v[:, None], v, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ms = np.stack([np.bincount(fi, weights=vz[:, a] ** 2, minlength=nf) for a in range(3)],
+                      axis=1) / nadj[:, None]
+    ms[nadj == 0] = np.nan
+    return npts, nadj, np.sqrt(ms)
+
+
+def _feature_geometry(layer, adj: np.ndarray) -> dict:
+    """Horizontal length (segments within a part) and first/last vertex of each feature."""
+    nv = len(adj)
+    nf = layer.n_features
+    fi = layer.vertex_feature
+    same = np.zeros(nv, bool)
+    if nv > 1:
+        same[1:] = (fi[1:] == fi[:-1]) & (layer.vertex_part[1:] == layer.vertex_part[:-1])
+    seg = np.zeros(nv)
+    if nv > 1:
+        seg[1:] = np.hypot(*(adj[1:, :2] - adj[:-1, :2]).T)
+    length = np.bincount(fi, weights=np.where(same, seg, 0.0), minlength=nf)
+    first = np.full(nf, -1, np.int64)
+    last = np.full(nf, -1, np.int64)
+    if nv:
+        first[fi[::-1]] = np.arange(nv)[::-1]
+        last[fi] = np.arange(nv)
+    has_v = first >= 0
+
+    def at(idx, col):
+        out_ = np.full(nf, np.nan)
+        out_[has_v] = adj[idx[has_v], col]
+        return out_
+
+    return {"Length": length, "FirstX": at(first, 0), "FirstY": at(first, 1),
+            "LastX": at(last, 0), "LastY": at(last, 1)}
+
+
+def _feature_provenance(out: AdjustmentRun, d: DatabaseResult, meas_v: np.ndarray):
+    """Per feature: ids of the images that measured one of its points, and their dates."""
+    layer = d.shape.layer
+    nf = layer.n_features
+    fi = layer.vertex_feature
+    vp = d.vertex_point
+    n_img = len(out.image_ids)
+    seen = np.zeros((out.problem.n_points, n_img), bool)
+    seen[out.problem.obs_point, out.problem.obs_image] = True
+    fseen = np.zeros((nf, n_img), np.int64)
+    if meas_v.any():
+        np.add.at(fseen, fi[meas_v], seen[vp[meas_v]].astype(np.int64))
+    fseen = fseen > 0
+    dates = {im.id: (im.date or "") for im in out.data.images}
+    patterns, inv = np.unique(fseen, axis=0, return_inverse=True)
+    inv = np.asarray(inv).reshape(-1)
+    img_txt = []
+    date_txt = []
+    for pat in patterns:
+        ids = [out.image_ids[j] for j in np.flatnonzero(pat)]
+        img_txt.append(",".join(ids))
+        date_txt.append(",".join(sorted({dates[i] for i in ids if dates[i]})))
+    if not nf:
+        return np.zeros(0, object), np.zeros(0, object)
+    return np.array(img_txt, dtype=object)[inv], np.array(date_txt, dtype=object)[inv]
+
+
+def _truth_comparison(out: AdjustmentRun, d: DatabaseResult, adj, v, ce, le, meas_v):
+    """RMSE, recovery, improvement and CE90/LE90 coverage against the truth (simulations)."""
+    truth = out.data.truth.get(d.name)
+    if truth is None:
+        return None
+    sp = d.shape
+    tid, txyz = truth
+    ti = lookup(tid, sp.vertex_ids)
+    m = meas_v & (ti >= 0)
+    if not m.any():
+        return None
+    t = txyz[ti[m]]
+    resid = v[m]
+    dbt = sp.layer.coords[m] - t
+    adt = adj[m] - t
+    r_res = stats.rmse_summary(resid[:, 0], resid[:, 1], resid[:, 2])
+    r_db = stats.rmse_summary(dbt[:, 0], dbt[:, 1], dbt[:, 2])
+    r_adj = stats.rmse_summary(adt[:, 0], adt[:, 1], adt[:, 2])
+    h_res, h_db, h_adj = (r["rmse_horizontal"] for r in (r_res, r_db, r_adj))
+    inside = np.hypot(adt[:, 0], adt[:, 1]) <= ce[m]
+    inside_z = np.abs(adt[:, 2]) <= le[m]
+    return {
+        "count": int(m.sum()),
+        "rmse_residuals_horizontal": float(h_res),
+        "rmse_database_truth_horizontal": float(h_db),
+        # the dissertation's "recovery": the smaller RMSE over the larger (<= 1)
+        "recovery_rate": float(min(h_res, h_db) / max(h_res, h_db)),
+        "residual_to_true_ratio": float(stats.recovery_rate(h_res, h_db)),
+        "rmse_adjusted_truth_horizontal": float(h_adj),
+        "rmse_adjusted_truth_z": float(r_adj["rmse_z"]),
+        "improvement": float(stats.improvement(h_adj, h_db)),
+        "share_within_ce90": float(inside.mean()),
+        "share_within_le90": float(inside_z.mean()),
+    }
+
+
+def tabulate_database(out: AdjustmentRun, d: DatabaseResult) -> None:
+    """Fill ``d.vertices``, ``d.features``, ``d.adjusted_coords`` and ``d.truth``.
+
+    Parameters
+    ----------
+    out : AdjustmentRun
+        With ``result`` and ``problem``.
+    d : DatabaseResult
+        One database of the run (``vertex_point`` set).
+    """
+    layer = d.shape.layer
+    adj, v, ce, le, meas_v = _vertex_table(out, d)
+    npts, nadj, rm = _feature_rmse(layer, v, meas_v)
+    geometry = _feature_geometry(layer, adj)
+    images, dates = _feature_provenance(out, d, meas_v)
+    problem_txt = np.array([layer.problems.get(i, "") for i in range(layer.n_features)],
+                           dtype=object)
+    d.features = {
+        "NPts": npts.astype(np.int64), "NAdj": nadj,
+        "RMSE_X": rm[:, 0], "RMSE_Y": rm[:, 1], "RMSE_Z": rm[:, 2],
+        "RMSE": np.sqrt(rm[:, 0] ** 2 + rm[:, 1] ** 2), **geometry,
+        "Images": images, "ImgDate": dates, "Problem": problem_txt,
+    }
+    d.truth = _truth_comparison(out, d, adj, v, ce, le, meas_v)

@@ -1,0 +1,421 @@
+"""Measured ids to control, check, shape and tie points, and the bundle problem they make.
+
+The first stages of :func:`vectoradjust.pipeline.run`:
+
+1. :func:`classify_measurements` - every measurement's image and point: a control or
+   check point of the control file, a shape point (vertex) of a road database, or else a
+   tie point; the checks that make an adjustment possible (known images, unambiguous ids,
+   tie points on two images, at least three non-collinear control points).
+2. :func:`build_problem` - the object points (control, the selected databases' shape
+   points, tie points) with their priors, the images with their approximate exterior
+   orientation, and the :class:`~vectoradjust.adjust.bundle.BundleProblem`.
+
+Numpy only; every error names the file and line (or feature) to mend.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vectoradjust.adjust.bundle import BundleProblem, ray_intersection
+from vectoradjust.adjust.shapepoints import ShapePoints, extract_shape_points, lookup
+from vectoradjust.errors import ControlError, DEMError, LayerError, MeasurementError
+from vectoradjust.model import ProjectData
+from vectoradjust.results import DatabaseResult
+
+__all__ = ["Classification", "BundleSetup", "classify_measurements", "build_problem"]
+
+
+@dataclass
+class Classification:
+    """What each measurement (row of ``data.measurements``) is.
+
+    Attributes
+    ----------
+    image_ids : numpy.ndarray of str
+        Ids of all ``[[images]]``.
+    img_of_obs, ctrl_of_obs : numpy.ndarray of int
+        Image index and control-file row of each measurement (-1: not a control point).
+    shapes : list of (VectorSpec, ShapePoints)
+        Every database's shape points (selected or not).
+    db_vertex_of_obs : list of numpy.ndarray of int
+        Per database, the vertex each measurement names (-1: none).
+    is_ctrl, is_check, is_tie : numpy.ndarray of bool
+    tie_ids, tie_inv : numpy.ndarray
+        Distinct tie point ids and each tie measurement's index into them.
+    ctrl_used : numpy.ndarray of bool
+        Control-file rows (role control) measured on an image.
+    """
+
+    image_ids: np.ndarray
+    img_of_obs: np.ndarray
+    ctrl_of_obs: np.ndarray
+    shapes: list
+    db_vertex_of_obs: list
+    is_ctrl: np.ndarray
+    is_check: np.ndarray
+    is_tie: np.ndarray
+    tie_ids: np.ndarray
+    tie_inv: np.ndarray
+    ctrl_used: np.ndarray
+
+
+@dataclass
+class BundleSetup:
+    """The bundle problem of a run and the bookkeeping to read its results.
+
+    Attributes
+    ----------
+    problem : BundleProblem
+    point_ids, point_kind, point_database : numpy.ndarray of str
+        Per bundle point: its id, ``control``/``shape``/``tie`` and its database.
+    databases : list of DatabaseResult
+        One per selected database (vertex -> bundle point map filled in).
+    obs_rows : numpy.ndarray of int
+        Measurement row of each bundle observation.
+    img_used : numpy.ndarray of int
+        ``[[images]]`` index of each adjusted image.
+    imap : numpy.ndarray of int
+        Adjusted-image index of each ``[[images]]`` entry (-1: not adjusted).
+    """
+
+    problem: BundleProblem
+    point_ids: np.ndarray
+    point_kind: np.ndarray
+    point_database: np.ndarray
+    databases: list
+    obs_rows: np.ndarray
+    img_used: np.ndarray
+    imap: np.ndarray
+
+
+def _line(meas, i: int) -> str:
+    return f"{meas.source}, line {int(meas.rows[i])}"
+
+
+def _match_database(meas_ids: np.ndarray, name: str, sp: ShapePoints) -> np.ndarray:
+    """Vertex index of each measured id in this database (-1 if none).
+
+    Ids may be qualified ``NAME:<feature id>_<vertex>`` to disambiguate databases.
+    """
+    prefix = f"{name}:"
+    qualified = np.char.startswith(meas_ids.astype(str), prefix)
+    bare = np.where(qualified, np.char.replace(meas_ids.astype(str), prefix, "", count=1),
+                    meas_ids)
+    idx = lookup(sp.vertex_ids, bare)
+    # a qualified id naming another database never matches here
+    other = np.char.find(meas_ids.astype(str), ":") >= 0
+    idx[other & ~qualified] = -1
+    return idx
+
+
+def _collinear(xyz: np.ndarray) -> bool:
+    """Whether points lie (nearly) on one line in plan."""
+    xy = xyz[:, :2] - xyz[:, :2].mean(axis=0)
+    s = np.linalg.svd(xy, compute_uv=False)
+    extent = max(float(s[0]), 1e-9)
+    return len(xyz) < 3 or float(s[1]) / extent < 1e-3
+
+
+# --------------------------------------------------------------------------- classify
+def _image_of_measurements(data: ProjectData):
+    """Ids of the images and the image index of every measurement (unknown image: error)."""
+    meas = data.measurements
+    image_ids = np.array([im.id for im in data.images], dtype=object).astype(str)
+    img_of_obs = lookup(image_ids, meas.image_id)
+    bad = np.flatnonzero(img_of_obs < 0)
+    if bad.size:
+        i = int(bad[0])
+        raise MeasurementError(
+            f"{_line(meas, i)}: image {str(meas.image_id[i])!r} is not defined in [[images]]",
+            f"Add an [[images]] entry with id = {str(meas.image_id[i])!r} or correct the image id "
+            f"(defined: {', '.join(image_ids)})",
+            path=meas.source, details={"line": int(meas.rows[i])},
+        )
+    return image_ids, img_of_obs
+
+
+def _match_points(data: ProjectData):
+    """Control row and per-database vertex of each measurement (ambiguous ids: error)."""
+    meas = data.measurements
+    ctrl_of_obs = lookup(data.control.point_id, meas.point_id)
+    shapes: list = []
+    matches = (ctrl_of_obs >= 0).astype(int)
+    db_vertex_of_obs = []
+    for spec, layer in data.vectors:
+        sp = extract_shape_points(layer, data.settings.merge_tolerance)
+        shapes.append((spec, sp))
+        vi = _match_database(meas.point_id, spec.name, sp)
+        db_vertex_of_obs.append(vi)
+        matches += (vi >= 0)
+    amb = np.flatnonzero(matches > 1)
+    if amb.size:
+        i = int(amb[0])
+        raise MeasurementError(
+            f"{_line(meas, i)}: point id {str(meas.point_id[i])!r} is ambiguous (it is a control "
+            "point id or a shape point id of more than one road database)",
+            "Qualify shape point ids with the database name, e.g. 'OSM:123_4', or rename the "
+            "control point",
+            path=meas.source, details={"line": int(meas.rows[i])},
+        )
+    return ctrl_of_obs, shapes, db_vertex_of_obs
+
+
+def _tie_points(meas, is_tie: np.ndarray):
+    """Distinct tie point ids and each tie measurement's index (one ray only: error)."""
+    tie_ids, tie_inv, tie_counts = np.unique(meas.point_id[is_tie], return_inverse=True,
+                                             return_counts=True)
+    if np.any(tie_counts < 2):
+        t = tie_ids[tie_counts < 2][0]
+        i = int(np.flatnonzero(is_tie & (meas.point_id == t))[0])
+        raise MeasurementError(
+            f"{_line(meas, i)}: point {str(t)!r} is measured on only one image and is neither a "
+            "control/check point nor a shape point of the road layers, so it cannot be intersected",
+            "Measure it on a second image, add it to the control file, or correct its id "
+            "(shape point ids are '<feature id>_<vertex index>')",
+            path=meas.source, details={"line": int(meas.rows[i]), "point_id": str(t)},
+        )
+    return tie_ids, tie_inv
+
+
+def _control_used(ctrl, ctrl_of_obs: np.ndarray, is_ctrl: np.ndarray, warnings: list):
+    """Control points measured on an image; fewer than 3 or collinear ones: error."""
+    ctrl_used = np.zeros(len(ctrl.point_id), bool)
+    ctrl_used[ctrl_of_obs[is_ctrl]] = True
+    for j in np.flatnonzero((ctrl.role == "control") & ~ctrl_used):
+        warnings.append(f"control point {str(ctrl.point_id[j])!r} ({ctrl.source}, line "
+                        f"{int(ctrl.rows[j])}) is measured on no image and was not used")
+    n_ctrl = int(ctrl_used.sum())
+    if n_ctrl < 3:
+        raise ControlError(
+            f"Only {n_ctrl} control point(s) are measured on the images ({ctrl.source}); at least "
+            "3 are needed to fix the datum",
+            "Measure at least 3 well-spread control points (role = control) on the images",
+            path=ctrl.source,
+        )
+    if _collinear(ctrl.xyz[ctrl_used]):
+        raise ControlError(
+            f"The {n_ctrl} measured control points of {ctrl.source} lie on one line; the rotation "
+            "about that line is not determined",
+            "Add control points away from that line (spread them over the stereo model)",
+            path=ctrl.source,
+        )
+    return ctrl_used
+
+
+def classify_measurements(data: ProjectData, selected: set, warnings: list) -> Classification:
+    """Classify every measurement of ``data`` as control, check, shape or tie point.
+
+    Parameters
+    ----------
+    data : ProjectData
+    selected : set of str
+        Names of the databases in this run; measurements of the others' shape points are
+        left out (a warning), not made tie points.
+    warnings : list of str
+        Appended to.
+
+    Returns
+    -------
+    Classification
+
+    Raises
+    ------
+    MeasurementError, ControlError
+        Unknown image, ambiguous id, tie point on one image, too few or collinear control.
+    """
+    meas, ctrl = data.measurements, data.control
+    image_ids, img_of_obs = _image_of_measurements(data)
+    ctrl_of_obs, shapes, db_vertex_of_obs = _match_points(data)
+    k = len(meas.point_id)
+    is_check = np.zeros(k, bool)
+    is_ctrl = np.zeros(k, bool)
+    has_c = ctrl_of_obs >= 0
+    is_check[has_c] = ctrl.role[ctrl_of_obs[has_c]] == "check"
+    is_ctrl[has_c] = ~is_check[has_c]
+    is_shape = np.zeros(k, bool)
+    use_shape = np.zeros(k, bool)
+    for (spec, _), vi in zip(shapes, db_vertex_of_obs):
+        is_shape |= vi >= 0
+        if spec.name in selected:
+            use_shape |= vi >= 0
+    is_tie = ~(has_c | is_shape)
+    dropped = int((is_shape & ~use_shape).sum())
+    if dropped:
+        warnings.append(f"{dropped} measurement(s) of shape points of road databases not in this "
+                        "run were left out")
+    tie_ids, tie_inv = _tie_points(meas, is_tie)
+    ctrl_used = _control_used(ctrl, ctrl_of_obs, is_ctrl, warnings)
+    return Classification(image_ids, img_of_obs, ctrl_of_obs, shapes, db_vertex_of_obs,
+                          is_ctrl, is_check, is_tie, tie_ids, tie_inv, ctrl_used)
+
+
+# --------------------------------------------------------------------------- bundle points
+class _Points:
+    """The object points of the bundle, assembled block by block."""
+
+    def __init__(self, k: int) -> None:
+        self.ids: list = []
+        self.kind: list = []
+        self.db: list = []
+        self.xyz: list = []
+        self.weights: list = []
+        self.obs_point = np.full(k, -1, np.int64)
+        self.offset = 0
+
+    def add(self, ids, kind: str, db: str, xyz: np.ndarray, weight: np.ndarray) -> None:
+        """Append a block of points with their priors and prior weights."""
+        n = len(ids)
+        self.ids.extend(list(ids))
+        self.kind.extend([kind] * n)
+        self.db.extend([db] * n)
+        self.xyz.append(xyz)
+        self.weights.append(weight)
+        self.offset += n
+
+
+def _add_control(pts: _Points, ctrl, cls: Classification) -> None:
+    """The measured control points (role control) with their surveyed priors."""
+    cu = np.flatnonzero(cls.ctrl_used)
+    cmap = np.full(len(ctrl.point_id), -1, np.int64)
+    cmap[cu] = np.arange(len(cu))
+    pts.obs_point[cls.is_ctrl] = cmap[cls.ctrl_of_obs[cls.is_ctrl]]
+    if ctrl.cov is not None:
+        w = np.linalg.inv(ctrl.cov[cu])
+    else:
+        w = np.zeros((len(cu), 3, 3))
+        w[:, [0, 1, 2], [0, 1, 2]] = 1.0 / ctrl.sigma[cu] ** 2
+    pts.add(ctrl.point_id[cu].tolist(), "control", "", ctrl.xyz[cu], w)
+
+
+def _check_heights(spec, sp: ShapePoints, used_obj: np.ndarray, xyz: np.ndarray) -> None:
+    """A measured shape point without a height (outside the DEM, no Z): error."""
+    badz = np.flatnonzero(~np.isfinite(xyz).all(axis=1))
+    if not badz.size:
+        return
+    v = int(sp.object_vertex[used_obj[badz[0]]])
+    fid = sp.layer.feature_ids[sp.layer.vertex_feature[v]]
+    err = DEMError if spec.dem else LayerError
+    raise err(
+        f"{spec.dem or sp.layer.source}: measured shape point {str(sp.vertex_ids[v])!r} "
+        f"(feature {str(fid)!r} of {sp.layer.source}) has no height: "
+        + ("the DEM does not cover it" if spec.dem else "the layer has no Z"),
+        "Use a DEM that covers every measured vertex" if spec.dem else
+        "Give a DEM in the [[vectors]] entry (dem = \"dem.tif\") or a layer with Z",
+        path=spec.dem or sp.layer.source,
+        details={"point_id": str(sp.vertex_ids[v]), "feature_id": str(fid)},
+    )
+
+
+def _add_shape_points(pts: _Points, cls: Classification, selected: set) -> list:
+    """The measured shape points of each selected database; their DatabaseResults."""
+    db_results: list = []
+    for (spec, sp), vi in zip(cls.shapes, cls.db_vertex_of_obs):
+        if spec.name not in selected:
+            continue
+        sel = np.flatnonzero(vi >= 0)
+        obj = sp.vertex_object[vi[sel]]
+        used_obj = np.unique(obj)
+        omap = np.full(sp.n_objects, -1, np.int64)
+        omap[used_obj] = pts.offset + np.arange(len(used_obj))
+        pts.obs_point[sel] = omap[obj]
+        vertex_point = omap[sp.vertex_object]
+        xyz = sp.object_xyz[used_obj]
+        _check_heights(spec, sp, used_obj, xyz)
+        w = np.zeros((len(used_obj), 3, 3))
+        w[:, [0, 1, 2], [0, 1, 2]] = 1.0 / np.asarray(spec.sigma, float) ** 2
+        pts.add(sp.object_ids[used_obj].tolist(), "shape", spec.name, xyz, w)
+        db_results.append(DatabaseResult(spec, sp, vertex_point, sigma_used=tuple(spec.sigma)))
+    return db_results
+
+
+def _add_tie_points(pts: _Points, cls: Classification) -> int:
+    """The tie points (no prior); returns their number."""
+    n_tie = len(cls.tie_ids)
+    pts.obs_point[cls.is_tie] = pts.offset + np.asarray(cls.tie_inv).reshape(-1)
+    pts.add(cls.tie_ids.tolist(), "tie", "", np.full((n_tie, 3), np.nan),
+            np.zeros((n_tie, 3, 3)))
+    return n_tie
+
+
+def _images_in_run(data: ProjectData, cls: Classification, use: np.ndarray, warnings: list):
+    """Adjusted images, their index map and approximate EO with prior sigmas."""
+    image_ids = cls.image_ids
+    img_used = np.unique(cls.img_of_obs[use])
+    for j in np.setdiff1d(np.arange(len(image_ids)), img_used):
+        warnings.append(f"image {str(image_ids[j])!r} has no measurements in this run and was not "
+                        "adjusted")
+    imap = np.full(len(image_ids), -1, np.int64)
+    imap[img_used] = np.arange(len(img_used))
+    eo0 = np.array([np.r_[im.position, np.radians(im.attitude)] for im in data.images])[img_used]
+    eo_sigma = np.full((len(img_used), 6), np.inf)
+    for r, j in enumerate(img_used):
+        im = data.images[j]
+        if im.sigma_position is not None:
+            eo_sigma[r, :3] = im.sigma_position
+        if im.sigma_attitude is not None:
+            eo_sigma[r, 3:] = np.radians(im.sigma_attitude)
+    return img_used, imap, eo0, eo_sigma
+
+
+def build_problem(data: ProjectData, cls: Classification, selected: set,
+                  warnings: list) -> BundleSetup:
+    """Object points, images and observations of the bundle adjustment.
+
+    Parameters
+    ----------
+    data : ProjectData
+    cls : Classification
+        From :func:`classify_measurements`.
+    selected : set of str
+        Databases in this run.
+    warnings : list of str
+        Appended to (images without measurements).
+
+    Returns
+    -------
+    BundleSetup
+
+    Raises
+    ------
+    DEMError, LayerError
+        A measured shape point has no height.
+    MeasurementError
+        Tie points cannot be intersected from the approximate orientation.
+    """
+    meas = data.measurements
+    pts = _Points(len(meas.point_id))
+    _add_control(pts, data.control, cls)
+    db_results = _add_shape_points(pts, cls, selected)
+    n_tie = _add_tie_points(pts, cls)
+    use = pts.obs_point >= 0
+    obs_rows = np.flatnonzero(use)
+    img_used, imap, eo0, eo_sigma = _images_in_run(data, cls, use, warnings)
+    prior = np.concatenate(pts.xyz)
+    weight = np.concatenate(pts.weights)
+    o_pt = pts.obs_point[use]
+    o_img = imap[cls.img_of_obs[use]]
+    o_xy = meas.xy[use]
+    o_sig = meas.sigma[use]
+    xyz0 = prior.copy()
+    if n_tie:
+        approx = ray_intersection(eo0, o_pt, o_img, o_xy, len(prior),
+                                  data.camera.focal_length, data.camera.principal_point)
+        tie_sl = slice(len(prior) - n_tie, len(prior))
+        xyz0[tie_sl] = approx[tie_sl]
+        if not np.isfinite(xyz0[tie_sl]).all():
+            raise MeasurementError("Tie points could not be intersected from the approximate "
+                                   "exterior orientation",
+                                   "Check the approximate positions and attitudes in [[images]]")
+    prior_filled = np.where(np.isfinite(prior), prior, 0.0)
+    problem = BundleProblem(data.camera.focal_length, data.camera.principal_point, eo0, eo_sigma,
+                            xyz0, prior_filled, weight, o_pt, o_img, o_xy, o_sig)
+    return BundleSetup(
+        problem=problem,
+        point_ids=np.array(pts.ids, dtype=object).astype(str),
+        point_kind=np.array(pts.kind, dtype=object).astype(str),
+        point_database=np.array(pts.db, dtype=object).astype(str),
+        databases=db_results, obs_rows=obs_rows, img_used=img_used, imap=imap,
+    )
