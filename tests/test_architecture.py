@@ -19,7 +19,7 @@ PKG = ROOT / "core" / "vectoradjust"
 
 #: layer of each top-level module or subpackage of vectoradjust (docs/architecture.md)
 LAYERS = {
-    "errors": 0, "model": 0, "results": 0, "_compat": 0,
+    "errors": 0, "model": 0, "results": 0, "formatting": 0, "_compat": 0,
     "sensor": 1,
     "adjust": 2,
     "accuracy": 3,
@@ -232,3 +232,15 @@ def test_old_module_names_still_import_with_a_warning():
     from vectoradjust.accuracy.statements import accuracy_statements as new_fn
 
     assert accuracy_statements is new_fn
+
+
+def test_plugin_uses_layers_below_the_cli():
+    bad = []
+    for path in sorted((ROOT / "qgis_plugin").rglob("*.py")):
+        if "tests" in path.relative_to(ROOT).parts:
+            continue
+        for imp, _ in _imports(path, "vectoradjust_qgis." + path.stem):
+            layer = _layer(imp)
+            if layer is not None and layer > LAYERS["files"]:
+                bad.append(f"{path.relative_to(ROOT)} imports {imp}")
+    assert not bad, "\n".join(bad)

@@ -181,7 +181,7 @@ class AccuracyControl(VectorAdjustAlgorithm):
         return spec, pixel
 
     def run_algorithm(self, parameters, context, feedback):
-        from vectoradjust.cli.qa import format_report
+        from vectoradjust.qa.text import format_report
         from vectoradjust.qa.verdict import accuracy_control
 
         t0 = time.perf_counter()

@@ -145,7 +145,7 @@ def _vertex_lines(xy, feature, part):
 
 
 def truth_buffer(run, truth_path, widths, crs, context, feedback=None):
-    """The QGIS twin of :func:`vectoradjust.cli.buffer.truth_buffer` (which reads the
+    """The QGIS twin of :func:`vectoradjust.files.truth.truth_buffer` (which reads the
     true centrelines with geopandas): the share of each database's lines inside buffers
     of the true lines before and after the adjustment.
 
@@ -198,7 +198,7 @@ def truth_buffer(run, truth_path, widths, crs, context, feedback=None):
 def project_truth_buffer(prj, runs, context, feedback):
     """Apply :func:`truth_buffer` to every run when the project has a ``[truth]`` table
     (true centrelines), as ``vectoradjust adjust`` / ``compare`` do."""
-    from vectoradjust.cli.buffer import project_truth
+    from vectoradjust.files.truth import project_truth
 
     truth = project_truth(prj.spec)
     if truth is None:

@@ -154,7 +154,7 @@ class CompareRoadDatabases(VectorAdjustAlgorithm):
 
     # ------------------------------------------------------------------ run
     def run_algorithm(self, parameters, context, feedback):
-        from vectoradjust.cli.commands import compare_columns, compare_row
+        from vectoradjust.accuracy.summary import compare_columns, compare_row
         from vectoradjust.errors import ProjectError
         from vectoradjust.pipeline import run as run_pipeline
 

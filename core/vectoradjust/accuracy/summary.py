@@ -16,7 +16,7 @@ from vectoradjust.accuracy import stats
 from vectoradjust.results import AdjustmentRun
 
 __all__ = ["MAX_FLAGGED_IN_SUMMARY", "float_or_none", "rmse_dict", "run_summary",
-           "reliability_summary"]
+           "reliability_summary", "COMPARE_COLUMNS", "compare_row", "compare_columns"]
 
 MAX_FLAGGED_IN_SUMMARY = 1000
 
@@ -184,3 +184,57 @@ def run_summary(out: AdjustmentRun) -> dict:
         "interior_orientation": data.interior or None,
         "warnings": list(out.warnings),
     }
+
+
+# --------------------------------------------------------------------------- compare table
+COMPARE_COLUMNS = [
+    ("database", "database"), ("adjusted", "adjusted"), ("rmse_x", "RMSE x"),
+    ("rmse_y", "RMSE y"), ("rmse_z", "RMSE z"), ("rmse_horizontal", "RMSE h"),
+    ("mean_ce90", "CE90"), ("mean_le90", "LE90"), ("sigma0_squared", "s0^2"),
+    ("chi_square_passed", "chi2 ok"), ("check_rmse_horizontal", "check h"),
+    ("true_rmse", "true RMSE"), ("recovery", "recovery"), ("adjusted_truth_rmse", "adj-truth"),
+    ("improvement", "improve"),
+]
+
+
+def compare_row(summary: dict) -> dict:
+    """One row of the comparison table (``compare.csv``) from a run's summary."""
+    db = summary["databases"][0] if summary["databases"] else {}
+    res = db.get("residuals", {})
+    truth = db.get("truth") or {}
+    return {
+        "database": db.get("name"), "adjusted": db.get("adjusted_vertices"),
+        "rmse_x": res.get("rmse_x"), "rmse_y": res.get("rmse_y"), "rmse_z": res.get("rmse_z"),
+        "rmse_horizontal": res.get("rmse_horizontal"), "mean_ce90": db.get("mean_ce90"),
+        "mean_le90": db.get("mean_le90"), "sigma0_squared": summary.get("sigma0_squared"),
+        "chi_square_passed": summary["chi_square"].get("passed"),
+        "check_rmse_horizontal": summary["check_points"].get("rmse_horizontal"),
+        "true_rmse": truth.get("rmse_database_truth_horizontal"),
+        "recovery": truth.get("recovery_rate"),
+        "adjusted_truth_rmse": truth.get("rmse_adjusted_truth_horizontal"),
+        "improvement": truth.get("improvement"),
+        **_buffer_columns(truth.get("buffer")),
+    }
+
+
+def _buffer_columns(buf) -> dict:
+    """``in 1m before`` / ``in 1m after`` ... from a truth buffer test (shares, 0-1)."""
+    if not buf:
+        return {}
+    out = {}
+    for w, b, a in zip(buf["widths"], buf["before"], buf["after"]):
+        out[f"in_{w:g}m_before"] = b
+        out[f"in_{w:g}m_after"] = a
+    return out
+
+
+def compare_columns(rows: list) -> list:
+    """The table's (key, heading) pairs: the fixed columns, then any buffer-test shares."""
+    cols = list(COMPARE_COLUMNS)
+    known = {k for k, _ in cols}
+    for r in rows:
+        for k in r:
+            if k not in known:
+                known.add(k)
+                cols.append((k, k.replace("in_", "in ").replace("_", " ")))
+    return cols

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import math
 import sys
 
 from vectoradjust.errors import CancelledError, VectorAdjustError
 from vectoradjust.files.jsonfile import clean_json, write_json
+from vectoradjust.formatting import fmt_number
 
 __all__ = ["clean_json", "write_json", "run_command", "fmt_number"]
 
@@ -28,14 +28,3 @@ def run_command(args) -> int:
     except KeyboardInterrupt:
         print("\nvectoradjust: interrupted", file=sys.stderr)
         return 130
-
-
-def fmt_number(v, nd: int = 3) -> str:
-    """A number for a printed table: ``nd`` decimals, ``-`` for None/NaN, text as is."""
-    if v is None:
-        return "-"
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return str(v)
-    return f"{x:.{nd}f}" if math.isfinite(x) else "-"

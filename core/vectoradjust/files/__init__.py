@@ -7,6 +7,8 @@
   :class:`~vectoradjust.model.ProjectData` (shared with the QGIS plugin).
 - :mod:`~vectoradjust.files.readers` - line layers, DEMs and CRS transformations
   (geopandas, pyogrio, rasterio, pyproj; imported lazily).
+- :mod:`~vectoradjust.files.truth` - ``[truth]`` centrelines and the buffer test against
+  them.
 - :mod:`~vectoradjust.files.outputs` - adjusted.gpkg / shapefiles and summary.json.
 - :mod:`~vectoradjust.files.derived_outputs` - uncertainty bands and the equal-error
   GeoTIFF.

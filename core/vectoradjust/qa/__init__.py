@@ -2,6 +2,7 @@
 
 - :mod:`~vectoradjust.qa.tolerances` - tolerances from the product specification.
 - :mod:`~vectoradjust.qa.verdict` - the pass/fail verdict on an adjustment.
+- :mod:`~vectoradjust.qa.text` - the verdict as readable text.
 
 ``vectoradjust.qa`` was the tolerance module until 0.1; its names are still reachable
 here for one release.
