@@ -345,6 +345,118 @@ def _check_points_determined(prob: BundleProblem, npp: np.ndarray) -> None:
         )
 
 
+@dataclass
+class _Step:
+    """One Gauss-Newton step: the corrections and the normal-equation pieces it used."""
+
+    dx_e: np.ndarray
+    dx_p: np.ndarray
+    ell: np.ndarray
+    a_eo: np.ndarray
+    a_pt: np.ndarray
+    nep: np.ndarray
+    npp_inv: np.ndarray
+    ynep: np.ndarray
+    factor: tuple
+
+
+def _solve_reduced(s: np.ndarray, rhs: np.ndarray):
+    """Cholesky factor of the reduced camera system and its solution ``(n, 6)``."""
+    try:
+        factor = scipy.linalg.cho_factor(s, lower=False, check_finite=True)
+        dx_e = scipy.linalg.cho_solve(factor, rhs).reshape(-1, 6)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise SingularityError(
+            "The reduced normal equations are singular: the exterior orientation is not "
+            "determined (datum defect)",
+            "Give at least 3 well-spread, non-collinear control points measured on the "
+            "images, or priors on the exterior orientation",
+        ) from exc
+    return factor, dx_e
+
+
+def _gauss_newton_step(prob: BundleProblem, groups: _Groups, eo: np.ndarray, xyz: np.ndarray,
+                       check_points: bool) -> _Step:
+    """Corrections of one iteration: reduced camera system, then point back-substitution."""
+    pred, ell, a_eo, a_pt, nee, npp, nep, te, tp = _assemble(prob, eo, xyz)
+    if check_points:
+        _check_points_determined(prob, npp)
+    npp_inv = inv3x3(npp)
+    s, rhs, ynep = _reduced_system(prob, groups, nee, npp_inv, nep, te, tp)
+    factor, dx_e = _solve_reduced(s, rhs)
+    back = _block_sum(
+        prob.obs_point, np.einsum("kji,kj->ki", nep, dx_e[prob.obs_image]), prob.n_points
+    )
+    dx_p = np.einsum("mij,mj->mi", npp_inv, tp - back)
+    return _Step(dx_e=dx_e, dx_p=dx_p, ell=ell, a_eo=a_eo, a_pt=a_pt, nep=nep,
+                 npp_inv=npp_inv, ynep=ynep, factor=factor)
+
+
+def _check_diverged(it: int, max_pos: float, max_ang: float, history: list) -> None:
+    """Raise :class:`NonConvergenceError` on non-finite or too large corrections."""
+    if not (np.isfinite(max_pos) and np.isfinite(max_ang)) or max_ang > 1.0:
+        raise NonConvergenceError(
+            f"The adjustment diverged at iteration {it} (corrections of "
+            f"{max_pos:.3g} m and {max_ang:.3g} rad)",
+            "Check the approximate exterior orientation in [[images]] (position within "
+            "a fraction of the flying height, attitude in degrees) and the image measurement "
+            "units (mm)",
+            details={"iteration": it, "history": history},
+        )
+
+
+def _raise_not_converged(max_iterations: int, history: list) -> None:
+    """Raise :class:`NonConvergenceError` for an iteration that ran out of steps."""
+    raise NonConvergenceError(
+        f"The adjustment did not converge in {max_iterations} iterations (last corrections "
+        f"{history[-1]['max_position_correction']:.3g} m, "
+        f"{history[-1]['max_angle_correction']:.3g} rad)",
+        "Raise [adjustment] max_iterations, improve the approximate exterior orientation, "
+        "or look for blunders in the measurements",
+        details={"history": history},
+    )
+
+
+def _covariances(prob: BundleProblem, groups: _Groups, step: _Step, s0sq: float,
+                 compute_covariance: bool):
+    """``S^-1``, the EO covariances and (optionally) the point covariances."""
+    n = prob.n_images
+    s_inv = scipy.linalg.cho_solve(step.factor, np.eye(6 * n))
+    s_inv = 0.5 * (s_inv + s_inv.T)
+    vf = s0sq if np.isfinite(s0sq) else 1.0
+    eo_cov = vf * s_inv.reshape(n, 6, n, 6)[np.arange(n), :, np.arange(n), :]
+    point_cov = None
+    if compute_covariance:
+        point_cov = vf * _point_cofactors(prob, groups, step.npp_inv, step.ynep, s_inv)
+    return s_inv, eo_cov, point_cov
+
+
+def _converged_result(prob: BundleProblem, groups: _Groups, eo: np.ndarray, xyz: np.ndarray,
+                      step: _Step, it: int, history: list,
+                      compute_covariance: bool) -> BundleResult:
+    """Residuals, sigma0 and covariances at the converged estimate, as a BundleResult."""
+    pred_final = project(eo[prob.obs_image], xyz[prob.obs_point], prob.focal_length,
+                         prob.principal_point)
+    ell_final = prob.obs_xy - pred_final
+    _check_in_front(prob, eo, xyz)
+    vtpv = _vtpv(prob, ell_final, xyz, eo)
+    n_obs, n_unk = prob.counts()
+    dof = n_obs - n_unk
+    s0sq = vtpv / dof if dof > 0 else float("nan")
+    s_inv, eo_cov, point_cov = _covariances(prob, groups, step, s0sq, compute_covariance)
+    has_prior = prob.has_prior
+    v_point = np.where(has_prior[:, None], xyz - prob.prior_xyz, np.nan)
+    we = prob.eo_weight
+    v_eo = np.where(we > 0, eo - prob.eo0, np.nan)
+    return BundleResult(
+        eo=eo, xyz=xyz, eo_cov=eo_cov, point_cov=point_cov, v_image=-ell_final,
+        v_point=v_point, v_eo=v_eo, vtpv=float(vtpv), n_obs=n_obs, n_unknowns=n_unk, dof=dof,
+        sigma0_squared=float(s0sq), iterations=it, converged=True, history=history,
+        s_inv=s_inv, npp_inv=step.npp_inv, nep_obs=step.nep, a_eo=step.a_eo, a_pt=step.a_pt,
+        problem=prob,
+    )
+
+
 def adjust(
     prob: BundleProblem,
     *,
@@ -393,85 +505,28 @@ def adjust(
     for it in range(1, max_iterations + 1):
         if is_cancelled is not None and is_cancelled():
             raise CancelledError("The adjustment was cancelled", "Run it again when ready")
-        pred, ell, a_eo, a_pt, nee, npp, nep, te, tp = _assemble(prob, eo, xyz)
-        if it == 1:
-            _check_points_determined(prob, npp)
-        npp_inv = inv3x3(npp)
-        s, rhs, ynep = _reduced_system(prob, groups, nee, npp_inv, nep, te, tp)
-        try:
-            factor = scipy.linalg.cho_factor(s, lower=False, check_finite=True)
-            dx_e = scipy.linalg.cho_solve(factor, rhs).reshape(-1, 6)
-        except (np.linalg.LinAlgError, ValueError) as exc:
-            raise SingularityError(
-                "The reduced normal equations are singular: the exterior orientation is not "
-                "determined (datum defect)",
-                "Give at least 3 well-spread, non-collinear control points measured on the "
-                "images, or priors on the exterior orientation",
-            ) from exc
-        back = _block_sum(
-            prob.obs_point, np.einsum("kji,kj->ki", nep, dx_e[prob.obs_image]), prob.n_points
-        )
-        dx_p = np.einsum("mij,mj->mi", npp_inv, tp - back)
-        vtpv_now = _vtpv(prob, ell, xyz, eo)
-        max_pos = max(np.abs(dx_e[:, :3]).max(initial=0.0), np.abs(dx_p).max(initial=0.0))
-        max_ang = np.abs(dx_e[:, 3:]).max(initial=0.0)
+        step = _gauss_newton_step(prob, groups, eo, xyz, check_points=it == 1)
+        vtpv_now = _vtpv(prob, step.ell, xyz, eo)
+        max_pos = max(np.abs(step.dx_e[:, :3]).max(initial=0.0),
+                      np.abs(step.dx_p).max(initial=0.0))
+        max_ang = np.abs(step.dx_e[:, 3:]).max(initial=0.0)
         history.append({"iteration": it, "vtpv": vtpv_now, "max_position_correction": max_pos,
                         "max_angle_correction": max_ang})
-        if not (np.isfinite(max_pos) and np.isfinite(max_ang)) or max_ang > 1.0:
-            raise NonConvergenceError(
-                f"The adjustment diverged at iteration {it} (corrections of "
-                f"{max_pos:.3g} m and {max_ang:.3g} rad)",
-                "Check the approximate exterior orientation in [[images]] (position within "
-                "a fraction of the flying height, attitude in degrees) and the image measurement "
-                "units (mm)",
-                details={"iteration": it, "history": history},
-            )
+        _check_diverged(it, max_pos, max_ang, history)
         best = min(best, vtpv_now)
-        eo += dx_e
-        xyz += dx_p
+        eo += step.dx_e
+        xyz += step.dx_p
         if progress is not None:
             progress(min(0.9, it / max_iterations), f"iteration {it}: v'Pv = {vtpv_now:.6g}")
         if max_pos < tolerance_position and max_ang < tolerance_angle:
             converged = True
             break
     if not converged:
-        raise NonConvergenceError(
-            f"The adjustment did not converge in {max_iterations} iterations (last corrections "
-            f"{history[-1]['max_position_correction']:.3g} m, "
-            f"{history[-1]['max_angle_correction']:.3g} rad)",
-            "Raise [adjustment] max_iterations, improve the approximate exterior orientation, "
-            "or look for blunders in the measurements",
-            details={"history": history},
-        )
-    # final residuals at the converged estimate
-    pred_final = project(eo[prob.obs_image], xyz[prob.obs_point], prob.focal_length,
-                         prob.principal_point)
-    ell_final = prob.obs_xy - pred_final
-    _check_in_front(prob, eo, xyz)
-    vtpv = _vtpv(prob, ell_final, xyz, eo)
-    n_obs, n_unk = prob.counts()
-    dof = n_obs - n_unk
-    s0sq = vtpv / dof if dof > 0 else float("nan")
-    s_inv = scipy.linalg.cho_solve(factor, np.eye(s.shape[0]))
-    s_inv = 0.5 * (s_inv + s_inv.T)
-    vf = s0sq if np.isfinite(s0sq) else 1.0
-    n = prob.n_images
-    eo_cov = vf * s_inv.reshape(n, 6, n, 6)[np.arange(n), :, np.arange(n), :]
-    point_cov = None
-    if compute_covariance:
-        point_cov = vf * _point_cofactors(prob, groups, npp_inv, ynep, s_inv)
-    has_prior = prob.has_prior
-    v_point = np.where(has_prior[:, None], xyz - prob.prior_xyz, np.nan)
-    we = prob.eo_weight
-    v_eo = np.where(we > 0, eo - prob.eo0, np.nan)
+        _raise_not_converged(max_iterations, history)
+    result = _converged_result(prob, groups, eo, xyz, step, it, history, compute_covariance)
     if progress is not None:
         progress(1.0, f"converged after {it} iterations")
-    return BundleResult(
-        eo=eo, xyz=xyz, eo_cov=eo_cov, point_cov=point_cov, v_image=-ell_final,
-        v_point=v_point, v_eo=v_eo, vtpv=float(vtpv), n_obs=n_obs, n_unknowns=n_unk, dof=dof,
-        sigma0_squared=float(s0sq), iterations=it, converged=converged, history=history,
-        s_inv=s_inv, npp_inv=npp_inv, nep_obs=nep, a_eo=a_eo, a_pt=a_pt, problem=prob,
-    )
+    return result
 
 
 def _point_cofactors(prob, groups, npp_inv, ynep, s_inv) -> np.ndarray:

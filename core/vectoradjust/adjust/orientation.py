@@ -786,6 +786,96 @@ class Conformal3D:
         return "\n".join(lines)
 
 
+def _conf_check_points(x: np.ndarray, X: np.ndarray) -> None:
+    """Raise :class:`ControlError` unless model and ground are the same >= 3 finite points."""
+    if x.ndim != 2 or x.shape[1] != 3 or x.shape != X.shape:
+        raise ControlError(
+            f"3D conformal transformation: model {x.shape} and ground {X.shape} coordinates "
+            "must both be (n, 3) arrays of the same points",
+            "Give one row of x, y, z per common point in both systems",
+        )
+    n = x.shape[0]
+    if n < 3:
+        raise ControlError(
+            f"3D conformal transformation needs at least 3 common points; got {n}",
+            "Add control points (3 non-collinear, better 4 or more)",
+        )
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(X))):
+        raise ControlError("3D conformal transformation: coordinates contain NaN or inf",
+                           "Complete or remove the incomplete points")
+
+
+def _conf_check_collinear(x: np.ndarray) -> None:
+    """Raise :class:`ControlError` if the common points are collinear."""
+    sv = np.linalg.svd(x - x.mean(0), compute_uv=False)
+    if sv[1] <= 1e-9 * max(sv[0], 1e-300):
+        raise ControlError(
+            "3D conformal transformation: the common points are collinear",
+            "Use control points that span a plane or a volume",
+        )
+
+
+def _conf_iterate(params, x, X, c_m, c_g, max_iter: int, tol: float):
+    """Gauss-Helmert iteration from ``params``: the parameters, model residuals, iterations."""
+    n = x.shape[0]
+    scale_ref = max(float(np.max(np.abs(X))), 1.0)
+    v_m = np.zeros((n, 3))
+    it = 0
+    converged = False
+    previous = np.inf
+    while it < max_iter:
+        it += 1
+        a, b_m, qw, qw_inv, wv = _conf_gh_terms(params, x, X, v_m, c_m, c_g)
+        n_mat = a.T @ qw_inv @ a
+        dx = -_solve_conf(n_mat, a.T @ (qw_inv @ wv))
+        kk = -qw_inv @ (a @ dx + wv)
+        v_m = (c_m @ (b_m.T @ kk)).reshape(n, 3)  # zero for "ols" (c_m = 0)
+        params = params + dx
+        if not np.all(np.isfinite(dx)):
+            break
+        step = max(abs(dx[0]) / max(abs(params[0]), 1e-300), np.max(np.abs(dx[1:4])),
+                   np.max(np.abs(dx[4:])) / scale_ref)
+        if _converged(step, previous, tol):
+            converged = True
+            break
+        previous = step
+    if not converged:
+        raise NonConvergenceError(
+            f"3D conformal transformation did not converge in {it} iterations",
+            "Check that the common points are the same points in both systems",
+        )
+    return params, v_m, it
+
+
+def _conf_result(params, x, X, v_m, c_m, c_g, method: str, a_posteriori: bool,
+                 it: int) -> Conformal3D:
+    """Residuals, ``s0``, parameter covariance and sensitivity at the solution."""
+    n = x.shape[0]
+    a, b_m, qw, qw_inv, wv = _conf_gh_terms(params, x, X, v_m, c_m, c_g)
+    q_xx = np.linalg.inv(a.T @ qw_inv @ a)
+    kk = -qw_inv @ wv
+    v_m = (c_m @ (b_m.T @ kk)).reshape(n, 3)
+    v_g = (-(c_g @ kk)).reshape(n, 3)
+    vtpv = float(kk @ qw @ kk)  # v' Sigma^-1 v = k' Qw k (also for a singular Sigma)
+    dof = 3 * n - 7
+    s0 = float(np.sqrt(vtpv / dof)) if dof > 0 else float("nan")
+    # d params / d l  with l = [model, ground]: -N^-1 A' Qw^-1 B, B = [b_m, -I]
+    b_full = np.hstack([b_m, -np.eye(3 * n)])
+    sens = -q_xx @ a.T @ qw_inv @ b_full
+    return Conformal3D(
+        method=method,
+        params=params,
+        cov_params=(s0**2 if a_posteriori else 1.0) * q_xx,
+        residuals_ground=v_g,
+        residuals_model=v_m if method != "ols" else np.zeros((n, 3)),
+        s0=s0,
+        dof=dof,
+        iterations=it,
+        a_posteriori=bool(a_posteriori),
+        sensitivity=sens,
+    )
+
+
 def conformal3d(
     model,
     ground,
@@ -834,21 +924,8 @@ def conformal3d(
     """
     x = np.asarray(model, float)
     X = np.asarray(ground, float)
-    if x.ndim != 2 or x.shape[1] != 3 or x.shape != X.shape:
-        raise ControlError(
-            f"3D conformal transformation: model {x.shape} and ground {X.shape} coordinates "
-            "must both be (n, 3) arrays of the same points",
-            "Give one row of x, y, z per common point in both systems",
-        )
+    _conf_check_points(x, X)
     n = x.shape[0]
-    if n < 3:
-        raise ControlError(
-            f"3D conformal transformation needs at least 3 common points; got {n}",
-            "Add control points (3 non-collinear, better 4 or more)",
-        )
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(X))):
-        raise ControlError("3D conformal transformation: coordinates contain NaN or inf",
-                           "Complete or remove the incomplete points")
     if method is None:
         method = "gauss-helmert" if cov_model is not None else "ols"
     if method not in ("ols", "gauss-helmert"):
@@ -858,63 +935,9 @@ def conformal3d(
     c_g = _cov3(cov_ground, n, "3D conformal transformation (ground)")
     c_m = (np.zeros((3 * n, 3 * n)) if method == "ols"
            else _cov3(cov_model, n, "3D conformal transformation (model)"))
-    # collinearity check of the common points
-    sv = np.linalg.svd(x - x.mean(0), compute_uv=False)
-    if sv[1] <= 1e-9 * max(sv[0], 1e-300):
-        raise ControlError(
-            "3D conformal transformation: the common points are collinear",
-            "Use control points that span a plane or a volume",
-        )
-    params = _conf_initial(x, X)
-    scale_ref = max(float(np.max(np.abs(X))), 1.0)
-    v_m = np.zeros((n, 3))
-    it = 0
-    converged = False
-    previous = np.inf
-    while it < max_iter:
-        it += 1
-        a, b_m, qw, qw_inv, wv = _conf_gh_terms(params, x, X, v_m, c_m, c_g)
-        n_mat = a.T @ qw_inv @ a
-        dx = -_solve_conf(n_mat, a.T @ (qw_inv @ wv))
-        kk = -qw_inv @ (a @ dx + wv)
-        v_m = (c_m @ (b_m.T @ kk)).reshape(n, 3)  # zero for "ols" (c_m = 0)
-        params = params + dx
-        if not np.all(np.isfinite(dx)):
-            break
-        step = max(abs(dx[0]) / max(abs(params[0]), 1e-300), np.max(np.abs(dx[1:4])),
-                   np.max(np.abs(dx[4:])) / scale_ref)
-        if _converged(step, previous, tol):
-            converged = True
-            break
-        previous = step
-    if not converged:
-        raise NonConvergenceError(
-            f"3D conformal transformation did not converge in {it} iterations",
-            "Check that the common points are the same points in both systems",
-        )
-    a, b_m, qw, qw_inv, wv = _conf_gh_terms(params, x, X, v_m, c_m, c_g)
-    q_xx = np.linalg.inv(a.T @ qw_inv @ a)
-    kk = -qw_inv @ wv
-    v_m = (c_m @ (b_m.T @ kk)).reshape(n, 3)
-    v_g = (-(c_g @ kk)).reshape(n, 3)
-    vtpv = float(kk @ qw @ kk)  # v' Sigma^-1 v = k' Qw k (also for a singular Sigma)
-    dof = 3 * n - 7
-    s0 = float(np.sqrt(vtpv / dof)) if dof > 0 else float("nan")
-    # d params / d l  with l = [model, ground]: -N^-1 A' Qw^-1 B, B = [b_m, -I]
-    b_full = np.hstack([b_m, -np.eye(3 * n)])
-    sens = -q_xx @ a.T @ qw_inv @ b_full
-    return Conformal3D(
-        method=method,
-        params=params,
-        cov_params=(s0**2 if a_posteriori else 1.0) * q_xx,
-        residuals_ground=v_g,
-        residuals_model=v_m if method != "ols" else np.zeros((n, 3)),
-        s0=s0,
-        dof=dof,
-        iterations=it,
-        a_posteriori=bool(a_posteriori),
-        sensitivity=sens,
-    )
+    _conf_check_collinear(x)
+    params, v_m, it = _conf_iterate(_conf_initial(x, X), x, X, c_m, c_g, max_iter, tol)
+    return _conf_result(params, x, X, v_m, c_m, c_g, method, a_posteriori, it)
 
 
 def _solve_conf(n_mat, rhs):

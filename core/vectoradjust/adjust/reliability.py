@@ -252,6 +252,80 @@ def _cofactors(result: BundleResult):
 
 
 # --------------------------------------------------------------------------- reliability
+def _check_factorisation(result: BundleResult) -> None:
+    """Raise :class:`AdjustmentError` if ``result`` lacks the kept factorisation."""
+    if result.problem is None or result.s_inv is None or result.npp_inv is None \
+            or result.nep_obs is None or result.a_eo is None or result.a_pt is None:
+        raise AdjustmentError(
+            "The adjustment result does not carry the normal-equation factorisation needed "
+            "for reliability statistics",
+            "Pass the BundleResult returned by vectoradjust.adjust.bundle.adjust",
+        )
+
+
+def _image_tests(result: BundleResult, aqa, s0, k_crit, d0, min_redundancy):
+    """``r, q_vv, w, mdb, flag, suspected`` of the image observations (uncorrelated)."""
+    prob = result.problem
+    var = prob.obs_sigma**2
+    qvv_i = var - aqa
+    r_i = qvv_i / var
+    v_i = np.asarray(result.v_image, float)
+    tested = r_i >= min_redundancy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w_i = np.where(tested, v_i / (s0 * np.sqrt(np.where(tested, qvv_i, 1.0))), np.nan)
+        mdb_i = np.where(r_i > 0, d0 * s0 * prob.obs_sigma / np.sqrt(np.maximum(r_i, 0.0)),
+                         np.inf)
+        sus_i = np.where(tested, -v_i / np.where(tested, r_i, 1.0), np.nan)
+    flag_i = np.abs(np.nan_to_num(w_i)) > k_crit
+    return r_i, qvv_i, w_i, mdb_i, flag_i, sus_i
+
+
+def _point_tests(result: BundleResult, q_point, s0, k_crit, d0, min_redundancy):
+    """``r, q_vv, w, mdb, flag, suspected`` of the point priors (``W`` possibly full)."""
+    wgt = np.asarray(result.problem.prior_weight, float)
+    has_axis = np.einsum("mii->mi", wgt) > 0
+    qw = np.einsum("mij,mjk->mik", q_point, wgt)
+    r_p = np.where(has_axis, 1.0 - np.einsum("mii->mi", qw), np.nan)
+    wqw = wgt - np.einsum("mij,mjk->mik", wgt, qw)  # W Q_vv W = W - W Q_pp W
+    d_wqw = np.einsum("mii->mi", wqw)
+    det = np.linalg.det(wgt) if len(wgt) else np.zeros(0)
+    cov = inv3x3(np.where((det > 0)[:, None, None], wgt, np.eye(3)))
+    qvv_p = np.where(has_axis & (det > 0)[:, None],
+                     np.einsum("mii->mi", cov) - np.einsum("mii->mi", q_point), np.nan)
+    v_p = np.where(np.isfinite(result.v_point), result.v_point, 0.0)
+    wv = np.einsum("mij,mj->mi", wgt, v_p)
+    tested_p = has_axis & (r_p >= min_redundancy) & (d_wqw > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        safe = np.where(tested_p, d_wqw, 1.0)
+        w_p = np.where(tested_p, wv / (s0 * np.sqrt(safe)), np.nan)
+        mdb_p = np.where(has_axis, np.where(d_wqw > 0, d0 * s0 / np.sqrt(
+            np.maximum(d_wqw, 1e-300)), np.inf), np.nan)
+        sus_p = np.where(tested_p, -wv / safe, np.nan)
+    flag_p = np.abs(np.nan_to_num(w_p)) > k_crit
+    return r_p, qvv_p, w_p, mdb_p, flag_p, sus_p
+
+
+def _eo_tests(result: BundleResult, s0, k_crit, d0, min_redundancy):
+    """``r, q_vv, w, mdb, flag, suspected`` of the EO priors (diagonal)."""
+    prob = result.problem
+    n = prob.n_images
+    we = prob.eo_weight
+    has_eo = we > 0
+    sdiag = np.einsum("iaia->ia", np.asarray(result.s_inv).reshape(n, 6, n, 6))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var_e = np.where(has_eo, 1.0 / np.where(has_eo, we, 1.0), np.nan)
+        qvv_e = np.where(has_eo, var_e - sdiag, np.nan)
+        r_e = np.where(has_eo, 1.0 - we * sdiag, np.nan)
+        v_e = np.where(has_eo, result.v_eo, 0.0)
+        tested_e = has_eo & (r_e >= min_redundancy)
+        w_e = np.where(tested_e, v_e / (s0 * np.sqrt(np.where(tested_e, qvv_e, 1.0))), np.nan)
+        mdb_e = np.where(has_eo, np.where(r_e > 0, d0 * s0 * np.sqrt(var_e)
+                                          / np.sqrt(np.maximum(r_e, 1e-300)), np.inf), np.nan)
+        sus_e = np.where(tested_e, -v_e / np.where(tested_e, r_e, 1.0), np.nan)
+    flag_e = np.abs(np.nan_to_num(w_e)) > k_crit
+    return r_e, qvv_e, w_e, mdb_e, flag_e, sus_e
+
+
 def reliability(
     result: BundleResult,
     *,
@@ -285,71 +359,16 @@ def reliability(
     AdjustmentError
         If the result does not carry the factorisation (not from :func:`adjust`).
     """
-    if result.problem is None or result.s_inv is None or result.npp_inv is None \
-            or result.nep_obs is None or result.a_eo is None or result.a_pt is None:
-        raise AdjustmentError(
-            "The adjustment result does not carry the normal-equation factorisation needed "
-            "for reliability statistics",
-            "Pass the BundleResult returned by vectoradjust.adjust.bundle.adjust",
-        )
-    prob = result.problem
+    _check_factorisation(result)
     s0 = float(sigma0)
     k_crit = critical_value(alpha0)
     d0 = noncentrality(alpha0, beta0)
     aqa, q_point = _cofactors(result)
-
-    # ---- image observations (uncorrelated, sigma per coordinate)
-    var = prob.obs_sigma**2
-    qvv_i = var - aqa
-    r_i = qvv_i / var
-    v_i = np.asarray(result.v_image, float)
-    tested = r_i >= min_redundancy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w_i = np.where(tested, v_i / (s0 * np.sqrt(np.where(tested, qvv_i, 1.0))), np.nan)
-        mdb_i = np.where(r_i > 0, d0 * s0 * prob.obs_sigma / np.sqrt(np.maximum(r_i, 0.0)),
-                         np.inf)
-        sus_i = np.where(tested, -v_i / np.where(tested, r_i, 1.0), np.nan)
-    flag_i = np.abs(np.nan_to_num(w_i)) > k_crit
-
-    # ---- point priors: W (m, 3, 3), possibly full
-    wgt = np.asarray(prob.prior_weight, float)
-    has_axis = np.einsum("mii->mi", wgt) > 0
-    qw = np.einsum("mij,mjk->mik", q_point, wgt)
-    r_p = np.where(has_axis, 1.0 - np.einsum("mii->mi", qw), np.nan)
-    wqw = wgt - np.einsum("mij,mjk->mik", wgt, qw)  # W Q_vv W = W - W Q_pp W
-    d_wqw = np.einsum("mii->mi", wqw)
-    det = np.linalg.det(wgt) if len(wgt) else np.zeros(0)
-    cov = inv3x3(np.where((det > 0)[:, None, None], wgt, np.eye(3)))
-    qvv_p = np.where(has_axis & (det > 0)[:, None],
-                     np.einsum("mii->mi", cov) - np.einsum("mii->mi", q_point), np.nan)
-    v_p = np.where(np.isfinite(result.v_point), result.v_point, 0.0)
-    wv = np.einsum("mij,mj->mi", wgt, v_p)
-    tested_p = has_axis & (r_p >= min_redundancy) & (d_wqw > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        safe = np.where(tested_p, d_wqw, 1.0)
-        w_p = np.where(tested_p, wv / (s0 * np.sqrt(safe)), np.nan)
-        mdb_p = np.where(has_axis, np.where(d_wqw > 0, d0 * s0 / np.sqrt(
-            np.maximum(d_wqw, 1e-300)), np.inf), np.nan)
-        sus_p = np.where(tested_p, -wv / safe, np.nan)
-    flag_p = np.abs(np.nan_to_num(w_p)) > k_crit
-
-    # ---- EO priors (diagonal)
-    n = prob.n_images
-    we = prob.eo_weight
-    has_eo = we > 0
-    sdiag = np.einsum("iaia->ia", np.asarray(result.s_inv).reshape(n, 6, n, 6))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        var_e = np.where(has_eo, 1.0 / np.where(has_eo, we, 1.0), np.nan)
-        qvv_e = np.where(has_eo, var_e - sdiag, np.nan)
-        r_e = np.where(has_eo, 1.0 - we * sdiag, np.nan)
-        v_e = np.where(has_eo, result.v_eo, 0.0)
-        tested_e = has_eo & (r_e >= min_redundancy)
-        w_e = np.where(tested_e, v_e / (s0 * np.sqrt(np.where(tested_e, qvv_e, 1.0))), np.nan)
-        mdb_e = np.where(has_eo, np.where(r_e > 0, d0 * s0 * np.sqrt(var_e)
-                                          / np.sqrt(np.maximum(r_e, 1e-300)), np.inf), np.nan)
-        sus_e = np.where(tested_e, -v_e / np.where(tested_e, r_e, 1.0), np.nan)
-    flag_e = np.abs(np.nan_to_num(w_e)) > k_crit
-
+    r_i, qvv_i, w_i, mdb_i, flag_i, sus_i = _image_tests(result, aqa, s0, k_crit, d0,
+                                                         min_redundancy)
+    r_p, qvv_p, w_p, mdb_p, flag_p, sus_p = _point_tests(result, q_point, s0, k_crit, d0,
+                                                         min_redundancy)
+    r_e, qvv_e, w_e, mdb_e, flag_e, sus_e = _eo_tests(result, s0, k_crit, d0, min_redundancy)
     sum_r = float(np.sum(r_i) + np.nansum(r_p) + np.nansum(r_e))
     return Reliability(
         r_image=r_i, qvv_image=qvv_i, w_image=w_i, mdb_image=mdb_i, flag_image=flag_i,

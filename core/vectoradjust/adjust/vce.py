@@ -208,6 +208,94 @@ def _rescale(prob: BundleProblem, factor: dict, obs_lab, pt_lab, eo_lab) -> Bund
                    eo_sigma=prob.eo_sigma * s_eo)
 
 
+def _group_labels(problem: BundleProblem, obs_group, prior_group, eo_group):
+    """Per-component labels of images, point priors and EO priors, and the group order."""
+    obs_lab = _labels(obs_group, (len(problem.obs_point), 2), "image observations")
+    pt_lab = _labels(prior_group, (problem.n_points, 3), "points")
+    eo_lab = _labels(eo_group, (problem.n_images, 6), "images")
+    has_axis = np.einsum("mii->mi", problem.prior_weight) > 0
+    pt_lab = np.where(has_axis, pt_lab, "")
+    eo_lab = np.where(problem.eo_weight > 0, eo_lab, "")
+    groups: list = []
+    for lab in (obs_lab, pt_lab, eo_lab):
+        for g in lab.ravel().tolist():
+            if g and g not in groups:
+                groups.append(g)
+    if not groups:
+        raise AdjustmentError("Variance component estimation was asked for no group",
+                              "Label at least one observation group (e.g. 'image')")
+    return obs_lab, pt_lab, eo_lab, groups
+
+
+def _group_factors(groups, vtpv, red, estimable, frozen_at, it, min_redundancy) -> dict:
+    """Each group's factor ``v'Pv / r``, 1 for frozen groups (updates estimable, frozen_at)."""
+    factors = {}
+    for g in groups:
+        if not estimable[g] or red[g] < min_redundancy:
+            if estimable[g]:
+                estimable[g] = False
+                frozen_at[g] = (it, red[g])
+            factors[g] = 1.0
+            continue
+        if vtpv[g] <= 0:
+            raise AdjustmentError(
+                f"Variance component group {g!r} has zero residuals: its variance cannot "
+                "be estimated",
+                "Leave that group out of the estimation (label '')",
+            )
+        factors[g] = vtpv[g] / red[g]
+    return factors
+
+
+def _applied_factors(factors: dict, last_plain: dict, scale: dict, accelerate: bool) -> dict:
+    """Factors to rescale by, Aitken-extrapolated if steps shrink (updates last_plain, scale)."""
+    applied = {}
+    for g, f in factors.items():
+        step = float(np.log(f))
+        prev = last_plain.get(g)
+        rho = step / prev if prev else 0.0
+        if accelerate and prev is not None and 0.0 < rho <= _RHO_MAX:
+            # linear convergence with ratio rho: jump to the extrapolated limit
+            ext = float(np.clip(step / (1.0 - rho), -_MAX_JUMP, _MAX_JUMP))
+            applied[g] = float(np.exp(ext if abs(ext) > abs(step) else step))
+            last_plain[g] = None
+        else:
+            applied[g] = f
+            last_plain[g] = step
+        scale[g] *= float(np.sqrt(applied[g]))
+    return applied
+
+
+def _frozen_notes(groups, estimable, frozen_at, scale, min_redundancy) -> list:
+    """Notes on the groups that were not estimated (too little redundancy)."""
+    notes = []
+    for g in groups:
+        if not estimable[g]:
+            at, r_at = frozen_at[g]
+            if at == 1:
+                notes.append(f"group {g!r} has a total redundancy of {r_at:.3g} (< "
+                             f"{min_redundancy:g}): its accuracy cannot be estimated from the "
+                             "residuals and its sigma was kept")
+            else:
+                notes.append(f"group {g!r}: its total redundancy fell to {r_at:.3g} (< "
+                             f"{min_redundancy:g}) at iteration {at} as its sigma shrank; it "
+                             f"was frozen at {scale[g]:.4g} times its initial sigma, which is "
+                             "not a reliable estimate (the group is not separable from the "
+                             "others with this geometry)")
+    return notes
+
+
+def _nonconvergence_note(history: list, red: dict, tol: float, max_iterations: int) -> str:
+    """The note that names the groups whose factor is not yet 1 within ``tol``."""
+    slow = [f"{g!r} ({f:.4f}, redundancy {red[g]:.3g})"
+            for g, f in history[-1]["factors"].items() if abs(f - 1.0) >= tol]
+    return (f"variance component estimation did not converge in {max_iterations} "
+            f"iterations: the factor of {', '.join(slow)} is not yet 1 within "
+            f"{tol:g}; the last sigmas are reported (slow convergence means the group is "
+            "weakly separable from the others, e.g. DEM heights from stereo heights, "
+            "and its estimate is imprecise; raise max_iterations to go on)")
+
+
 def variance_components(
     problem: BundleProblem,
     obs_group="image",
@@ -263,27 +351,13 @@ def variance_components(
         From the adjustment.
     """
     kw = dict(adjust_kwargs or {})
-    obs_lab = _labels(obs_group, (len(problem.obs_point), 2), "image observations")
-    pt_lab = _labels(prior_group, (problem.n_points, 3), "points")
-    eo_lab = _labels(eo_group, (problem.n_images, 6), "images")
-    has_axis = np.einsum("mii->mi", problem.prior_weight) > 0
-    pt_lab = np.where(has_axis, pt_lab, "")
-    eo_lab = np.where(problem.eo_weight > 0, eo_lab, "")
-    groups: list = []
-    for lab in (obs_lab, pt_lab, eo_lab):
-        for g in lab.ravel().tolist():
-            if g and g not in groups:
-                groups.append(g)
-    if not groups:
-        raise AdjustmentError("Variance component estimation was asked for no group",
-                              "Label at least one observation group (e.g. 'image')")
+    obs_lab, pt_lab, eo_lab, groups = _group_labels(problem, obs_group, prior_group, eo_group)
     sigma_initial = _group_sigma(problem, obs_lab, pt_lab, eo_lab, groups)
     scale = {g: 1.0 for g in groups}
     estimable = {g: True for g in groups}
     frozen_at: dict = {}
     last_plain: dict = {}  # log-factor of each group's last plain (unextrapolated) step
     history: list = []
-    notes: list = []
     prob = problem
     converged = False
     res = rel = None
@@ -294,63 +368,18 @@ def variance_components(
         res = adjust(prob, **kw)
         rel = reliability(res)
         vtpv, red, cnt = group_statistics(res, rel, obs_lab, pt_lab, eo_lab, groups)
-        factors = {}
-        for g in groups:
-            if not estimable[g] or red[g] < min_redundancy:
-                if estimable[g]:
-                    estimable[g] = False
-                    frozen_at[g] = (it, red[g])
-                factors[g] = 1.0
-                continue
-            if vtpv[g] <= 0:
-                raise AdjustmentError(
-                    f"Variance component group {g!r} has zero residuals: its variance cannot "
-                    "be estimated",
-                    "Leave that group out of the estimation (label '')",
-                )
-            factors[g] = vtpv[g] / red[g]
+        factors = _group_factors(groups, vtpv, red, estimable, frozen_at, it, min_redundancy)
         history.append({"iteration": it, "factors": dict(factors), "redundancy": dict(red)})
         if all(abs(f - 1.0) < tol for f in factors.values()):
             converged = True
             break
         if it == max_iterations:
             break
-        applied = {}
-        for g, f in factors.items():
-            step = float(np.log(f))
-            prev = last_plain.get(g)
-            rho = step / prev if prev else 0.0
-            if accelerate and prev is not None and 0.0 < rho <= _RHO_MAX:
-                # linear convergence with ratio rho: jump to the extrapolated limit
-                ext = float(np.clip(step / (1.0 - rho), -_MAX_JUMP, _MAX_JUMP))
-                applied[g] = float(np.exp(ext if abs(ext) > abs(step) else step))
-                last_plain[g] = None
-            else:
-                applied[g] = f
-                last_plain[g] = step
-            scale[g] *= float(np.sqrt(applied[g]))
+        applied = _applied_factors(factors, last_plain, scale, accelerate)
         prob = _rescale(prob, applied, obs_lab, pt_lab, eo_lab)
-    for g in groups:
-        if not estimable[g]:
-            at, r_at = frozen_at[g]
-            if at == 1:
-                notes.append(f"group {g!r} has a total redundancy of {r_at:.3g} (< "
-                             f"{min_redundancy:g}): its accuracy cannot be estimated from the "
-                             "residuals and its sigma was kept")
-            else:
-                notes.append(f"group {g!r}: its total redundancy fell to {r_at:.3g} (< "
-                             f"{min_redundancy:g}) at iteration {at} as its sigma shrank; it "
-                             f"was frozen at {scale[g]:.4g} times its initial sigma, which is "
-                             "not a reliable estimate (the group is not separable from the "
-                             "others with this geometry)")
+    notes = _frozen_notes(groups, estimable, frozen_at, scale, min_redundancy)
     if not converged:
-        slow = [f"{g!r} ({f:.4f}, redundancy {red[g]:.3g})"
-                for g, f in history[-1]["factors"].items() if abs(f - 1.0) >= tol]
-        notes.append(f"variance component estimation did not converge in {max_iterations} "
-                     f"iterations: the factor of {', '.join(slow)} is not yet 1 within "
-                     f"{tol:g}; the last sigmas are reported (slow convergence means the group is "
-                     "weakly separable from the others, e.g. DEM heights from stereo heights, "
-                     "and its estimate is imprecise; raise max_iterations to go on)")
+        notes.append(_nonconvergence_note(history, red, tol, max_iterations))
     return VCEResult(
         result=res, problem=prob, reliability=rel, groups=groups, history=history,
         scale=scale, sigma=_group_sigma(prob, obs_lab, pt_lab, eo_lab, groups),
