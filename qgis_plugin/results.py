@@ -29,7 +29,8 @@ _SHAPE_TYPES = {"point_id": "s", "feature_id": "s", "Database": "s", "NImages": 
 _FEATURE_TYPES = {"NPts": "i", "NAdj": "i", "Images": "s", "ImgDate": "s", "Database": "s",
                   "Problem": "s"}
 _CONTROL_TYPES = {"point_id": "s", "role": "s", "NImages": "i", "Used": "i"}
-_MASKED = ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90")
+_MASKED = ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "CE90_meas",
+           "LE90_meas")
 
 RESIDUAL_FIELDS = ["point_id", "feature_id", "Database", "Vx", "Vy", "Vz", "V", "Azimuth",
                    "CE90", "LE90", "Scale"]

@@ -225,7 +225,13 @@ class LineLayer:
 
 @dataclass
 class VectorSpec:
-    """One ``[[vectors]]`` entry of the project (a road database)."""
+    """One ``[[vectors]]`` entry of the project (a road database).
+
+    ``identification_sigma`` is the (horizontal, vertical) uncertainty of where the
+    analyst's measured point lies relative to the real road vertex (object space, m;
+    None: not given). ``offset`` is the systematic offset estimated for the database:
+    ``"none"``, ``"shift"`` (horizontal) or ``"shift3d"`` (DESIGN section 10).
+    """
 
     name: str
     path: Optional[str] = None
@@ -234,6 +240,16 @@ class VectorSpec:
     dem: Optional[str] = None
     truth: Optional[str] = None
     layer: Optional[str] = None
+    identification_sigma: Optional[tuple[float, float]] = None
+    offset: str = "none"
+
+    @property
+    def identification_variance(self) -> np.ndarray:
+        """Per-axis variance (3,) of the identification error (zeros when not given)."""
+        if self.identification_sigma is None:
+            return np.zeros(3)
+        h, v = (float(s) for s in self.identification_sigma)
+        return np.array([h * h, h * h, v * v])
 
 
 @dataclass

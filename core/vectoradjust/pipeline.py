@@ -27,7 +27,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from vectoradjust.accuracy.derived import feature_length_sigma
-from vectoradjust.accuracy.summary import reliability_summary, run_summary
+from vectoradjust.accuracy.summary import offset_entry, reliability_summary, run_summary
 from vectoradjust.accuracy.tables import LE90_FACTOR, tabulate_control, tabulate_database
 from vectoradjust.adjust.classify import build_problem, classify_measurements
 from vectoradjust.adjust.passes import solve
@@ -76,9 +76,27 @@ def _summarise(out: AdjustmentRun, solution) -> None:
         out.summary["variance_components"] = solution.vce
     if solution.snooping is not None:
         out.summary["data_snooping"] = solution.snooping
+    _database_error_model(out, solution)
     from vectoradjust.accuracy.statements import accuracy_statements
 
     out.summary["accuracy"] = accuracy_statements(out)
+
+
+def _database_error_model(out: AdjustmentRun, solution) -> None:
+    """Offsets and identification error per database in the summary (DESIGN section 10)."""
+    alpha = out.data.settings.alpha
+    for d, entry in zip(out.databases, out.summary["databases"]):
+        ident = d.spec.identification_sigma
+        entry["identification_sigma"] = list(map(float, ident)) if ident is not None else None
+        if ident is None and entry["adjusted_vertices"]:
+            note = (f"{d.name}: identification_sigma is not given, so CE90/LE90 describe the "
+                    "measured point only, not the real road vertex (set identification_sigma "
+                    "in its [[vectors]] entry; README: identification error)")
+            out.warnings.append(note)
+            out.summary["warnings"].append(note)
+        entry["offset_model"] = d.spec.offset
+        if solution.offsets and d.name in solution.offsets:
+            entry["offset"] = offset_entry(solution.offsets[d.name], d.name, alpha)
 
 
 def run(

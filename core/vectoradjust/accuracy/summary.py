@@ -238,3 +238,52 @@ def compare_columns(rows: list) -> list:
                 known.add(k)
                 cols.append((k, k.replace("in_", "in ").replace("_", " ")))
     return cols
+
+
+# --------------------------------------------------------------------------- offsets
+def offset_entry(rec: dict, name: str, alpha: float = 0.05) -> dict:
+    """The estimated systematic offset of a database, with its sigma and a test of zero.
+
+    Parameters
+    ----------
+    rec : dict
+        One entry of :attr:`vectoradjust.adjust.passes.Solution.offsets`.
+    name : str
+        Database name (for the statement).
+    alpha : float
+        Significance level of the test ``T = 0`` (chi-square, one degree of freedom
+        per offset parameter).
+
+    Returns
+    -------
+    dict
+        ``values``/``sigma`` per axis (database minus images, m), the horizontal
+        magnitude with its sigma and compass direction, the test and a sentence such as
+        ``"OSM is 2.93 m north-east of the images (+- 0.05 m)"``.
+    """
+    from scipy.stats import chi2
+
+    vals = np.asarray(rec["values"], float)
+    cov = np.asarray(rec["cofactor"], float) * float(rec["variance_factor"])
+    axes = list(rec["axes"])
+    stat = float(vals @ np.linalg.solve(cov, vals)) if len(vals) else 0.0
+    crit = float(chi2.ppf(1.0 - alpha, len(vals))) if len(vals) else float("nan")
+    entry = {"axes": axes, "values": vals.tolist(), "sigma": list(rec["sigma"]),
+             "test": {"statistic": stat, "critical": crit, "alpha": alpha,
+                      "significant": bool(stat > crit)},
+             "converged": rec.get("converged", True), "newton_steps": rec.get("newton_steps")}
+    dx, dy = vals[axes.index("X")], vals[axes.index("Y")]
+    mag, az, direction = stats.bias_direction(dx, dy)
+    u = np.array([dx, dy]) / mag if mag > 0 else np.zeros(2)
+    sig_mag = float(np.sqrt(max(u @ cov[:2, :2] @ u, 0.0))) if mag > 0 else float(
+        np.sqrt(np.trace(cov[:2, :2]) / 2))
+    entry.update({"horizontal": float(mag), "horizontal_sigma": sig_mag,
+                  "azimuth": float_or_none(az), "direction": direction})
+    where = f"{direction} of" if direction not in ("", "none") else "on"
+    text = f"{name} is {mag:.2f} m {where} the images (+- {sig_mag:.2f} m)"
+    if "Z" in axes:
+        dz, sz = vals[axes.index("Z")], rec["sigma"][axes.index("Z")]
+        text += f", {abs(dz):.2f} m {'above' if dz > 0 else 'below'} (+- {sz:.2f} m)"
+    text += "; significant" if entry["test"]["significant"] else "; not significant"
+    entry["statement"] = text
+    return entry

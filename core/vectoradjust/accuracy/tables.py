@@ -125,6 +125,9 @@ def _vertex_table(out: AdjustmentRun, d: DatabaseResult):
     adj[meas_v] = res.xyz[vp[meas_v]]
     cov = np.full((nv, 3, 3), np.nan)
     cov[meas_v] = res.point_cov[vp[meas_v]]
+    _, ce_meas, le_meas = cov_stats(cov)  # the measured point (photogrammetry only)
+    # the real road vertex: the identification error is added (DESIGN section 10)
+    cov[meas_v] += np.diag(d.spec.identification_variance)
     sig, ce, le = cov_stats(cov)
     v = np.full((nv, 3), np.nan)
     v[meas_v] = adj[meas_v] - db_xyz[meas_v]
@@ -137,7 +140,8 @@ def _vertex_table(out: AdjustmentRun, d: DatabaseResult):
         "Vx": v[:, 0], "Vy": v[:, 1], "Vz": v[:, 2],
         "AdjX": adj[:, 0], "AdjY": adj[:, 1], "AdjZ": adj[:, 2],
         "SigmaX": sig[:, 0], "SigmaY": sig[:, 1], "SigmaZ": sig[:, 2],
-        "CE90": ce, "LE90": le, "NImages": nimg, "Adjusted": meas_v.astype(np.int64),
+        "CE90": ce, "LE90": le, "CE90_meas": ce_meas, "LE90_meas": le_meas,
+        "NImages": nimg, "Adjusted": meas_v.astype(np.int64),
         "Database": np.full(nv, d.name, dtype=object),
     }
     return adj, v, ce, le, meas_v

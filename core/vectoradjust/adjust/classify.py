@@ -16,6 +16,7 @@ Numpy only; every error names the file and line (or feature) to mend.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -79,6 +80,8 @@ class BundleSetup:
         ``[[images]]`` index of each adjusted image.
     imap : numpy.ndarray of int
         Adjusted-image index of each ``[[images]]`` entry (-1: not adjusted).
+    db_prior : numpy.ndarray, shape (m, 3)
+        The points' priors before any database offset is applied.
     """
 
     problem: BundleProblem
@@ -89,6 +92,7 @@ class BundleSetup:
     obs_rows: np.ndarray
     img_used: np.ndarray
     imap: np.ndarray
+    db_prior: Optional[np.ndarray] = None
 
 
 def _line(meas, i: int) -> str:
@@ -324,8 +328,10 @@ def _add_shape_points(pts: _Points, cls: Classification, selected: set) -> list:
         vertex_point = omap[sp.vertex_object]
         xyz = sp.object_xyz[used_obj]
         _check_heights(spec, sp, used_obj, xyz)
+        # the prior X_db = X_id + (e_db - e_id): database and identification error
+        var = np.asarray(spec.sigma, float) ** 2 + spec.identification_variance
         w = np.zeros((len(used_obj), 3, 3))
-        w[:, [0, 1, 2], [0, 1, 2]] = 1.0 / np.asarray(spec.sigma, float) ** 2
+        w[:, [0, 1, 2], [0, 1, 2]] = 1.0 / var
         pts.add(sp.object_ids[used_obj].tolist(), "shape", spec.name, xyz, w)
         db_results.append(DatabaseResult(spec, sp, vertex_point, sigma_used=tuple(spec.sigma)))
     return db_results
@@ -418,4 +424,5 @@ def build_problem(data: ProjectData, cls: Classification, selected: set,
         point_kind=np.array(pts.kind, dtype=object).astype(str),
         point_database=np.array(pts.db, dtype=object).astype(str),
         databases=db_results, obs_rows=obs_rows, img_used=img_used, imap=imap,
+        db_prior=problem.prior_xyz.copy(),
     )

@@ -14,6 +14,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from vectoradjust.adjust import offsets as off
 from vectoradjust.adjust.bundle import BundleProblem, BundleResult, adjust
 from vectoradjust.adjust.classify import BundleSetup
 
@@ -37,6 +38,9 @@ class Solution:
         Variance components (``reweight = "vce"``).
     snooping : dict or None
         Data snooping record (``snooping = true``).
+    offsets : dict or None
+        Per database with an offset: ``{"axes", "values", "cofactor"}`` (m, cofactor of
+        the final solution, to be scaled by the variance factor).
     """
 
     problem: BundleProblem
@@ -44,6 +48,7 @@ class Solution:
     passes: list = field(default_factory=list)
     vce: Optional[dict] = None
     snooping: Optional[dict] = None
+    offsets: Optional[dict] = None
 
 
 def _float_or_none(x) -> Optional[float]:
@@ -139,6 +144,8 @@ def _snoop(setup: BundleSetup, settings, adjust_kwargs, image_ids, meas, warning
     remap[kept] = np.arange(len(kept))
     setup.point_ids, setup.point_kind, setup.point_database = (
         a[kept] for a in (setup.point_ids, setup.point_kind, setup.point_database))
+    if setup.db_prior is not None:
+        setup.db_prior = setup.db_prior[kept]
     for d in setup.databases:
         d.vertex_point = np.where(d.vertex_point >= 0, remap[np.maximum(d.vertex_point, 0)], -1)
     setup.obs_rows = setup.obs_rows[np.asarray(sn.observation_index, np.int64)]
@@ -147,6 +154,66 @@ def _snoop(setup: BundleSetup, settings, adjust_kwargs, image_ids, meas, warning
         warnings.append(f"data snooping removed the measurement of point {rec['point']!r} on "
                         f"image {rec['image']!r} (w = {rec['w']:.2f})")
     return sn.result, info
+
+
+# --------------------------------------------------------------------------- offsets
+def _offset_model(setup: BundleSetup) -> Optional[off.OffsetModel]:
+    """The databases whose systematic offset is estimated (None: none is)."""
+    names, axes, points = [], [], []
+    for d in setup.databases:
+        kind = getattr(d.spec, "offset", "none") or "none"
+        ax = off.OFFSET_KINDS[kind]
+        pts = np.flatnonzero((setup.point_kind == "shape") & (setup.point_database == d.name))
+        if ax and len(pts):
+            names.append(d.name)
+            axes.append(ax)
+            points.append(pts)
+    return off.OffsetModel(names, axes, points) if names else None
+
+
+def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dict):
+    """One adjustment; with offsets, Newton steps on them until they settle.
+
+    ``state["values"]`` carries the offsets between calls (two-pass, VCE); the final
+    cofactor and the covariance update are applied to the returned result.
+    """
+    if model is None:
+        return adjust(setup.problem, progress=progress, **adjust_kwargs)
+    values = state.get("values", np.zeros(model.n_params))
+    tol = adjust_kwargs.get("tolerance_position", 1e-4)
+    history = state.setdefault("history", [])
+    setup.problem = off.shifted_problem(setup.problem, setup.db_prior, model, values)
+    result = adjust(setup.problem, progress=progress, **adjust_kwargs)
+    for _ in range(20):
+        new, cof, gmax, qb, s_ztb = off.newton_step(result, model, values)
+        step = float(np.abs(new - values).max(initial=0.0))
+        history.append({"step": step, "gradient": gmax, "values": new.tolist()})
+        if step < tol:
+            break
+        values = new
+        setup.problem = off.shifted_problem(setup.problem, setup.db_prior, model, values,
+                                            xyz0=result.xyz)
+        result = adjust(setup.problem, progress=progress, **adjust_kwargs)
+    state["values"] = values
+    state["cofactor"] = cof
+    state["converged"] = step < tol
+    off.apply_offsets(result, model, off.OffsetEstimate(values, cof), qb, s_ztb)
+    return result
+
+
+def _offset_record(model, state: dict, result: BundleResult) -> dict:
+    """Per database: offset values, sigmas (a posteriori) and the cofactor block."""
+    vf = result.variance_factor
+    rec = {}
+    for name, axes, cols in zip(model.names, model.axes, model.columns()):
+        cof = state["cofactor"][np.ix_(cols, cols)]
+        rec[name] = {"axes": [("X", "Y", "Z")[a] for a in axes],
+                     "values": [float(state["values"][c]) for c in cols],
+                     "sigma": np.sqrt(np.maximum(np.diag(cof) * vf, 0.0)).tolist(),
+                     "cofactor": cof.tolist(), "variance_factor": vf,
+                     "converged": bool(state.get("converged", True)),
+                     "newton_steps": len(state.get("history", []))}
+    return rec
 
 
 def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings: list,
@@ -180,6 +247,8 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
                      "tolerance_angle": settings.tolerance_angle,
                      "is_cancelled": is_cancelled}
     dbs = setup.databases
+    model = _offset_model(setup)
+    state: dict = {}
     n_pass = 2 if settings.reweight == "two-pass" and dbs else 1
     sol: Optional[Solution] = None
     for p in range(n_pass):
@@ -188,7 +257,7 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
         def sub(frac, msg, p=p):
             progress(0.1 + 0.6 * (p + frac) / n_pass, msg)
 
-        result = adjust(setup.problem, progress=sub, **adjust_kwargs)
+        result = _adjust(setup, model, adjust_kwargs, sub, state)
         record = _pass_record(p + 1, result, result.iterations, dbs)
         if sol is None:
             sol = Solution(setup.problem, result, [record])
@@ -204,9 +273,13 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
                                                   setup.point_database, dbs, adjust_kwargs,
                                                   warnings)
         sol.passes.append(_pass_record("vce", sol.result, sol.vce["iterations"], dbs))
+        if model is not None:  # the offsets again, with the estimated weights
+            sol.result = _adjust(setup, model, adjust_kwargs, lambda f, m: None, state)
     if settings.snooping:
         progress(0.65, "data snooping")
         sol.result, sol.snooping = _snoop(setup, settings, adjust_kwargs, image_ids, meas,
                                           warnings)
+    if model is not None:
+        sol.offsets = _offset_record(model, state, sol.result)
     sol.problem = setup.problem
     return sol

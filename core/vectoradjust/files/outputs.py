@@ -24,7 +24,8 @@ __all__ = ["write_outputs", "shape_points_frame", "features_frame", "control_poi
            "json_default"]
 
 SHAPE_FIELDS = ["point_id", "feature_id", "X", "Y", "Z", "Vx", "Vy", "Vz", "AdjX", "AdjY", "AdjZ",
-                "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "NImages", "Adjusted", "Database"]
+                "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "CE90_meas", "LE90_meas",
+                "NImages", "Adjusted", "Database"]
 FEATURE_FIELDS = ["NPts", "NAdj", "RMSE_X", "RMSE_Y", "RMSE_Z", "RMSE", "Length", "LengthSD",
                   "LengthSDnc", "FirstX",
                   "FirstY", "LastX", "LastY", "Images", "ImgDate", "Database", "Problem"]
@@ -82,7 +83,8 @@ def shape_points_frame(run: AdjustmentRun):
         cols = {}
         for f in SHAPE_FIELDS:
             col = v[f]
-            if f in ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90"):
+            if f in ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90",
+                     "CE90_meas", "LE90_meas"):
                 col = _nullable(col, adj)
             else:
                 col = _nullable(col)

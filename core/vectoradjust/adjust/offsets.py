@@ -1,0 +1,225 @@
+"""Systematic database offsets as nuisance parameters of the adjustment (DESIGN section 10).
+
+A road database's vertices are ``X_db = X_true + T_db + s(x) + e_db``: besides the random
+error, a database may be shifted as a whole (a datum or digitising bias ``T_db``). Left
+out, that shift pulls the exterior orientation towards the database (thousands of
+shape points outweigh a few control points) and the shape points' residuals are read as
+random when they are not. Here each database gets a shift (horizontal ``[dX, dY]`` or
+3D ``[dX, dY, dZ]``) estimated jointly with the bundle: the shape point prior becomes
+``X_db = X + E T_db``.
+
+The joint least-squares solution is found without changing the bundle's structure. For
+a given ``T`` the bundle adjustment with prior means ``X_db - E T`` gives the points
+``X(T)``; the normal equations of ``T`` then have the misclosure
+``g = sum_j E' P_j (X_db,j - E T - X_j)`` and the reduced normal matrix
+``W - B' Q_xx B`` (``W = sum E' P_j E``, ``B_j = P_j E``, ``Q_xx`` the bundle's point
+cofactor matrix ``D + Z S^-1 Z'``), so ``T <- T + (W - B' Q_xx B)^-1 g`` is Newton's step
+on the joint problem; it is exact for the linearised problem and repeated until ``g``
+vanishes. ``B' Q_xx B`` and ``Q_xx B`` are computed from the bundle's factorisation in
+time linear in the number of points (no dense matrix over points). The covariances then
+include the offsets' uncertainty: ``Q_x <- Q_x + (Q_xx B) Q_TT (Q_xx B)'`` for each point
+and ``Q_ee <- S^-1 + (S^-1 Z' B) Q_TT (S^-1 Z' B)'`` for the exterior orientation.
+Numpy and scipy only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vectoradjust.adjust.bundle import BundleProblem, BundleResult
+
+__all__ = ["OffsetModel", "OffsetEstimate", "offset_normals", "newton_step",
+           "apply_offsets", "shifted_problem", "OFFSET_KINDS"]
+
+#: offset kinds and the axes they shift
+OFFSET_KINDS = {"none": (), "shift": (0, 1), "shift3d": (0, 1, 2)}
+
+
+@dataclass
+class OffsetModel:
+    """Which bundle points belong to which database's offset.
+
+    Attributes
+    ----------
+    names : list of str
+        Databases with an offset, in parameter order.
+    axes : list of tuple of int
+        Shifted axes of each (``(0, 1)`` horizontal, ``(0, 1, 2)`` 3D).
+    points : list of numpy.ndarray of int
+        Bundle point indices (shape points) of each.
+    """
+
+    names: list
+    axes: list
+    points: list
+
+    @property
+    def n_params(self) -> int:
+        """Number of offset parameters."""
+        return int(sum(len(a) for a in self.axes))
+
+    def columns(self) -> list:
+        """Parameter index of each (database, axis), per database."""
+        cols, k = [], 0
+        for a in self.axes:
+            cols.append(list(range(k, k + len(a))))
+            k += len(a)
+        return cols
+
+
+@dataclass
+class OffsetEstimate:
+    """Estimated offsets of the databases.
+
+    Attributes
+    ----------
+    values : numpy.ndarray, shape (q,)
+        All offset parameters (m), in the order of :meth:`OffsetModel.columns`.
+    cofactor : numpy.ndarray, shape (q, q)
+        Their cofactor matrix ``Q_TT`` (multiply by the variance factor).
+    iterations : int
+        Newton steps taken.
+    gradient : float
+        Largest remaining misclosure of the offsets' normal equations (m-weighted).
+    history : list of dict
+    """
+
+    values: np.ndarray
+    cofactor: np.ndarray
+    iterations: int = 0
+    gradient: float = float("nan")
+    history: list = field(default_factory=list)
+
+
+def _e_matrix(axes) -> np.ndarray:
+    """(3, q_d) selection matrix of the shifted axes."""
+    e = np.zeros((3, len(axes)))
+    e[list(axes), np.arange(len(axes))] = 1.0
+    return e
+
+
+def _b_blocks(prob: BundleProblem, model: OffsetModel) -> np.ndarray:
+    """``B_j = P_j E`` for every bundle point, (m, 3, q); zero for points without offset."""
+    q = model.n_params
+    b = np.zeros((prob.n_points, 3, q))
+    for pts, axes, cols in zip(model.points, model.axes, model.columns()):
+        e = _e_matrix(axes)
+        b[np.ix_(pts, np.arange(3), cols)] = prob.prior_weight[pts] @ e
+    return b
+
+
+def _q_times(result: BundleResult, b: np.ndarray):
+    """``Q_xx B`` per point (m, 3, q) and ``S^-1 Z' B`` (6n, q) from the factorisation."""
+    prob = result.problem
+    n = prob.n_images
+    q = b.shape[2]
+    npp_inv = result.npp_inv
+    db = np.einsum("mij,mjq->miq", npp_inv, b)  # D B
+    ynep = np.einsum("kij,kjl->kil", result.nep_obs, npp_inv[prob.obs_point])  # (k, 6, 3)
+    contrib = np.einsum("kil,klq->kiq", ynep, b[prob.obs_point])  # (k, 6, q)
+    ztb = np.zeros((n, 6, q))
+    np.add.at(ztb, prob.obs_image, contrib)
+    s_ztb = result.s_inv @ ztb.reshape(6 * n, q)  # (6n, q)
+    back = np.einsum("kil,kiq->klq", ynep, s_ztb.reshape(n, 6, q)[prob.obs_image])  # (k,3,q)
+    zsz = np.zeros((prob.n_points, 3, q))
+    np.add.at(zsz, prob.obs_point, back)
+    return db + zsz, s_ztb, ztb.reshape(6 * n, q)
+
+
+def offset_normals(result: BundleResult, model: OffsetModel, offsets: np.ndarray):
+    """Reduced normal matrix and misclosure of the offsets at the bundle solution.
+
+    Parameters
+    ----------
+    result : BundleResult
+        A converged adjustment of :func:`shifted_problem` ``(..., offsets)``.
+    model : OffsetModel
+    offsets : numpy.ndarray, shape (q,)
+        The offsets that problem was built with.
+
+    Returns
+    -------
+    n_red : numpy.ndarray, shape (q, q)
+        ``W - B' Q_xx B``.
+    g : numpy.ndarray, shape (q,)
+        ``sum_j E' P_j (X_db,j - E T - X_j)``; zero at the joint solution.
+    qb : numpy.ndarray, shape (m, 3, q)
+        ``Q_xx B`` per point.
+    s_ztb : numpy.ndarray, shape (6n, q)
+        ``S^-1 Z' B``.
+    """
+    prob = result.problem
+    b = _b_blocks(prob, model)
+    qb, s_ztb, ztb = _q_times(result, b)
+    q = model.n_params
+    w = np.zeros((q, q))
+    g = np.zeros(q)
+    for pts, axes, cols in zip(model.points, model.axes, model.columns()):
+        e = _e_matrix(axes)
+        w[np.ix_(cols, cols)] = np.einsum("ia,mij,jb->ab", e, prob.prior_weight[pts], e)
+        # prior_xyz = X_db - E T, so X_db - E T - X = prior_xyz - X
+        d = prob.prior_xyz[pts] - result.xyz[pts]
+        g[cols] = np.einsum("ia,mij,mj->a", e, prob.prior_weight[pts], d)
+    btqb = np.einsum("miq,mir->qr", b, qb)
+    n_red = w - btqb
+    return 0.5 * (n_red + n_red.T), g, qb, s_ztb
+
+
+def newton_step(result: BundleResult, model: OffsetModel, offsets: np.ndarray):
+    """One Newton step on the offsets; returns (new offsets, cofactor, |g|max, qb, s_ztb)."""
+    n_red, g, qb, s_ztb = offset_normals(result, model, offsets)
+    try:
+        cof = np.linalg.inv(n_red)
+    except np.linalg.LinAlgError:
+        cof = np.linalg.pinv(n_red)
+    return offsets + cof @ g, cof, float(np.abs(g).max(initial=0.0)), qb, s_ztb
+
+
+def shifted_problem(base: BundleProblem, db_xyz: np.ndarray, model: OffsetModel,
+                    offsets: np.ndarray, xyz0=None) -> BundleProblem:
+    """The bundle problem whose shape point priors are ``X_db - E T``.
+
+    Parameters
+    ----------
+    base : BundleProblem
+    db_xyz : numpy.ndarray, shape (m, 3)
+        Database (unshifted) prior of every point.
+    model : OffsetModel
+    offsets : numpy.ndarray, shape (q,)
+    xyz0 : numpy.ndarray, optional
+        Start values of the points (default: the base problem's).
+    """
+    prior = db_xyz.copy()
+    for pts, axes, cols in zip(model.points, model.axes, model.columns()):
+        prior[np.ix_(pts, list(axes))] -= offsets[cols][None, :]
+    return BundleProblem(base.focal_length, base.principal_point,
+                         base.eo0, base.eo_sigma,
+                         base.xyz0 if xyz0 is None else xyz0, prior, base.prior_weight,
+                         base.obs_point, base.obs_image, base.obs_xy, base.obs_sigma)
+
+
+def apply_offsets(result: BundleResult, model: OffsetModel, estimate: OffsetEstimate,
+                  qb: np.ndarray, s_ztb: np.ndarray) -> None:
+    """Put the offsets' unknowns and uncertainty into ``result`` (in place).
+
+    The degrees of freedom lose one per offset parameter and sigma0^2 is recomputed;
+    point and EO covariances get the offsets' share ``(Q B) Q_TT (Q B)'``; ``s_inv`` (the
+    EO cofactor matrix used for check points and joint covariances) likewise.
+    """
+    q = model.n_params
+    cof = estimate.cofactor
+    old_vf = result.variance_factor
+    result.n_unknowns += q
+    result.dof -= q
+    result.sigma0_squared = (float(result.vtpv / result.dof) if result.dof > 0
+                             else float("nan"))
+    new_vf = result.variance_factor
+    n = result.problem.n_images
+    result.s_inv = result.s_inv + s_ztb @ cof @ s_ztb.T
+    result.s_inv = 0.5 * (result.s_inv + result.s_inv.T)
+    result.eo_cov = new_vf * result.s_inv.reshape(n, 6, n, 6)[np.arange(n), :, np.arange(n), :]
+    if result.point_cov is not None:
+        extra = np.einsum("miq,qr,mjr->mij", qb, cof, qb)
+        result.point_cov = result.point_cov * (new_vf / old_vf) + new_vf * extra

@@ -1,0 +1,136 @@
+"""Database offsets (nuisance parameters) and the identification error (DESIGN section 10).
+
+The offsets are checked against a dense textbook adjustment with the offsets as explicit
+unknowns (estimates, sigma0^2, every covariance), and on simulations with a biased
+database and an analyst's identification error against the truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from test_bundle import _dense  # noqa: E402  (tests/ is on sys.path under pytest)
+
+from vectoradjust.adjust.shapepoints import lookup
+from vectoradjust.pipeline import run
+from vectoradjust.simulate import DatabaseModel, make_scenario
+
+
+def _with(data, **spec_changes):
+    vecs = [(replace(s, **spec_changes), layer) for s, layer in data.vectors]
+    return replace(data, vectors=vecs)
+
+
+@pytest.fixture(scope="module")
+def small_shift_run():
+    db = DatabaseModel("DB", "db_id", "db", 25.0, 0.5, (2.0, -1.5), 0.0, 0.0, 1.0)
+    sc = make_scenario(3, n_images=2, grid=(2, 2), databases=(db,), n_tie=6,
+                       shape_sigma=(1.0, 1.0, 1.0))
+    data = _with(sc.to_project_data(), offset="shift")
+    return run(data)
+
+
+def test_offsets_equal_the_dense_adjustment_with_explicit_offset_unknowns(small_shift_run):
+    out = small_shift_run
+    prob, res = out.problem, out.result
+    n, m = prob.n_images, prob.n_points
+    a, p = _dense(prob, res.eo, res.xyz)
+    # two more unknowns: the offset (dX, dY) enters every shape point prior X_db = X + E T
+    a = np.hstack([a, np.zeros((a.shape[0], 2))])
+    k_img = 2 * len(prob.obs_point)
+    shape = np.flatnonzero(out.point_kind == "shape")
+    has = np.flatnonzero(prob.has_prior)
+    row_of = {j: k_img + 3 * r for r, j in enumerate(has)}
+    for j in shape:
+        a[row_of[j] + 0, -2] = 1.0
+        a[row_of[j] + 1, -1] = 1.0
+    n_mat = a.T @ p @ a
+    q = np.linalg.inv(n_mat)
+    # misclosures at the solution: database prior minus (X + E T)
+    entry = out.summary["databases"][0]["offset"]
+    t = np.array(entry["values"])
+    db_prior = prob.prior_xyz.copy()
+    db_prior[shape, :2] += t  # prior_xyz holds X_db - E T
+    lp = (db_prior[has] - res.xyz[has]).copy()
+    lp[np.isin(has, shape), :2] -= t
+    we = prob.eo_weight.ravel()
+    ell = np.concatenate([-res.v_image.ravel(), lp.ravel(), (prob.eo0 - res.eo).ravel()[we > 0]])
+    step = np.linalg.solve(n_mat, a.T @ p @ ell)
+    assert np.abs(step).max() < 1e-5  # first-order optimality of the joint problem
+    vtpv = float(ell @ p @ ell)
+    dof = a.shape[0] - a.shape[1]
+    assert res.dof == dof
+    assert res.sigma0_squared == pytest.approx(vtpv / dof, rel=1e-6)
+    s0 = res.sigma0_squared
+    assert np.allclose(np.array(entry["sigma"]) ** 2, s0 * np.diag(q)[-2:], rtol=1e-6)
+    for i in range(n):
+        assert np.allclose(res.eo_cov[i], s0 * q[6 * i:6 * i + 6, 6 * i:6 * i + 6],
+                           rtol=1e-6, atol=1e-14)
+    for j in range(m):
+        o = 6 * n + 3 * j
+        assert np.allclose(res.point_cov[j], s0 * q[o:o + 3, o:o + 3], rtol=1e-6, atol=1e-12)
+
+
+def _biased(seed, *, offset, ident, reweight, n_pts=1500, pointing=0.5, bias=(3.0, 2.0)):
+    db = DatabaseModel("DB", "db_id", "db", 20.0, 0.5, bias, 0.0, 0.0, 1.5)
+    sc = make_scenario(seed, databases=(db,), n_shape_points=n_pts, pointing_sigma=pointing,
+                       shape_sigma=(3.0, 3.0, 3.0))
+    data = _with(sc.to_project_data(), offset=offset, identification_sigma=ident)
+    data = replace(data, settings=replace(data.settings, reweight=reweight))
+    out = run(data)
+    ctrl_only = run(replace(data, vectors=[]))
+    return data, out, ctrl_only
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("reweight", ["none", "two-pass"])
+def test_a_biased_database_no_longer_pulls_the_images(reweight):
+    """Without offsets a 3.6 m bias makes the check points 2-3x worse; with them <= 1.05x."""
+    ratios = {}
+    for offset in ("none", "shift"):
+        data, out, base = _biased(1, offset=offset, ident=(0.5, 0.1), reweight=reweight)
+        ratios[offset] = (out.summary["check_points"]["rmse_horizontal"]
+                          / base.summary["check_points"]["rmse_horizontal"])
+    assert ratios["none"] > 1.5  # the harm the offsets remove (measured: 2.6-2.7)
+    assert ratios["shift"] <= 1.05
+    # the estimate is the database's mean displacement at the measured vertices
+    entry = out.summary["databases"][0]["offset"]
+    d = out.databases[0]
+    tid, txyz = data.truth["DB"]
+    ti = lookup(tid, d.shape.vertex_ids)
+    sel = (d.vertices["Adjusted"] == 1) & (ti >= 0)
+    mean = (d.shape.layer.coords[sel] - txyz[ti[sel]]).mean(axis=0)[:2]
+    sig = np.array(entry["sigma"])
+    assert np.all(np.abs(np.array(entry["values"]) - mean) < 4 * sig + 0.02)
+    assert entry["test"]["significant"]
+    assert "north-east of the images" in entry["statement"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("reweight", ["none", "two-pass"])
+def test_ce90_covers_the_real_road_vertex_with_the_identification_error(reweight):
+    """0.5 m identification error: CE90 of the real vertex covers the truth 85-95 %;
+    the photogrammetric CE90 alone (CE90_meas) covers almost nothing."""
+    inside, inside_meas, n = 0, 0, 0
+    for seed in (1, 2, 3):
+        data, out, _ = _biased(seed, offset="shift", ident=(0.5, 0.1), reweight=reweight,
+                               n_pts=800)
+        d = out.databases[0]
+        tid, txyz = data.truth["DB"]
+        ti = lookup(tid, d.shape.vertex_ids)
+        sel = (d.vertices["Adjusted"] == 1) & (ti >= 0)
+        err = np.hypot(d.vertices["AdjX"][sel] - txyz[ti[sel], 0],
+                       d.vertices["AdjY"][sel] - txyz[ti[sel], 1])
+        inside += int((err <= d.vertices["CE90"][sel]).sum())
+        inside_meas += int((err <= d.vertices["CE90_meas"][sel]).sum())
+        n += int(sel.sum())
+    assert 0.85 <= inside / n <= 0.95, inside / n
+    assert inside_meas / n < 0.2
+
+
+def test_missing_identification_sigma_is_said(small_shift_run):
+    warnings = small_shift_run.summary["warnings"]
+    assert any("identification_sigma is not given" in w for w in warnings)
+    assert small_shift_run.summary["databases"][0]["identification_sigma"] is None
