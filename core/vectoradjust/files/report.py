@@ -557,6 +557,104 @@ def _ellipse_collection(ax, xy, a, b, angle_deg, color, lw=0.8):
     return coll
 
 
+def _ellipse_groups(run, cmap: dict) -> list:
+    """``(label, colour, xy, cov)`` per point group: shape points per database, control,
+    tie and check points (axis-aligned, from ``SigmaX``, ``SigmaY``)."""
+    res = run.result
+    kinds = np.asarray(run.point_kind)
+    dbn = np.asarray(run.point_database)
+    groups = []
+    for d in run.databases:
+        m = (kinds == "shape") & (dbn == d.name)
+        if m.any():
+            groups.append((f"{d.name} shape points", cmap[d.name], res.xyz[m, :2],
+                           res.point_cov[m, :2, :2]))
+    for kind, lab, col in (("control", "control points", "black"),
+                           ("tie", "tie points", "#7f7f7f")):
+        m = kinds == kind
+        if m.any():
+            groups.append((lab, col, res.xyz[m, :2], res.point_cov[m, :2, :2]))
+    cp = run.control_points or {}
+    if len(cp.get("point_id", [])):
+        m = (np.asarray(cp["role"]) == "check") & (np.asarray(cp["Used"]) == 1)
+        if m.any():
+            cov = np.zeros((int(m.sum()), 2, 2))
+            cov[:, 0, 0] = np.asarray(cp["SigmaX"], float)[m] ** 2
+            cov[:, 1, 1] = np.asarray(cp["SigmaY"], float)[m] ** 2
+            xy = np.column_stack([cp["AdjX"], cp["AdjY"]]).astype(float)[m]
+            groups.append(("check points (axis-aligned)", "#ff7f0e", xy, cov))
+    return groups
+
+
+def _ellipse_axes(groups: list) -> list:
+    """``(label, colour, xy, a, b, angle_deg)`` of the 90 % ellipses, non-empty groups only."""
+    from vectoradjust.accuracy.stats import principal_axes
+
+    prepared = []
+    for lab, col, xy, cov in groups:
+        smax, smin, ang = principal_axes(cov)
+        c = math.sqrt(_CHI2_2_90)
+        good = np.isfinite(xy).all(axis=1) & np.isfinite(smax) & np.isfinite(smin)
+        prepared.append((lab, col, xy[good], c * np.asarray(smax)[good],
+                         c * np.asarray(smin)[good], np.degrees(np.asarray(ang)[good])))
+    return [p for p in prepared if len(p[2])]
+
+
+def _ellipse_share(prepared: list, max_ellipses: int) -> tuple:
+    """``(n_total, keep_share)``: the share of shape points drawn within ``max_ellipses``."""
+    n_total = sum(len(p[2]) for p in prepared)
+    # control, check and tie points are few: always all of them; shape points share the rest
+    n_fixed = sum(len(p[2]) for p in prepared if "shape" not in p[0])
+    n_shape = n_total - n_fixed
+    return n_total, min(1.0, max(max_ellipses - n_fixed, 1) / max(n_shape, 1))
+
+
+def _adjusted_lines(ax, run, origin: tuple) -> None:
+    """The adjusted road lines in light grey, under the ellipses."""
+    from matplotlib.collections import LineCollection
+
+    for d in run.databases:
+        if d.adjusted_coords is None:
+            continue
+        lay = d.shape.layer
+        seg = _segments(d.adjusted_coords, lay.vertex_feature, lay.vertex_part, origin)
+        dense = len(seg) > DENSE_SEGMENTS
+        ax.add_collection(LineCollection(seg, colors="#d0d0d0",
+                                         linewidths=0.3 if dense else 0.8,
+                                         antialiaseds=not dense, zorder=1))
+
+
+def _draw_ellipses(ax, prepared: list, keep_share: float, origin: tuple, k: float) -> tuple:
+    """Draw each group's (subsampled) ellipses; ``(shown, legend handles)``."""
+    from matplotlib.lines import Line2D
+
+    shown = 0
+    handles = []
+    for gi, (lab, col, xy, a, b, ang) in enumerate(prepared):
+        want = (len(xy) if keep_share >= 1 or "shape" not in lab else
+                max(1, int(round(len(xy) * keep_share))))
+        sel = _subsample(len(xy), want, seed=gi)
+        shown += len(sel)
+        lw = 1.2 if "shape" not in lab else 0.8
+        _ellipse_collection(ax, xy[sel] - origin, a[sel] * k, b[sel] * k, ang[sel], col, lw)
+        handles.append(Line2D([], [], ls="", marker="o", markerfacecolor="none",
+                              markeredgecolor=col, markersize=8,
+                              label=f"{lab} (median {np.median(a):.3f} m semi-major)"))
+    return shown, handles
+
+
+def _circle_key(ax, r_key: float, k: float, limits: tuple) -> None:
+    """Scale key: a circle of radius ``r_key`` (m, drawn ``x k``), lower left."""
+    from matplotlib.patches import Circle
+
+    x0, x1, y0, y1 = limits
+    cx, cy = x0 + 0.06 * (x1 - x0) + r_key * k, y0 + 0.06 * (y1 - y0) + r_key * k
+    ax.add_patch(Circle((cx, cy), r_key * k, fill=False, ec="#333", lw=1.0, zorder=6))
+    ax.annotate(f"{r_key:g} m", (cx + r_key * k * 1.15, cy), va="center", fontsize=8,
+                zorder=6, bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none",
+                                "alpha": 0.85})
+
+
 def error_ellipse_figure(run, *, max_ellipses: int = MAX_ELLIPSES,
                          exaggeration: Optional[float] = None,
                          colors: Optional[dict] = None):
@@ -584,43 +682,9 @@ def error_ellipse_figure(run, *, max_ellipses: int = MAX_ELLIPSES,
     matplotlib.figure.Figure or None
         None when there is no point with a covariance.
     """
-    from matplotlib.collections import LineCollection
-    from matplotlib.lines import Line2D
-
-    from vectoradjust.accuracy.stats import principal_axes
-
-    res = run.result
-    kinds = np.asarray(run.point_kind)
-    dbn = np.asarray(run.point_database)
+    _, _, _ = _mpl()  # matplotlib required even when there is nothing to draw
     cmap = _db_colors([d.name for d in run.databases], colors)
-    groups = []  # (label, colour, xy, cov)
-    for d in run.databases:
-        m = (kinds == "shape") & (dbn == d.name)
-        if m.any():
-            groups.append((f"{d.name} shape points", cmap[d.name], res.xyz[m, :2],
-                           res.point_cov[m, :2, :2]))
-    for kind, lab, col in (("control", "control points", "black"),
-                           ("tie", "tie points", "#7f7f7f")):
-        m = kinds == kind
-        if m.any():
-            groups.append((lab, col, res.xyz[m, :2], res.point_cov[m, :2, :2]))
-    cp = run.control_points or {}
-    if len(cp.get("point_id", [])):
-        m = (np.asarray(cp["role"]) == "check") & (np.asarray(cp["Used"]) == 1)
-        if m.any():
-            cov = np.zeros((int(m.sum()), 2, 2))
-            cov[:, 0, 0] = np.asarray(cp["SigmaX"], float)[m] ** 2
-            cov[:, 1, 1] = np.asarray(cp["SigmaY"], float)[m] ** 2
-            xy = np.column_stack([cp["AdjX"], cp["AdjY"]]).astype(float)[m]
-            groups.append(("check points (axis-aligned)", "#ff7f0e", xy, cov))
-    prepared = []
-    for lab, col, xy, cov in groups:
-        smax, smin, ang = principal_axes(cov)
-        c = math.sqrt(_CHI2_2_90)
-        good = np.isfinite(xy).all(axis=1) & np.isfinite(smax) & np.isfinite(smin)
-        prepared.append((lab, col, xy[good], c * np.asarray(smax)[good],
-                         c * np.asarray(smin)[good], np.degrees(np.asarray(ang)[good])))
-    prepared = [p for p in prepared if len(p[2])]
+    prepared = _ellipse_axes(_ellipse_groups(run, cmap))
     if not prepared:
         return None
     allxy = np.concatenate([p[2] for p in prepared])
@@ -634,48 +698,17 @@ def error_ellipse_figure(run, *, max_ellipses: int = MAX_ELLIPSES,
     if exaggeration is None:
         exaggeration = _nice(0.012 * extent / med, "floor")
     k = float(exaggeration)
-    n_total = sum(len(p[2]) for p in prepared)
-    # control, check and tie points are few: always all of them; shape points share the rest
-    n_fixed = sum(len(p[2]) for p in prepared if "shape" not in p[0])
-    n_shape = n_total - n_fixed
-    keep_share = min(1.0, max(max_ellipses - n_fixed, 1) / max(n_shape, 1))
+    n_total, keep_share = _ellipse_share(prepared, max_ellipses)
     fig = _new_figure(8.0, 7.4 * aspect + 1.2, compressed=True)
     matplotlib = _mpl()[0]
-    shown = 0
     with matplotlib.rc_context(_STYLE):
         ax = fig.add_subplot(1, 1, 1)
-        for d in run.databases:
-            if d.adjusted_coords is None:
-                continue
-            lay = d.shape.layer
-            seg = _segments(d.adjusted_coords, lay.vertex_feature, lay.vertex_part, origin)
-            dense = len(seg) > DENSE_SEGMENTS
-            ax.add_collection(LineCollection(seg, colors="#d0d0d0",
-                                             linewidths=0.3 if dense else 0.8,
-                                             antialiaseds=not dense, zorder=1))
-        handles = []
-        for gi, (lab, col, xy, a, b, ang) in enumerate(prepared):
-            want = (len(xy) if keep_share >= 1 or "shape" not in lab else
-                    max(1, int(round(len(xy) * keep_share))))
-            sel = _subsample(len(xy), want, seed=gi)
-            shown += len(sel)
-            lw = 1.2 if "shape" not in lab else 0.8
-            _ellipse_collection(ax, xy[sel] - origin, a[sel] * k, b[sel] * k, ang[sel], col, lw)
-            handles.append(Line2D([], [], ls="", marker="o", markerfacecolor="none",
-                                  markeredgecolor=col, markersize=8,
-                                  label=f"{lab} (median {np.median(a):.3f} m semi-major)"))
-        # scale key: a circle of a round radius, lower left
-        r_key = _nice(med, "round")
-        x0, x1, y0, y1 = _limits(np.concatenate([allxy] + line_xy) - np.asarray(origin))
-        ax.set_xlim(x0, x1)
-        ax.set_ylim(y0, y1)
-        cx, cy = x0 + 0.06 * (x1 - x0) + r_key * k, y0 + 0.06 * (y1 - y0) + r_key * k
-        from matplotlib.patches import Circle
-
-        ax.add_patch(Circle((cx, cy), r_key * k, fill=False, ec="#333", lw=1.0, zorder=6))
-        ax.annotate(f"{r_key:g} m", (cx + r_key * k * 1.15, cy), va="center", fontsize=8,
-                    zorder=6, bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none",
-                                    "alpha": 0.85})
+        _adjusted_lines(ax, run, origin)
+        shown, handles = _draw_ellipses(ax, prepared, keep_share, origin, k)
+        limits = _limits(np.concatenate([allxy] + line_xy) - np.asarray(origin))
+        ax.set_xlim(limits[0], limits[1])
+        ax.set_ylim(limits[2], limits[3])
+        _circle_key(ax, _nice(med, "round"), k, limits)
         _axis_labels(ax, origin)
         title = ("90 % confidence ellipses of the adjusted points (a posteriori), "
                  f"exaggerated \u00d7{k:g}")
