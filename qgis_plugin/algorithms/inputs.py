@@ -294,8 +294,7 @@ def _override_measurements_adjustment(alg, parameters, context, raw, meas_given)
 
 
 def _require_sections(raw, where):
-    """Raise ProjectError when neither the project file nor the parameters give the camera,
-    the images or the image measurements."""
+    """Raise ProjectError when the camera, the images or the image measurements are missing."""
     from vectoradjust.errors import ProjectError
 
     if "camera" not in raw:

@@ -558,8 +558,7 @@ def _ellipse_collection(ax, xy, a, b, angle_deg, color, lw=0.8):
 
 
 def _ellipse_groups(run, cmap: dict) -> list:
-    """``(label, colour, xy, cov)`` per point group: shape points per database, control,
-    tie and check points (axis-aligned, from ``SigmaX``, ``SigmaY``)."""
+    """``(label, colour, xy, cov)`` of shape points per database, control, tie, check points."""
     res = run.result
     kinds = np.asarray(run.point_kind)
     dbn = np.asarray(run.point_database)

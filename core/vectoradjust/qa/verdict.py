@@ -766,10 +766,7 @@ def _triplet_stages(run, f: float, min_triplet_points: int, pixel: Optional[floa
 
 def _block_stages(run, spec: QASpec, f: float, r_mm: float, point_rule: str,
                   tolerances: dict) -> tuple:
-    """Block, orthophoto and orthomosaic stages; fills ``tolerances`` in place.
-
-    Returns ``(cqa, used, stages, notes)``.
-    """
+    """Block, orthophoto and orthomosaic stages ``(cqa, used, stages, notes)``; fills tolerances."""
     stages: list = []
     notes: list = []
     used, ids, res, roles = _block_inputs(run)
