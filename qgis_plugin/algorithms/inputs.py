@@ -234,23 +234,10 @@ def _read_toml(path):
                            "given") from exc
 
 
-def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectInputs:
-    """Assemble camera, images, measurements, control and settings.
-
-    Parameters
-    ----------
-    fallback_crs : QgsCoordinateReferenceSystem
-        Ground CRS when neither the parameter nor the project file gives one (the road
-        layer's CRS).
-    """
-    from vectoradjust.errors import ProjectError
-    from vectoradjust.files.project import parse_project
-    from vectoradjust.files.tables import read_control, read_fiducials, read_measurements
-
+def _project_file(alg, parameters, context) -> tuple:
+    """``(raw, base_dir, where, project_path)`` of the project file parameter (empty if unset)."""
     project_path = alg.parameterAsFile(parameters, PROJECT, context) if _is_set(
         parameters, PROJECT) else ""
-    meas_given = _is_set(parameters, MEASUREMENTS)
-    ctrl_given = _is_set(parameters, CONTROL)
     if project_path:
         raw = dict(_read_toml(project_path))
         base_dir = Path(project_path).parent.resolve()
@@ -259,8 +246,11 @@ def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectI
         raw = {}
         base_dir = Path.cwd()
         where = "the algorithm parameters"
+    return raw, base_dir, where, project_path
 
-    # parameters override the project file
+
+def _override_camera_images_crs(alg, parameters, context, raw, fallback_crs):
+    """Put the camera, images and ground CRS parameters (when set) into ``raw``."""
     focal = _number(alg, parameters, FOCAL_LENGTH, context)
     if focal is not None:
         raw["camera"] = {"focal_length": focal,
@@ -277,6 +267,10 @@ def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectI
         raw["crs"] = crs_param.authid() or crs_param.toWkt()
     elif not raw.get("crs") and fallback_crs is not None and fallback_crs.isValid():
         raw["crs"] = fallback_crs.authid() or fallback_crs.toWkt()
+
+
+def _override_measurements_adjustment(alg, parameters, context, raw, meas_given):
+    """Put the measurement sigma and the adjustment parameters (when set) into ``raw``."""
     meas = dict(raw.get("measurements") or {})
     sigma = _number(alg, parameters, MEASUREMENT_SIGMA, context)
     if sigma is not None:
@@ -298,6 +292,11 @@ def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectI
     if adj:
         raw["adjustment"] = adj
 
+
+def _require_sections(raw, where):
+    """Raise ProjectError when the camera, the images or the image measurements are missing."""
+    from vectoradjust.errors import ProjectError
+
     if "camera" not in raw:
         raise ProjectError(f"{where}: no camera is given",
                            "Give a project file with [camera] or the focal length parameter")
@@ -309,11 +308,14 @@ def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectI
         raise ProjectError(f"{where}: no image measurements are given",
                            "Choose the image measurements (CSV file or table) or give a "
                            "project file with [measurements] path")
-    spec = parse_project(raw, base_dir=base_dir, path=project_path or None)
-    crs = qgis_io.ground_crs(spec.crs, f"{where}: crs")
+
+
+def _read_tables(alg, parameters, context, spec, crs) -> tuple:
+    """``(measurements, control, fiducials)`` from the parameters or the project's files."""
+    from vectoradjust.files.tables import read_control, read_fiducials, read_measurements
 
     unit = spec.measurements.get("unit", "mm")
-    if meas_given:
+    if _is_set(parameters, MEASUREMENTS):
         src = alg.parameterAsSource(parameters, MEASUREMENTS, context)
         raw_meas = qgis_io.read_measurements_source(
             parameters.get(MEASUREMENTS), src, spec.measurements.get("sigma"),
@@ -321,7 +323,7 @@ def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectI
     else:
         raw_meas = read_measurements(spec.measurements["path"], spec.measurements.get("sigma"),
                                      unit=unit)
-    if ctrl_given:
+    if _is_set(parameters, CONTROL):
         src = alg.parameterAsSource(parameters, CONTROL, context)
         control = qgis_io.read_control_source(parameters.get(CONTROL), src, crs, context,
                                               f"control table {src.sourceName()!r}")
@@ -331,6 +333,29 @@ def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectI
         control = None  # an empty table (vectoradjust.files.assemble)
     fid_path = spec.measurements.get("fiducials")
     fiducials = read_fiducials(fid_path, unit) if fid_path else None
+    return raw_meas, control, fiducials
+
+
+def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectInputs:
+    """Assemble camera, images, measurements, control and settings.
+
+    Parameters
+    ----------
+    fallback_crs : QgsCoordinateReferenceSystem
+        Ground CRS when neither the parameter nor the project file gives one (the road
+        layer's CRS).
+    """
+    from vectoradjust.files.project import parse_project
+
+    meas_given = _is_set(parameters, MEASUREMENTS)
+    raw, base_dir, where, project_path = _project_file(alg, parameters, context)
+    # parameters override the project file
+    _override_camera_images_crs(alg, parameters, context, raw, fallback_crs)
+    _override_measurements_adjustment(alg, parameters, context, raw, meas_given)
+    _require_sections(raw, where)
+    spec = parse_project(raw, base_dir=base_dir, path=project_path or None)
+    crs = qgis_io.ground_crs(spec.crs, f"{where}: crs")
+    raw_meas, control, fiducials = _read_tables(alg, parameters, context, spec, crs)
     return ProjectInputs(spec=spec, crs=crs, measurements=raw_meas, control=control,
                          source=where, fiducials=fiducials, vectors=list(spec.vectors))
 

@@ -352,6 +352,108 @@ def _control_xy(run) -> dict:
     return {"control": xy[(role == "control") & used], "check": xy[(role == "check") & used]}
 
 
+def _residual_arrows(dbs, origin: tuple) -> list:
+    """Per database ``(xy, uv)``: one arrow per adjusted object point (shared vertices once)."""
+    arrows = []
+    for d in dbs:
+        v = d.vertices
+        adj = np.flatnonzero(v["Adjusted"] == 1)
+        _, first = np.unique(d.vertex_point[adj], return_index=True)
+        idx = adj[np.sort(first)]
+        xy = np.column_stack([v["X"][idx], v["Y"][idx]]).astype(float) - origin
+        uv = np.column_stack([v["Vx"][idx], v["Vy"][idx]]).astype(float)
+        good = np.isfinite(xy).all(axis=1) & np.isfinite(uv).all(axis=1)
+        arrows.append((xy[good], uv[good]))
+    return arrows
+
+
+def _arrow_scale(arrows: list, extent: float, max_arrows: int,
+                 exaggeration: Optional[float]) -> tuple:
+    """Arrow exaggeration ``k`` (default from the 95th percentile residual) and key length."""
+    mags = np.concatenate([np.hypot(*uv.T) for _, uv in arrows]) if arrows else np.zeros(0)
+    p95 = float(np.percentile(mags, 95)) if mags.size else 1.0
+    if exaggeration is None:
+        # long enough to read, short enough not to cross the neighbouring arrows
+        n_shown = max(min(max(len(xy) for xy, _ in arrows), max_arrows), 1)
+        spacing = extent / math.sqrt(n_shown)
+        k_raw = min(0.08 * extent, 1.2 * spacing) / max(p95, 1e-6)
+        exaggeration = 1.0 if 1.0 <= k_raw < 2.0 else _nice(k_raw, "floor")
+    return float(exaggeration), _nice(p95, "round")
+
+
+def _database_lines(ax, d, col: str, origin: tuple) -> None:
+    """Database lines (grey) and adjusted lines (the database's colour) of one panel."""
+    from matplotlib.collections import LineCollection
+
+    layer = d.shape.layer
+    seg_db = _segments(layer.coords, layer.vertex_feature, layer.vertex_part, origin)
+    seg_adj = _segments(d.adjusted_coords, layer.vertex_feature, layer.vertex_part, origin)
+    dense = len(seg_db) > DENSE_SEGMENTS
+    ax.add_collection(LineCollection(seg_db, colors="#9a9a9a",
+                                     linewidths=0.35 if dense else 0.9,
+                                     antialiaseds=not dense, zorder=1))
+    ax.add_collection(LineCollection(seg_adj, colors=col,
+                                     linewidths=0.5 if dense else 1.3,
+                                     antialiaseds=not dense, zorder=2))
+
+
+def _control_markers(ax, ctl: dict, origin: tuple) -> None:
+    """Control points (black triangles) and check points (orange squares)."""
+    for kind, mk, fc in (("control", "^", "black"), ("check", "s", "#ff7f0e")):
+        pts = ctl[kind] - origin
+        if len(pts):
+            ax.scatter(pts[:, 0], pts[:, 1], marker=mk, s=22, c=fc,
+                       edgecolors="white", linewidths=0.5, zorder=5)
+
+
+def _arrow_key(ax, q, key_len: float, k: float) -> None:
+    """The arrow scale key in a white box, lower right of the panel."""
+    from matplotlib.patches import Rectangle
+
+    ax.add_patch(Rectangle((0.72, 0.01), 0.27, 0.10, transform=ax.transAxes,
+                           facecolor="white", edgecolor="#bbbbbb", lw=0.6,
+                           alpha=0.92, zorder=6))
+    qk = ax.quiverkey(q, X=0.855, Y=0.035, U=key_len * k, coordinates="axes",
+                      label=(f"{key_len:g} m" + (f" (\u00d7{k:g})" if k != 1 else "")),
+                      labelpos="N", fontproperties={"size": 8}, color=_ARROW)
+    qk.set_zorder(7)
+
+
+def _residual_panel(ax, d, col: str, arrows: tuple, ctl: dict, origin: tuple,
+                    scale: tuple, max_arrows: int) -> None:
+    """One database panel of :func:`residual_vector_figure` (``scale``: ``(k, key_len)``)."""
+    k, key_len = scale
+    _database_lines(ax, d, col, origin)
+    xy, uv = arrows
+    sel = _subsample(len(xy), max_arrows)
+    q = ax.quiver(xy[sel, 0], xy[sel, 1], uv[sel, 0] * k, uv[sel, 1] * k,
+                  angles="xy", scale_units="xy", scale=1.0, color=_ARROW,
+                  width=0.0045, headwidth=3.5, headlength=4.5, headaxislength=4.0,
+                  zorder=4)
+    _control_markers(ax, ctl, origin)
+    rm = np.hypot(*uv.T)
+    rmse = float(np.sqrt(np.mean(rm**2))) if rm.size else float("nan")
+    title = f"{d.name}: {len(xy)} residuals, RMSE$_h$ {rmse:.2f} m"
+    if len(sel) < len(xy):
+        title += f"\n({len(sel)} of {len(xy)} arrows shown, random subsample)"
+    ax.set_title(title)
+    _arrow_key(ax, q, key_len, k)
+    _axis_labels(ax, origin)
+
+
+def _residual_handles(n: int, col: str) -> list:
+    """Legend handles of the residual figure (``col``: adjusted line colour for one panel)."""
+    from matplotlib.lines import Line2D
+
+    return [Line2D([], [], color="#9a9a9a", lw=1.2, label="database line"),
+            Line2D([], [], color=col if n == 1 else "#444", lw=1.6,
+                   label="adjusted line" + ("" if n == 1 else " (colour per database)")),
+            Line2D([], [], color=_ARROW, lw=1.6, marker=">", markersize=5,
+                   label="residual V"),
+            Line2D([], [], ls="", marker="^", color="black", label="control point"),
+            Line2D([], [], ls="", marker="s", color="#ff7f0e", label="check point")]
+
+
 def residual_vector_figure(run, *, max_arrows: int = MAX_ARROWS,
                            exaggeration: Optional[float] = None,
                            colors: Optional[dict] = None, panel_width: float = 4.3):
@@ -383,8 +485,6 @@ def residual_vector_figure(run, *, max_arrows: int = MAX_ARROWS,
         None when the run has no adjusted shape point.
     """
     _, _, _ = _mpl()
-    from matplotlib.collections import LineCollection
-    from matplotlib.lines import Line2D
 
     dbs = [d for d in run.databases if d.vertices and np.any(d.vertices["Adjusted"] == 1)]
     if not dbs:
@@ -399,27 +499,8 @@ def residual_vector_figure(run, *, max_arrows: int = MAX_ARROWS,
     span = np.ptp(allxy[ok], axis=0) if ok.any() else np.ones(2)
     extent = float(max(span.max(), 1.0))
     aspect = float(np.clip(1.14 * span[1] / max(span[0], 1e-9), 0.55, 1.5))
-    # arrows: one per adjusted object point (shared vertices drawn once)
-    arrows = []
-    for d in dbs:
-        v = d.vertices
-        adj = np.flatnonzero(v["Adjusted"] == 1)
-        _, first = np.unique(d.vertex_point[adj], return_index=True)
-        idx = adj[np.sort(first)]
-        xy = np.column_stack([v["X"][idx], v["Y"][idx]]).astype(float) - origin
-        uv = np.column_stack([v["Vx"][idx], v["Vy"][idx]]).astype(float)
-        good = np.isfinite(xy).all(axis=1) & np.isfinite(uv).all(axis=1)
-        arrows.append((xy[good], uv[good]))
-    mags = np.concatenate([np.hypot(*uv.T) for _, uv in arrows]) if arrows else np.zeros(0)
-    p95 = float(np.percentile(mags, 95)) if mags.size else 1.0
-    if exaggeration is None:
-        # long enough to read, short enough not to cross the neighbouring arrows
-        n_shown = max(min(max(len(xy) for xy, _ in arrows), max_arrows), 1)
-        spacing = extent / math.sqrt(n_shown)
-        k_raw = min(0.08 * extent, 1.2 * spacing) / max(p95, 1e-6)
-        exaggeration = 1.0 if 1.0 <= k_raw < 2.0 else _nice(k_raw, "floor")
-    k = float(exaggeration)
-    key_len = _nice(p95, "round")
+    arrows = _residual_arrows(dbs, origin)
+    k, key_len = _arrow_scale(arrows, extent, max_arrows, exaggeration)
     n = len(dbs)
     ncols = min(n, 3)
     nrows = int(math.ceil(n / ncols))
@@ -431,45 +512,8 @@ def residual_vector_figure(run, *, max_arrows: int = MAX_ARROWS,
         y0 -= 0.14 * (y1 - y0)  # a free strip at the bottom for the arrow key
         for i, d in enumerate(dbs):
             ax = axes[i // ncols][i % ncols]
-            layer = d.shape.layer
-            col = cmap[d.name]
-            seg_db = _segments(layer.coords, layer.vertex_feature, layer.vertex_part, origin)
-            seg_adj = _segments(d.adjusted_coords, layer.vertex_feature, layer.vertex_part,
-                                origin)
-            dense = len(seg_db) > DENSE_SEGMENTS
-            ax.add_collection(LineCollection(seg_db, colors="#9a9a9a",
-                                             linewidths=0.35 if dense else 0.9,
-                                             antialiaseds=not dense, zorder=1))
-            ax.add_collection(LineCollection(seg_adj, colors=col,
-                                             linewidths=0.5 if dense else 1.3,
-                                             antialiaseds=not dense, zorder=2))
-            xy, uv = arrows[i]
-            sel = _subsample(len(xy), max_arrows)
-            q = ax.quiver(xy[sel, 0], xy[sel, 1], uv[sel, 0] * k, uv[sel, 1] * k,
-                          angles="xy", scale_units="xy", scale=1.0, color=_ARROW,
-                          width=0.0045, headwidth=3.5, headlength=4.5, headaxislength=4.0,
-                          zorder=4)
-            for kind, mk, fc in (("control", "^", "black"), ("check", "s", "#ff7f0e")):
-                pts = ctl[kind] - origin
-                if len(pts):
-                    ax.scatter(pts[:, 0], pts[:, 1], marker=mk, s=22, c=fc,
-                               edgecolors="white", linewidths=0.5, zorder=5)
-            rm = np.hypot(*uv.T)
-            rmse = float(np.sqrt(np.mean(rm**2))) if rm.size else float("nan")
-            title = f"{d.name}: {len(xy)} residuals, RMSE$_h$ {rmse:.2f} m"
-            if len(sel) < len(xy):
-                title += f"\n({len(sel)} of {len(xy)} arrows shown, random subsample)"
-            ax.set_title(title)
-            from matplotlib.patches import Rectangle
-
-            ax.add_patch(Rectangle((0.72, 0.01), 0.27, 0.10, transform=ax.transAxes,
-                                   facecolor="white", edgecolor="#bbbbbb", lw=0.6,
-                                   alpha=0.92, zorder=6))
-            qk = ax.quiverkey(q, X=0.855, Y=0.035, U=key_len * k, coordinates="axes",
-                              label=(f"{key_len:g} m" + (f" (\u00d7{k:g})" if k != 1 else "")),
-                              labelpos="N", fontproperties={"size": 8}, color=_ARROW)
-            qk.set_zorder(7)
-            _axis_labels(ax, origin)
+            _residual_panel(ax, d, cmap[d.name], arrows[i], ctl, origin, (k, key_len),
+                            max_arrows)
             ax.set_xlim(x0, x1)
             ax.set_ylim(y0, y1)
         for j in range(n, nrows * ncols):
@@ -477,14 +521,7 @@ def residual_vector_figure(run, *, max_arrows: int = MAX_ARROWS,
         scale_txt = ("arrows at true scale (they end on the adjusted line)" if k == 1 else
                      f"arrows exaggerated \u00d7{k:g}")
         fig.suptitle(f"Residuals V = adjusted \u2212 database ({scale_txt})", fontsize=11)
-        handles = [Line2D([], [], color="#9a9a9a", lw=1.2, label="database line"),
-                   Line2D([], [], color=cmap[dbs[0].name] if n == 1 else "#444", lw=1.6,
-                          label="adjusted line" + ("" if n == 1 else " (colour per database)")),
-                   Line2D([], [], color=_ARROW, lw=1.6, marker=">", markersize=5,
-                          label="residual V"),
-                   Line2D([], [], ls="", marker="^", color="black", label="control point"),
-                   Line2D([], [], ls="", marker="s", color="#ff7f0e", label="check point")]
-        _figure_legend(fig, axes[0][0], handles, ncol=5)
+        _figure_legend(fig, axes[0][0], _residual_handles(n, cmap[dbs[0].name]), ncol=5)
     return fig
 
 
@@ -520,6 +557,103 @@ def _ellipse_collection(ax, xy, a, b, angle_deg, color, lw=0.8):
     return coll
 
 
+def _ellipse_groups(run, cmap: dict) -> list:
+    """``(label, colour, xy, cov)`` of shape points per database, control, tie, check points."""
+    res = run.result
+    kinds = np.asarray(run.point_kind)
+    dbn = np.asarray(run.point_database)
+    groups = []
+    for d in run.databases:
+        m = (kinds == "shape") & (dbn == d.name)
+        if m.any():
+            groups.append((f"{d.name} shape points", cmap[d.name], res.xyz[m, :2],
+                           res.point_cov[m, :2, :2]))
+    for kind, lab, col in (("control", "control points", "black"),
+                           ("tie", "tie points", "#7f7f7f")):
+        m = kinds == kind
+        if m.any():
+            groups.append((lab, col, res.xyz[m, :2], res.point_cov[m, :2, :2]))
+    cp = run.control_points or {}
+    if len(cp.get("point_id", [])):
+        m = (np.asarray(cp["role"]) == "check") & (np.asarray(cp["Used"]) == 1)
+        if m.any():
+            cov = np.zeros((int(m.sum()), 2, 2))
+            cov[:, 0, 0] = np.asarray(cp["SigmaX"], float)[m] ** 2
+            cov[:, 1, 1] = np.asarray(cp["SigmaY"], float)[m] ** 2
+            xy = np.column_stack([cp["AdjX"], cp["AdjY"]]).astype(float)[m]
+            groups.append(("check points (axis-aligned)", "#ff7f0e", xy, cov))
+    return groups
+
+
+def _ellipse_axes(groups: list) -> list:
+    """``(label, colour, xy, a, b, angle_deg)`` of the 90 % ellipses, non-empty groups only."""
+    from vectoradjust.accuracy.stats import principal_axes
+
+    prepared = []
+    for lab, col, xy, cov in groups:
+        smax, smin, ang = principal_axes(cov)
+        c = math.sqrt(_CHI2_2_90)
+        good = np.isfinite(xy).all(axis=1) & np.isfinite(smax) & np.isfinite(smin)
+        prepared.append((lab, col, xy[good], c * np.asarray(smax)[good],
+                         c * np.asarray(smin)[good], np.degrees(np.asarray(ang)[good])))
+    return [p for p in prepared if len(p[2])]
+
+
+def _ellipse_share(prepared: list, max_ellipses: int) -> tuple:
+    """``(n_total, keep_share)``: the share of shape points drawn within ``max_ellipses``."""
+    n_total = sum(len(p[2]) for p in prepared)
+    # control, check and tie points are few: always all of them; shape points share the rest
+    n_fixed = sum(len(p[2]) for p in prepared if "shape" not in p[0])
+    n_shape = n_total - n_fixed
+    return n_total, min(1.0, max(max_ellipses - n_fixed, 1) / max(n_shape, 1))
+
+
+def _adjusted_lines(ax, run, origin: tuple) -> None:
+    """The adjusted road lines in light grey, under the ellipses."""
+    from matplotlib.collections import LineCollection
+
+    for d in run.databases:
+        if d.adjusted_coords is None:
+            continue
+        lay = d.shape.layer
+        seg = _segments(d.adjusted_coords, lay.vertex_feature, lay.vertex_part, origin)
+        dense = len(seg) > DENSE_SEGMENTS
+        ax.add_collection(LineCollection(seg, colors="#d0d0d0",
+                                         linewidths=0.3 if dense else 0.8,
+                                         antialiaseds=not dense, zorder=1))
+
+
+def _draw_ellipses(ax, prepared: list, keep_share: float, origin: tuple, k: float) -> tuple:
+    """Draw each group's (subsampled) ellipses; ``(shown, legend handles)``."""
+    from matplotlib.lines import Line2D
+
+    shown = 0
+    handles = []
+    for gi, (lab, col, xy, a, b, ang) in enumerate(prepared):
+        want = (len(xy) if keep_share >= 1 or "shape" not in lab else
+                max(1, int(round(len(xy) * keep_share))))
+        sel = _subsample(len(xy), want, seed=gi)
+        shown += len(sel)
+        lw = 1.2 if "shape" not in lab else 0.8
+        _ellipse_collection(ax, xy[sel] - origin, a[sel] * k, b[sel] * k, ang[sel], col, lw)
+        handles.append(Line2D([], [], ls="", marker="o", markerfacecolor="none",
+                              markeredgecolor=col, markersize=8,
+                              label=f"{lab} (median {np.median(a):.3f} m semi-major)"))
+    return shown, handles
+
+
+def _circle_key(ax, r_key: float, k: float, limits: tuple) -> None:
+    """Scale key: a circle of radius ``r_key`` (m, drawn ``x k``), lower left."""
+    from matplotlib.patches import Circle
+
+    x0, x1, y0, y1 = limits
+    cx, cy = x0 + 0.06 * (x1 - x0) + r_key * k, y0 + 0.06 * (y1 - y0) + r_key * k
+    ax.add_patch(Circle((cx, cy), r_key * k, fill=False, ec="#333", lw=1.0, zorder=6))
+    ax.annotate(f"{r_key:g} m", (cx + r_key * k * 1.15, cy), va="center", fontsize=8,
+                zorder=6, bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none",
+                                "alpha": 0.85})
+
+
 def error_ellipse_figure(run, *, max_ellipses: int = MAX_ELLIPSES,
                          exaggeration: Optional[float] = None,
                          colors: Optional[dict] = None):
@@ -547,43 +681,9 @@ def error_ellipse_figure(run, *, max_ellipses: int = MAX_ELLIPSES,
     matplotlib.figure.Figure or None
         None when there is no point with a covariance.
     """
-    from matplotlib.collections import LineCollection
-    from matplotlib.lines import Line2D
-
-    from vectoradjust.accuracy.stats import principal_axes
-
-    res = run.result
-    kinds = np.asarray(run.point_kind)
-    dbn = np.asarray(run.point_database)
+    _, _, _ = _mpl()  # matplotlib required even when there is nothing to draw
     cmap = _db_colors([d.name for d in run.databases], colors)
-    groups = []  # (label, colour, xy, cov)
-    for d in run.databases:
-        m = (kinds == "shape") & (dbn == d.name)
-        if m.any():
-            groups.append((f"{d.name} shape points", cmap[d.name], res.xyz[m, :2],
-                           res.point_cov[m, :2, :2]))
-    for kind, lab, col in (("control", "control points", "black"),
-                           ("tie", "tie points", "#7f7f7f")):
-        m = kinds == kind
-        if m.any():
-            groups.append((lab, col, res.xyz[m, :2], res.point_cov[m, :2, :2]))
-    cp = run.control_points or {}
-    if len(cp.get("point_id", [])):
-        m = (np.asarray(cp["role"]) == "check") & (np.asarray(cp["Used"]) == 1)
-        if m.any():
-            cov = np.zeros((int(m.sum()), 2, 2))
-            cov[:, 0, 0] = np.asarray(cp["SigmaX"], float)[m] ** 2
-            cov[:, 1, 1] = np.asarray(cp["SigmaY"], float)[m] ** 2
-            xy = np.column_stack([cp["AdjX"], cp["AdjY"]]).astype(float)[m]
-            groups.append(("check points (axis-aligned)", "#ff7f0e", xy, cov))
-    prepared = []
-    for lab, col, xy, cov in groups:
-        smax, smin, ang = principal_axes(cov)
-        c = math.sqrt(_CHI2_2_90)
-        good = np.isfinite(xy).all(axis=1) & np.isfinite(smax) & np.isfinite(smin)
-        prepared.append((lab, col, xy[good], c * np.asarray(smax)[good],
-                         c * np.asarray(smin)[good], np.degrees(np.asarray(ang)[good])))
-    prepared = [p for p in prepared if len(p[2])]
+    prepared = _ellipse_axes(_ellipse_groups(run, cmap))
     if not prepared:
         return None
     allxy = np.concatenate([p[2] for p in prepared])
@@ -597,48 +697,17 @@ def error_ellipse_figure(run, *, max_ellipses: int = MAX_ELLIPSES,
     if exaggeration is None:
         exaggeration = _nice(0.012 * extent / med, "floor")
     k = float(exaggeration)
-    n_total = sum(len(p[2]) for p in prepared)
-    # control, check and tie points are few: always all of them; shape points share the rest
-    n_fixed = sum(len(p[2]) for p in prepared if "shape" not in p[0])
-    n_shape = n_total - n_fixed
-    keep_share = min(1.0, max(max_ellipses - n_fixed, 1) / max(n_shape, 1))
+    n_total, keep_share = _ellipse_share(prepared, max_ellipses)
     fig = _new_figure(8.0, 7.4 * aspect + 1.2, compressed=True)
     matplotlib = _mpl()[0]
-    shown = 0
     with matplotlib.rc_context(_STYLE):
         ax = fig.add_subplot(1, 1, 1)
-        for d in run.databases:
-            if d.adjusted_coords is None:
-                continue
-            lay = d.shape.layer
-            seg = _segments(d.adjusted_coords, lay.vertex_feature, lay.vertex_part, origin)
-            dense = len(seg) > DENSE_SEGMENTS
-            ax.add_collection(LineCollection(seg, colors="#d0d0d0",
-                                             linewidths=0.3 if dense else 0.8,
-                                             antialiaseds=not dense, zorder=1))
-        handles = []
-        for gi, (lab, col, xy, a, b, ang) in enumerate(prepared):
-            want = (len(xy) if keep_share >= 1 or "shape" not in lab else
-                    max(1, int(round(len(xy) * keep_share))))
-            sel = _subsample(len(xy), want, seed=gi)
-            shown += len(sel)
-            lw = 1.2 if "shape" not in lab else 0.8
-            _ellipse_collection(ax, xy[sel] - origin, a[sel] * k, b[sel] * k, ang[sel], col, lw)
-            handles.append(Line2D([], [], ls="", marker="o", markerfacecolor="none",
-                                  markeredgecolor=col, markersize=8,
-                                  label=f"{lab} (median {np.median(a):.3f} m semi-major)"))
-        # scale key: a circle of a round radius, lower left
-        r_key = _nice(med, "round")
-        x0, x1, y0, y1 = _limits(np.concatenate([allxy] + line_xy) - np.asarray(origin))
-        ax.set_xlim(x0, x1)
-        ax.set_ylim(y0, y1)
-        cx, cy = x0 + 0.06 * (x1 - x0) + r_key * k, y0 + 0.06 * (y1 - y0) + r_key * k
-        from matplotlib.patches import Circle
-
-        ax.add_patch(Circle((cx, cy), r_key * k, fill=False, ec="#333", lw=1.0, zorder=6))
-        ax.annotate(f"{r_key:g} m", (cx + r_key * k * 1.15, cy), va="center", fontsize=8,
-                    zorder=6, bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none",
-                                    "alpha": 0.85})
+        _adjusted_lines(ax, run, origin)
+        shown, handles = _draw_ellipses(ax, prepared, keep_share, origin, k)
+        limits = _limits(np.concatenate([allxy] + line_xy) - np.asarray(origin))
+        ax.set_xlim(limits[0], limits[1])
+        ax.set_ylim(limits[2], limits[3])
+        _circle_key(ax, _nice(med, "round"), k, limits)
         _axis_labels(ax, origin)
         title = ("90 % confidence ellipses of the adjusted points (a posteriori), "
                  f"exaggerated \u00d7{k:g}")

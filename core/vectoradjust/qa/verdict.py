@@ -665,6 +665,136 @@ def _radius(run, spec: QASpec, working_radius: Optional[float]) -> float:
     return working_radius_mm(run)
 
 
+def _pixel_tolerances(point_rule: str, pixel: Optional[float]) -> tuple:
+    """The statistic rule and the pixel-based tolerances, with a note if the pixel is unknown."""
+    notes: list = []
+    if point_rule == "limit":
+        rule = "mean |error|; a single point fails over twice the tolerance (E_max ~ 2 E_mean)"
+    else:
+        rule = "mean |error|; a single point fails over the tolerance itself"
+    tolerances: dict = {"statistic": rule}
+    if pixel is None:
+        notes.append("pixel size unknown: the interior orientation, relative orientation and "
+                     "triplet stages are reported but not evaluated; give [qa] pixel_size (mm) "
+                     "or pixel_size in [camera]")
+    else:
+        tolerances["interior_orientation"] = interior_orientation_tolerance(pixel).as_dict()
+        tolerances["relative_orientation"] = relative_orientation_tolerance(pixel).as_dict()
+    return tolerances, notes
+
+
+def _interior_orientation_stages(interior: dict, pixel: Optional[float]) -> tuple:
+    """Interior orientation stages and notes (one ``n/a`` stage without fiducial fits)."""
+    stages, notes = interior_stages(interior, pixel)
+    stages, notes = list(stages), list(notes)
+    if not stages:
+        stages.append(_na_stage("interior orientation", unit="px"))
+        notes.append("interior orientation: no fiducial fits in this project (no measured "
+                     "fiducials); not evaluated")
+    return stages, notes
+
+
+def _relative_orientation_stages(run, pairs: str, min_pair_points: int,
+                                 pixel: Optional[float]) -> tuple:
+    """Vertical parallax stages per stereo pair: ``(stages, notes, pair_stats)``."""
+    stages: list = []
+    notes: list = []
+    found, skipped = pair_parallax(run, pairs, min_pair_points)
+    pair_stats = []
+    for d in found:
+        name = f"{d['left']}-{d['right']}"
+        s = _stats_um(d["py_mm"], pixel)
+        pair_stats.append({"left": d["left"], "right": d["right"], **s})
+        if pixel is not None:
+            stages += parallax_stages(name, d["py_mm"], d["point_ids"].tolist(), pixel)
+        else:
+            for stat in ("mean", "max"):
+                stages.append(_na_stage(f"relative orientation {name}: {stat} |py|",
+                                        d["py_mm"] * 1e3, d["point_ids"].tolist(), stat, "um"))
+    for d in skipped:
+        notes.append(f"images {d['left']} and {d['right']} share {d['n']} point(s) "
+                     f"(< {min_pair_points}): not a stereo pair, no relative orientation check")
+    if not found:
+        stages.append(_na_stage("relative orientation", unit="px"))
+    return stages, notes, pair_stats
+
+
+def _triplet_entry(t: dict, e_xy_um: np.ndarray, e_z_um: np.ndarray) -> dict:
+    """The ``triplets`` entry of ``qa.json`` for one triplet (without its tolerances)."""
+    return {
+        "images": t["images"], "n": int(len(t["point_ids"])),
+        "base_m": _num(t["base_m"]), "base_mm": _num(t["base_mm"]),
+        "photo_scale": _num(np.mean(t["scale"])),
+        "mean_e_xy_um": _num(np.mean(e_xy_um)), "max_e_xy_um": _num(np.max(e_xy_um)),
+        "mean_e_z_um": _num(np.mean(e_z_um)), "max_e_z_um": _num(np.max(e_z_um)),
+        "mean_e_xy_m": _num(np.mean(np.hypot(*(t["xyz_12"] - t["xyz_23"])[:, :2].T))),
+        "mean_e_z_m": _num(np.mean(np.abs(t["xyz_12"][:, 2] - t["xyz_23"][:, 2]))),
+    }
+
+
+def _triplet_stages(run, f: float, min_triplet_points: int, pixel: Optional[float]) -> tuple:
+    """E_xy and E_z stages per image triplet: ``(stages, notes, trip_stats)``."""
+    stages: list = []
+    notes: list = []
+    trips, tskipped = triplet_discrepancies(run, min_triplet_points)
+    trip_stats = []
+    for t in trips:
+        name = "-".join(t["images"])
+        e_xy_um, e_z_um = t["e_xy_mm"] * 1e3, t["e_z_mm"] * 1e3
+        entry = _triplet_entry(t, e_xy_um, e_z_um)
+        ids = t["point_ids"].tolist()
+        if pixel is not None:
+            txy, tz = triplet_tolerance(f, t["base_mm"], pixel)
+            entry.update({"tolerance_e_xy_um": txy * 1e3, "tolerance_e_z_um": tz * 1e3})
+            stages.append(check_stage(f"triplet {name}: E_xy", e_xy_um, ids, txy * 1e3, "mean",
+                                      unit="um"))
+            stages.append(check_stage(f"triplet {name}: E_z", e_z_um, ids, tz * 1e3, "mean",
+                                      unit="um"))
+        else:
+            stages.append(_na_stage(f"triplet {name}: E_xy", e_xy_um, ids, "mean", "um"))
+            stages.append(_na_stage(f"triplet {name}: E_z", e_z_um, ids, "mean", "um"))
+        trip_stats.append(entry)
+    for t in tskipped:
+        notes.append(f"images {'-'.join(t['images'])} share {t['n']} point(s) "
+                     f"(< {min_triplet_points}): triplet not checked")
+    if not trips:
+        stages.append(_na_stage("triplets", unit="um"))
+        if len(run.image_ids) < 3:
+            notes.append("triplets: fewer than 3 images, not evaluated")
+    return stages, notes, trip_stats
+
+
+def _block_stages(run, spec: QASpec, f: float, r_mm: float, point_rule: str,
+                  tolerances: dict) -> tuple:
+    """Block, orthophoto and orthomosaic stages ``(cqa, used, stages, notes)``; fills tolerances."""
+    stages: list = []
+    notes: list = []
+    used, ids, res, roles = _block_inputs(run)
+    cqa = control_point_qa(ids, res, roles, spec, f, r_mm, point_rule=point_rule)
+    stages += cqa.stages
+    tolerances["block"] = cqa.tolerances.as_dict()
+    tolerances["block"]["unit"] = "m"
+    if spec.product != "topographic map":
+        dh, dh3 = orthophoto_dtm_tolerance(f, spec.product_scale, r_mm)
+        tolerances["orthophoto"] = {"focal_length_mm": f, "scale": spec.product_scale,
+                                    "working_radius_mm": r_mm, "dh_dtm_m": dh,
+                                    "block_z_m": dh3}
+        stages.append(_na_stage("orthophoto: DTM heights", unit="m", tolerance=dh))
+        notes.append(f"orthophoto: the DTM must hold dh_DTM = {dh:.3f} m (0.3 mm x f x M / r, "
+                     f"r = {r_mm:.1f} mm); DTM heights are not checked by vectoradjust")
+    if spec.product == "orthomosaic":
+        om = orthomosaic_tolerance(spec)
+        tolerances["orthomosaic"] = om.as_dict()
+        stages.append(_na_stage("orthomosaic: seamlines", unit="m", tolerance=om.seamline_m))
+        notes.append(f"orthomosaic: contour mismatch along seamlines must stay within "
+                     f"{om.seamline_mm} mm ({om.seamline_m:.2f} m); not measured by vectoradjust")
+    for note in cqa.tolerances.notes:
+        notes.append(f"block: {note}")
+    if not any(r == "check" for r in roles):
+        notes.append("block: no check points were intersected; only control points are judged")
+    return cqa, used, stages, notes
+
+
 def accuracy_control(
     run,
     spec: QASpec,
@@ -703,113 +833,23 @@ def accuracy_control(
         ``.verdict`` (``QAVerdict``), ``.as_dict()`` for ``qa.json``.
     """
     data = run.data
-    prob = _problem(run)
-    f = float(prob.focal_length)
+    f = float(_problem(run).focal_length)
     interior = getattr(data, "interior", None) or {}
     pixel, pixel_src = resolve_pixel_size(data.camera, spec, pixel_size, interior)
-    stages: list = []
-    notes: list = []
-    if point_rule == "limit":
-        rule = "mean |error|; a single point fails over twice the tolerance (E_max ~ 2 E_mean)"
-    else:
-        rule = "mean |error|; a single point fails over the tolerance itself"
-    tolerances: dict = {"statistic": rule}
-    if pixel is None:
-        notes.append("pixel size unknown: the interior orientation, relative orientation and "
-                     "triplet stages are reported but not evaluated; give [qa] pixel_size (mm) "
-                     "or pixel_size in [camera]")
-    else:
-        tolerances["interior_orientation"] = interior_orientation_tolerance(pixel).as_dict()
-        tolerances["relative_orientation"] = relative_orientation_tolerance(pixel).as_dict()
-
-    # ---- interior orientation
-    io_stages, io_notes = interior_stages(interior, pixel)
-    stages += io_stages
+    tolerances, notes = _pixel_tolerances(point_rule, pixel)
+    stages, io_notes = _interior_orientation_stages(interior, pixel)
     notes += io_notes
-    if not io_stages:
-        stages.append(_na_stage("interior orientation", unit="px"))
-        notes.append("interior orientation: no fiducial fits in this project (no measured "
-                     "fiducials); not evaluated")
-
-    # ---- relative orientation: vertical parallax per stereo pair
-    found, skipped = pair_parallax(run, pairs, min_pair_points)
-    pair_stats = []
-    for d in found:
-        name = f"{d['left']}-{d['right']}"
-        s = _stats_um(d["py_mm"], pixel)
-        pair_stats.append({"left": d["left"], "right": d["right"], **s})
-        if pixel is not None:
-            stages += parallax_stages(name, d["py_mm"], d["point_ids"].tolist(), pixel)
-        else:
-            for stat in ("mean", "max"):
-                stages.append(_na_stage(f"relative orientation {name}: {stat} |py|",
-                                        d["py_mm"] * 1e3, d["point_ids"].tolist(), stat, "um"))
-    for d in skipped:
-        notes.append(f"images {d['left']} and {d['right']} share {d['n']} point(s) "
-                     f"(< {min_pair_points}): not a stereo pair, no relative orientation check")
-    if not found:
-        stages.append(_na_stage("relative orientation", unit="px"))
-
-    # ---- triplets
-    trips, tskipped = triplet_discrepancies(run, min_triplet_points)
-    trip_stats = []
-    for t in trips:
-        name = "-".join(t["images"])
-        e_xy_um, e_z_um = t["e_xy_mm"] * 1e3, t["e_z_mm"] * 1e3
-        entry = {
-            "images": t["images"], "n": int(len(t["point_ids"])),
-            "base_m": _num(t["base_m"]), "base_mm": _num(t["base_mm"]),
-            "photo_scale": _num(np.mean(t["scale"])),
-            "mean_e_xy_um": _num(np.mean(e_xy_um)), "max_e_xy_um": _num(np.max(e_xy_um)),
-            "mean_e_z_um": _num(np.mean(e_z_um)), "max_e_z_um": _num(np.max(e_z_um)),
-            "mean_e_xy_m": _num(np.mean(np.hypot(*(t["xyz_12"] - t["xyz_23"])[:, :2].T))),
-            "mean_e_z_m": _num(np.mean(np.abs(t["xyz_12"][:, 2] - t["xyz_23"][:, 2]))),
-        }
-        ids = t["point_ids"].tolist()
-        if pixel is not None:
-            txy, tz = triplet_tolerance(f, t["base_mm"], pixel)
-            entry.update({"tolerance_e_xy_um": txy * 1e3, "tolerance_e_z_um": tz * 1e3})
-            stages.append(check_stage(f"triplet {name}: E_xy", e_xy_um, ids, txy * 1e3, "mean",
-                                      unit="um"))
-            stages.append(check_stage(f"triplet {name}: E_z", e_z_um, ids, tz * 1e3, "mean",
-                                      unit="um"))
-        else:
-            stages.append(_na_stage(f"triplet {name}: E_xy", e_xy_um, ids, "mean", "um"))
-            stages.append(_na_stage(f"triplet {name}: E_z", e_z_um, ids, "mean", "um"))
-        trip_stats.append(entry)
-    for t in tskipped:
-        notes.append(f"images {'-'.join(t['images'])} share {t['n']} point(s) "
-                     f"(< {min_triplet_points}): triplet not checked")
-    if not trips:
-        stages.append(_na_stage("triplets", unit="um"))
-        if len(run.image_ids) < 3:
-            notes.append("triplets: fewer than 3 images, not evaluated")
-
-    # ---- block adjustment: control and check points
+    ro_stages, ro_notes, pair_stats = _relative_orientation_stages(
+        run, pairs, min_pair_points, pixel)
+    stages += ro_stages
+    notes += ro_notes
+    tr_stages, tr_notes, trip_stats = _triplet_stages(run, f, min_triplet_points, pixel)
+    stages += tr_stages
+    notes += tr_notes
     r_mm = _radius(run, spec, working_radius)
-    used, ids, res, roles = _block_inputs(run)
-    cqa = control_point_qa(ids, res, roles, spec, f, r_mm, point_rule=point_rule)
-    stages += cqa.stages
-    tolerances["block"] = cqa.tolerances.as_dict()
-    tolerances["block"]["unit"] = "m"
-    if spec.product != "topographic map":
-        dh, dh3 = orthophoto_dtm_tolerance(f, spec.product_scale, r_mm)
-        tolerances["orthophoto"] = {"focal_length_mm": f, "scale": spec.product_scale,
-                                    "working_radius_mm": r_mm, "dh_dtm_m": dh,
-                                    "block_z_m": dh3}
-        stages.append(_na_stage("orthophoto: DTM heights", unit="m", tolerance=dh))
-        notes.append(f"orthophoto: the DTM must hold dh_DTM = {dh:.3f} m (0.3 mm x f x M / r, "
-                     f"r = {r_mm:.1f} mm); DTM heights are not checked by vectoradjust")
-    if spec.product == "orthomosaic":
-        om = orthomosaic_tolerance(spec)
-        tolerances["orthomosaic"] = om.as_dict()
-        stages.append(_na_stage("orthomosaic: seamlines", unit="m", tolerance=om.seamline_m))
-        notes.append(f"orthomosaic: contour mismatch along seamlines must stay within "
-                     f"{om.seamline_mm} mm ({om.seamline_m:.2f} m); not measured by vectoradjust")
-    for note in cqa.tolerances.notes:
-        notes.append(f"block: {note}")
-    if not any(r == "check" for r in roles):
-        notes.append("block: no check points were intersected; only control points are judged")
+    cqa, used, bl_stages, bl_notes = _block_stages(run, spec, f, r_mm, point_rule, tolerances)
+    stages += bl_stages
+    notes += bl_notes
 
     verdict = qa_verdict(stages)
     return QAReport(verdict=verdict, spec=spec, pixel_size=pixel, pixel_size_source=pixel_src,
