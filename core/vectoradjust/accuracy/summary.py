@@ -193,7 +193,7 @@ COMPARE_COLUMNS = [
     ("mean_ce90", "CE90"), ("mean_le90", "LE90"), ("sigma0_squared", "s0^2"),
     ("chi_square_passed", "chi2 ok"), ("check_rmse_horizontal", "check h"),
     ("true_rmse", "true RMSE"), ("recovery", "recovery"), ("adjusted_truth_rmse", "adj-truth"),
-    ("improvement", "improve"),
+    ("improvement", "improve"), ("vce", "VCE"), ("offset", "offset"),
 ]
 
 
@@ -213,8 +213,20 @@ def compare_row(summary: dict) -> dict:
         "recovery": truth.get("recovery_rate"),
         "adjusted_truth_rmse": truth.get("rmse_adjusted_truth_horizontal"),
         "improvement": truth.get("improvement"),
+        "vce": _vce_state(summary.get("variance_components")),
+        "offset": (db.get("offset") or {}).get("statement", "-").split(" is ", 1)[-1],
         **_buffer_columns(truth.get("buffer")),
     }
+
+
+def _vce_state(vce) -> str:
+    """``-`` (no VCE), ``converged``, ``NOT converged`` and ``finding`` for a held group."""
+    if not vce:
+        return "-"
+    state = "converged" if vce.get("converged") else "NOT converged"
+    if vce.get("findings"):
+        state += " + finding"
+    return state
 
 
 def _buffer_columns(buf) -> dict:

@@ -22,6 +22,11 @@ __all__ = ["Solution", "solve"]
 
 Progress = Callable[[float, str], None]
 
+#: variance components of the well-known groups may move at most this factor from the
+#: stated sigma; beyond it they are held and a finding is reported (issue: a biased
+#: database must not make the control look 50 times worse than surveyed)
+VCE_BOUNDS = {"image": 3.0, "control": 3.0}
+
 
 @dataclass
 class Solution:
@@ -91,7 +96,8 @@ def _vce(problem, point_kind, point_db, db_results, adjust_kwargs, warnings):
         sel = (point_kind == "shape") & (point_db == d.name)
         labels[sel, :2] = f"{d.name}:h"
         labels[sel, 2] = f"{d.name}:v"
-    v = variance_components(problem, "image", labels.astype(str), adjust_kwargs=adjust_kwargs)
+    v = variance_components(problem, "image", labels.astype(str), adjust_kwargs=adjust_kwargs,
+                            bounds=VCE_BOUNDS)
     for note in v.notes:
         warnings.append(f"variance components: {note}")
     if not v.converged:
@@ -113,6 +119,9 @@ def _vce(problem, point_kind, point_db, db_results, adjust_kwargs, warnings):
                        "unit": "mm" if g == "image" else "m"}
                    for g in v.groups},
         "notes": list(v.notes),
+        "findings": [{k: f[k] for k in ("group", "estimated_ratio", "bound", "text")}
+                     for f in v.findings],
+        "bounds": dict(VCE_BOUNDS),
     }
     return v.problem, v.result, info
 

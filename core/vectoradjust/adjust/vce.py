@@ -79,7 +79,10 @@ class VCEResult:
     tol : float
         Convergence tolerance used.
     notes : list of str
-        Human-readable remarks (groups not estimable, non-convergence).
+        Human-readable remarks (groups not estimable, held at a bound, non-convergence).
+    findings : list of dict
+        Bounded groups held at their bound (``group``, ``estimated_ratio``, ``bound``,
+        ``text``).
     """
 
     result: BundleResult
@@ -97,6 +100,7 @@ class VCEResult:
     converged: bool
     tol: float = 1e-3
     notes: list = field(default_factory=list)
+    findings: list = field(default_factory=list)
 
     @property
     def factors(self) -> dict:
@@ -266,11 +270,34 @@ def _applied_factors(factors: dict, last_plain: dict, scale: dict, accelerate: b
     return applied
 
 
-def _frozen_notes(groups, estimable, frozen_at, scale, min_redundancy) -> list:
+def _hold_at_bounds(applied, scale, bounds, estimable, findings, factors, it) -> None:
+    """Hold a bounded group at its bound (updates applied, scale, estimable, findings)."""
+    for g, b in bounds.items():
+        if g not in scale or not estimable.get(g, False):
+            continue
+        s = scale[g]
+        if 1.0 / b <= s <= b:
+            continue
+        held = 1.0  # back to the stated sigma: a finding, not a weight to apply
+        applied[g] *= (held / s) ** 2
+        scale[g] = held
+        estimable[g] = False
+        findings.append({
+            "group": g, "iteration": it, "bound": float(b),
+            "estimated_ratio": float(s), "factor": float(factors[g]),
+            "text": (f"FINDING: the sigma of group {g!r} was estimated at {s:.3g} times its "
+                     f"stated value (bound {b:g}); the stated sigma is kept, the estimate is "
+                     "not applied. The observations disagree with the stated accuracy of this "
+                     "well-known group: look for a biased road database (estimate its "
+                     "offset), blunders in the measurements, or a wrong stated sigma"),
+        })
+
+
+def _frozen_notes(groups, estimable, frozen_at, scale, min_redundancy, held=()) -> list:
     """Notes on the groups that were not estimated (too little redundancy)."""
     notes = []
     for g in groups:
-        if not estimable[g]:
+        if not estimable[g] and g not in held:
             at, r_at = frozen_at[g]
             if at == 1:
                 notes.append(f"group {g!r} has a total redundancy of {r_at:.3g} (< "
@@ -307,6 +334,7 @@ def variance_components(
     min_redundancy: float = 1.0,
     accelerate: bool = True,
     adjust_kwargs: Optional[dict] = None,
+    bounds: Optional[dict] = None,
 ) -> VCEResult:
     """Estimate the variance factor of each observation group (Foerstner).
 
@@ -338,6 +366,13 @@ def variance_components(
         of an actual adjustment within ``tol`` of 1) are unchanged.
     adjust_kwargs : dict, optional
         Passed to :func:`vectoradjust.adjust.bundle.adjust`.
+    bounds : dict of str to float, optional
+        Safeguards for well-known groups, e.g. ``{"image": 3.0, "control": 3.0}``: a
+        group whose estimated sigma leaves ``[sigma / b, b sigma]`` of its stated value is
+        put back to its stated sigma and not estimated further, and a finding in ``notes``
+        (and ``findings``) says so: a control or image sigma estimated many times its stated
+        value means the data disagree (a biased database, a blunder), not that the
+        control is worse than surveyed.
 
     Returns
     -------
@@ -356,6 +391,7 @@ def variance_components(
     scale = {g: 1.0 for g in groups}
     estimable = {g: True for g in groups}
     frozen_at: dict = {}
+    findings: list = []
     last_plain: dict = {}  # log-factor of each group's last plain (unextrapolated) step
     history: list = []
     prob = problem
@@ -376,13 +412,16 @@ def variance_components(
         if it == max_iterations:
             break
         applied = _applied_factors(factors, last_plain, scale, accelerate)
+        _hold_at_bounds(applied, scale, bounds or {}, estimable, findings, factors, it)
         prob = _rescale(prob, applied, obs_lab, pt_lab, eo_lab)
-    notes = _frozen_notes(groups, estimable, frozen_at, scale, min_redundancy)
+    notes = _frozen_notes(groups, estimable, frozen_at, scale, min_redundancy,
+                          held=[f["group"] for f in findings])
+    notes.extend(f["text"] for f in findings)
     if not converged:
         notes.append(_nonconvergence_note(history, red, tol, max_iterations))
     return VCEResult(
         result=res, problem=prob, reliability=rel, groups=groups, history=history,
         scale=scale, sigma=_group_sigma(prob, obs_lab, pt_lab, eo_lab, groups),
         sigma_initial=sigma_initial, redundancy=red, count=cnt, estimable=estimable,
-        iterations=it, converged=converged, tol=float(tol), notes=notes,
+        iterations=it, converged=converged, tol=float(tol), notes=notes, findings=findings,
     )

@@ -1,0 +1,105 @@
+"""Do the road databases and the control agree? (issue: adding roads must do no harm)
+
+The same adjustment is repeated with control and tie points only (no shape points). If
+the databases only add information, the exterior orientation moves between the two
+solutions by no more than the difference of their covariances allows (Hausman's test
+for nested least-squares estimates: ``d = e_roads - e_control``,
+``Cov(d) = Q_control - Q_roads``, ``d' Cov(d)^+ d ~ chi^2(rank)`` with a-priori
+cofactors); check points are intersected from both. A significant test, or check
+points worse with the roads, means the databases pull the images away from the control
+(a biased database without an estimated offset, a wrong prior sigma): a finding that is
+reported, never silent. Numpy and scipy only.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+from scipy.stats import chi2
+
+from vectoradjust.adjust.bundle import adjust, intersect
+from vectoradjust.adjust.reliability import subset_problem
+from vectoradjust.results import AdjustmentRun
+
+__all__ = ["roads_versus_control", "HARM_RATIO"]
+
+#: check points with the roads may be at most this much worse before it is a finding
+HARM_RATIO = 1.05
+
+
+def _check_rmse(out: AdjustmentRun, eo: np.ndarray, check_obs) -> Optional[float]:
+    """Horizontal RMSE of the check points intersected from ``eo`` (None: none)."""
+    if check_obs is None:
+        return None
+    rows, ctrl_idx, img_idx = check_obs
+    cids, cinv = np.unique(ctrl_idx, return_inverse=True)
+    cinv = np.asarray(cinv).reshape(-1)
+    cnt = np.bincount(cinv, minlength=len(cids))
+    meas, cam = out.data.measurements, out.data.camera
+    xyz, _ = intersect(eo, cinv, img_idx, meas.xy[rows], meas.sigma[rows], len(cids),
+                       cam.focal_length, cam.principal_point)
+    ok = cnt >= 2
+    if not ok.any():
+        return None
+    d = xyz[ok, :2] - out.data.control.xyz[cids[ok], :2]
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+def roads_versus_control(out: AdjustmentRun, check_obs=None, alpha: float = 0.05,
+                         adjust_kwargs: Optional[dict] = None) -> Optional[dict]:
+    """Compare the adjustment with its control-and-tie-points-only twin.
+
+    Parameters
+    ----------
+    out : AdjustmentRun
+        A finished run with shape points.
+    check_obs : tuple of numpy.ndarray, optional
+        ``(measurement rows, control-file rows, adjusted-image index)`` of the check
+        point measurements, for the check point comparison.
+    alpha : float
+        Level of the test.
+    adjust_kwargs : dict, optional
+        Passed to the bundle adjustment.
+
+    Returns
+    -------
+    dict or None
+        ``eo_test`` (statistic, critical, degrees of freedom, passed),
+        ``check_rmse_with_roads``/``without_roads`` and their ratio, ``harm`` (bool) and
+        ``text``; None without shape points.
+    """
+    prob, res = out.problem, out.result
+    keep = out.point_kind != "shape"
+    if keep.all():
+        return None
+    sub, _, _ = subset_problem(prob, np.ones(len(prob.obs_point), bool), keep)
+    kw = dict(adjust_kwargs or {})
+    kw.pop("is_cancelled", None)
+    res0 = adjust(sub, compute_covariance=False, **kw)
+    d = (res.eo - res0.eo).ravel()
+    q = res0.s_inv - res.s_inv
+    w, v = np.linalg.eigh(0.5 * (q + q.T))
+    use = w > 1e-9 * max(float(w.max(initial=0.0)), 1e-300)
+    stat = float(np.sum((v[:, use].T @ d) ** 2 / w[use]))
+    dof = int(use.sum())
+    crit = float(chi2.ppf(1.0 - alpha, dof)) if dof else float("nan")
+    with_roads = _check_rmse(out, res.eo, check_obs)
+    without = _check_rmse(out, res0.eo, check_obs)
+    ratio = with_roads / without if with_roads is not None and without else None
+    passed = bool(stat <= crit) if dof else True
+    harm = (not passed) or (ratio is not None and ratio > HARM_RATIO)
+    text = (f"roads and control {'agree' if not harm else 'DISAGREE'}: the exterior "
+            f"orientation moved by chi2 = {stat:.1f} (critical {crit:.1f}, {dof} dof) when "
+            "the road databases were added")
+    if ratio is not None:
+        text += (f"; check points {with_roads:.3f} m with the roads, {without:.3f} m "
+                 f"without (ratio {ratio:.2f})")
+    if harm:
+        text += (". The databases pull the images away from the control: estimate their "
+                 "offsets (offset = \"shift\" in [[vectors]]), check their prior sigma, or "
+                 "adjust without them")
+    return {"eo_test": {"statistic": stat, "critical": crit, "degrees_of_freedom": dof,
+                        "alpha": alpha, "passed": passed},
+            "check_rmse_with_roads": with_roads, "check_rmse_without_roads": without,
+            "check_ratio": ratio, "harm": bool(harm), "text": text}
