@@ -176,12 +176,30 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
         raise _err(where, "[camera] is missing", "Add [camera] with focal_length (mm)")
     camera = _parse_camera(cam, base_dir, where)
 
-    corrections = raw.get("corrections", {}) or {}
+    corrections = _parse_corrections(raw.get("corrections", {}) or {}, where)
+    images = _parse_images(raw.get("images"), where)
+    meas = _parse_measurements(raw.get("measurements"), base_dir, where)
+    control = _parse_control(raw.get("control"), base_dir, where)
+    vectors = _parse_vectors(raw.get("vectors", []) or [], base_dir, where)
+    settings = _parse_adjustment(raw.get("adjustment", {}) or {}, where)
+
+    return ProjectSpec(
+        path=Path(path) if path else None, base_dir=base_dir, crs=crs.strip(), camera=camera,
+        camera_table=dict(cam), corrections=dict(corrections), images=images,
+        measurements=meas, control=control, vectors=vectors, settings=settings, raw=raw,
+    )
+
+
+def _parse_corrections(corrections: Any, where: str) -> dict:
+    """``[corrections]``: validated, returned as written."""
     if not isinstance(corrections, dict):
         raise _err(where, "[corrections] must be a table", "Write [corrections] refraction = true")
     parse_corrections(corrections, f"{where} [corrections]")  # validates keys and values
+    return corrections
 
-    images_raw = raw.get("images")
+
+def _parse_images(images_raw: Any, where: str) -> list:
+    """``[[images]]``: one :class:`ImageSpec` per entry, unique ids."""
     if not isinstance(images_raw, list) or not images_raw:
         raise _err(where, "no [[images]] entries", "Add one [[images]] table per image")
     images = []
@@ -205,19 +223,24 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
         sa = None if sa is None else _number(w, "sigma_attitude", sa, positive=True)
         date = im.get("date")
         images.append(ImageSpec(iid, pos, att, sp, sa, None if date is None else str(date)))
+    return images
 
-    meas = _parse_measurements(raw.get("measurements"), base_dir, where)
 
-    control = raw.get("control")
+def _parse_control(control: Any, base_dir: Path, where: str) -> Optional[dict]:
+    """``[control]`` (optional): its path resolved, further keys as written."""
     if control is not None:
         if not isinstance(control, dict) or "path" not in control:
             raise _err(where, "[control] has no path", 'Add [control] path = "gcps.csv"')
         control = dict(control)
         control["path"] = _resolve(base_dir, control["path"], where, "[control] path")
+    return control
 
+
+def _parse_vectors(vectors_raw: Any, base_dir: Path, where: str) -> list:
+    """``[[vectors]]``: one :class:`VectorSpec` per entry, unique names, paths resolved."""
     vectors = []
     names: set = set()
-    for i, v in enumerate(raw.get("vectors", []) or [], start=1):
+    for i, v in enumerate(vectors_raw, start=1):
         w = f"{where} [[vectors]] entry {i}"
         if not isinstance(v, dict):
             raise _err(w, "must be a table", "Write [[vectors]] name = ... path = ...")
@@ -237,8 +260,11 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
             truth=None if v.get("truth") is None else _resolve(base_dir, v["truth"], w, "truth"),
             layer=None if v.get("layer") is None else str(v["layer"]),
         ))
+    return vectors
 
-    adj = raw.get("adjustment", {}) or {}
+
+def _parse_adjustment(adj: Any, where: str) -> AdjustmentSettings:
+    """``[adjustment]``: the settings that differ from :class:`AdjustmentSettings`."""
     settings = AdjustmentSettings()
     if "max_iterations" in adj:
         mi = adj["max_iterations"]
@@ -279,12 +305,7 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
     for key in ("tolerance_position", "tolerance_angle", "merge_tolerance"):
         if key in adj:
             setattr(settings, key, _number(where, f"[adjustment] {key}", adj[key], positive=True))
-
-    return ProjectSpec(
-        path=Path(path) if path else None, base_dir=base_dir, crs=crs.strip(), camera=camera,
-        camera_table=dict(cam), corrections=dict(corrections), images=images,
-        measurements=meas, control=control, vectors=vectors, settings=settings, raw=raw,
-    )
+    return settings
 
 
 def _parse_measurements(meas: Any, base_dir: Path, where: str) -> dict:

@@ -343,29 +343,7 @@ class CameraCalibration:
                 path=source,
                 details={"key": "focal_length"},
             )
-        model, conv, center, coeffs = "none", "correction", None, {}
-        dist = d.get("distortion")
-        if dist is not None:
-            if isinstance(dist, str):
-                model = dist
-            elif isinstance(dist, Mapping):
-                model = dist.get("model", "none")
-                conv = dist.get("convention", "correction")
-                center = dist.get("center")
-                coeffs = {k: v for k, v in dist.items() if k not in _DISTORTION_META}
-                if "model" not in dist and coeffs:
-                    raise CameraError(
-                        f"{where}: [distortion] has coefficients but no model",
-                        f"Add model = one of {', '.join(repr(m) for m in DISTORTION_MODELS)}",
-                        path=source,
-                        details={"key": "distortion.model"},
-                    )
-            else:
-                raise CameraError(
-                    f"{where}: distortion must be a table or a model name, not {dist!r}",
-                    'Write [camera.distortion] with model = "smac" and the coefficients',
-                    path=source,
-                )
+        model, conv, center, coeffs = _distortion_table(d.get("distortion"), where, source)
         if not isinstance(model, str):
             raise CameraError(
                 f"{where}: distortion model must be a name, not {model!r}",
@@ -463,6 +441,35 @@ def _tomllib():
     except ModuleNotFoundError:  # pragma: no cover - Python < 3.11
         import tomli as tomllib
     return tomllib
+
+
+def _distortion_table(
+    dist: Any, where: str, source: str | None
+) -> tuple[Any, Any, Any, dict[str, Any]]:
+    """``distortion`` (a model name or a table) as model, convention, center, coefficients."""
+    model, conv, center, coeffs = "none", "correction", None, {}
+    if dist is not None:
+        if isinstance(dist, str):
+            model = dist
+        elif isinstance(dist, Mapping):
+            model = dist.get("model", "none")
+            conv = dist.get("convention", "correction")
+            center = dist.get("center")
+            coeffs = {k: v for k, v in dist.items() if k not in _DISTORTION_META}
+            if "model" not in dist and coeffs:
+                raise CameraError(
+                    f"{where}: [distortion] has coefficients but no model",
+                    f"Add model = one of {', '.join(repr(m) for m in DISTORTION_MODELS)}",
+                    path=source,
+                    details={"key": "distortion.model"},
+                )
+        else:
+            raise CameraError(
+                f"{where}: distortion must be a table or a model name, not {dist!r}",
+                'Write [camera.distortion] with model = "smac" and the coefficients',
+                path=source,
+            )
+    return model, conv, center, coeffs
 
 
 def _merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:

@@ -329,86 +329,14 @@ def refine_measurements(
     h, h_source = terrain_height_for(control, table_terrain if terrain_height is None
                                      else terrain_height)
     if need_heights:
-        wanted = " and ".join(k.replace("_", " ") for k in ("refraction", "earth_curvature")
-                              if switches[k])
-        if h is None:
-            raise ProjectError(
-                f"the {wanted} correction needs the mean terrain height, but there are no "
-                "control points and [corrections] has no terrain_height",
-                "Add terrain_height = <metres above sea level> to [corrections]",
-                details={"key": "terrain_height"})
-        low = [i for i in image_ids if not zl[i] > h]
-        if low:
-            raise CameraError(
-                f"image {low[0]!r}: flying height ZL = {zl[low[0]]:.1f} m is not above the "
-                f"terrain height {h:.1f} m ({h_source}), which the {wanted} correction needs",
-                "ZL of [[images]] position and the terrain height are both metres above sea "
-                "level: check them, or set [corrections] terrain_height",
-                details={"image_id": low[0]})
+        _check_heights(switches, h, h_source, image_ids, zl)
 
     fid_source = fiducials.source if fiducials is not None else None
-    xy_out = np.array(meas.xy, float, copy=True)
-    sigma_out = np.array(meas.sigma, float, copy=True)
-    per_image: list[dict[str, Any]] = []
-    step_max: dict[str, Optional[float]] = {}
-    applied_any: set = set()
     pp_bundle = (0.0, 0.0) if switches["principal_point"] else tuple(cal.principal_point)
-    io_failed: list[str] = []
-    io_checked = 0
-    for iid in image_ids:
-        rows = np.flatnonzero(meas.image_id == iid)
-        fit = None
-        fid_report = None
-        measured = fiducials.of_image(iid) if fiducials is not None else {}
-        if measured and switches["affine"]:
-            try:
-                fit = fit_fiducial_affine(measured, cal, unit=unit, image_id=iid)
-            except CameraError as exc:
-                raise CameraError(f"{fid_source}: {exc.what}", exc.mend, path=fid_source,
-                                  details=exc.details) from exc
-            fid_report, passed = _fiducial_report(fit, cal, unit, io_tolerance_px)
-            if passed is not None:
-                io_checked += 1
-                if not passed:
-                    io_failed.append(iid)
-        entry: dict[str, Any] = {
-            "id": iid,
-            "flying_height": zl[iid],
-            "points": int(rows.size),
-            "fiducials": fid_report,
-        }
-        if rows.size == 0 and fit is None:
-            entry.update({"applied": [], "corrections": {}, "sigma_mm": None})
-            per_image.append(entry)
-            continue
-        res = refine(meas.xy[rows], cal, affine=fit, unit=unit,
-                     flying_height=zl[iid] if need_heights else None,
-                     terrain_height=h if need_heights else None,
-                     corrections=switches, image_id=iid)
-        xy_out[rows] = res.xy
-        jac = _sigma_jacobian(fit, cal, unit, res.summary["applied"])
-        sigma_out[rows] = np.sqrt(meas.sigma[rows] ** 2 @ (jac**2).T)
-        sizes = {}
-        for step in res.summary["applied"]:
-            size = res.summary["corrections"][step]["max_um"]
-            sizes[step] = None if size is None else float(size)
-            applied_any.add(step)
-            if size is not None and rows.size:
-                step_max[step] = max(step_max.get(step) or 0.0, float(size))
-            else:
-                step_max.setdefault(step, None)
-        if "refraction" in res.summary["applied"]:
-            k = res.summary["corrections"]["refraction"].get("K_urad")
-            entry["refraction_K_urad"] = None if k is None else float(k)
-        entry.update({
-            "applied": list(res.summary["applied"]),
-            "corrections": sizes,
-            "sigma_mm": _mean_pair(sigma_out[rows]) if rows.size else None,
-        })
-        per_image.append(entry)
+    done = _refine_images(meas, fiducials, image_ids, zl, cal, unit, switches,
+                          h if need_heights else None, io_tolerance_px)
 
-    applied = [s for s in STEPS if s in applied_any]
-    out = Measurements(meas.point_id.copy(), meas.image_id.copy(), xy_out, sigma_out,
+    out = Measurements(meas.point_id.copy(), meas.image_id.copy(), done.xy, done.sigma,
                        source=meas.source, rows=None if meas.rows is None else meas.rows.copy())
     if unit == "pixel" and len(meas.sigma):
         notes.append("sigmas given in pixels were converted to mm through each image's "
@@ -418,19 +346,19 @@ def refine_measurements(
         "camera": _camera_report(cal),
         "corrections": {
             "requested": dict(switches),
-            "applied": applied,
-            "max_um": {s: step_max.get(s) for s in applied},
+            "applied": done.applied,
+            "max_um": {s: done.step_max.get(s) for s in done.applied},
         },
         "terrain_height": {"value": h, "source": h_source} if need_heights else None,
         "principal_point": [float(pp_bundle[0]), float(pp_bundle[1])],
-        "sigma": _sigma_report(unit, meas.sigma, sigma_out),
+        "sigma": _sigma_report(unit, meas.sigma, done.sigma),
         "io_check": {
             "tolerance_px": float(io_tolerance_px),
-            "images_checked": io_checked,
-            "passed": None if io_checked == 0 else not io_failed,
-            "failed_images": io_failed,
+            "images_checked": done.io_checked,
+            "passed": None if done.io_checked == 0 else not done.io_failed,
+            "failed_images": done.io_failed,
         },
-        "images": per_image,
+        "images": done.per_image,
         "fiducial_source": fid_source,
         "notes": notes,
     }
@@ -489,6 +417,119 @@ def describe_interior(report: Optional[Mapping[str, Any]]) -> list[str]:
 
 
 # ============================================================================ helpers
+class _ImagesDone(NamedTuple):
+    """What :func:`_refine_images` hands back to :func:`refine_measurements`."""
+
+    xy: np.ndarray
+    sigma: np.ndarray
+    per_image: list
+    step_max: dict
+    applied: list
+    io_checked: int
+    io_failed: list
+
+
+def _check_heights(switches: Mapping[str, bool], h: Optional[float], h_source: str,
+                   image_ids: list, zl: Mapping[str, float]) -> None:
+    """Raise unless there is a terrain height and every image flies above it."""
+    wanted = " and ".join(k.replace("_", " ") for k in ("refraction", "earth_curvature")
+                          if switches[k])
+    if h is None:
+        raise ProjectError(
+            f"the {wanted} correction needs the mean terrain height, but there are no "
+            "control points and [corrections] has no terrain_height",
+            "Add terrain_height = <metres above sea level> to [corrections]",
+            details={"key": "terrain_height"})
+    low = [i for i in image_ids if not zl[i] > h]
+    if low:
+        raise CameraError(
+            f"image {low[0]!r}: flying height ZL = {zl[low[0]]:.1f} m is not above the "
+            f"terrain height {h:.1f} m ({h_source}), which the {wanted} correction needs",
+            "ZL of [[images]] position and the terrain height are both metres above sea "
+            "level: check them, or set [corrections] terrain_height",
+            details={"image_id": low[0]})
+
+
+def _refine_images(meas: Measurements, fiducials: Optional[FiducialMeasurements],
+                   image_ids: list, zl: Mapping[str, float], cal: CameraCalibration,
+                   unit: str, switches: dict[str, bool], terrain: Optional[float],
+                   io_tolerance_px: float) -> _ImagesDone:
+    """Refine the measurements image by image (``terrain`` None: no height corrections)."""
+    fid_source = fiducials.source if fiducials is not None else None
+    xy_out = np.array(meas.xy, float, copy=True)
+    sigma_out = np.array(meas.sigma, float, copy=True)
+    per_image: list[dict[str, Any]] = []
+    step_max: dict[str, Optional[float]] = {}
+    applied_any: set = set()
+    io_failed: list[str] = []
+    io_checked = 0
+    for iid in image_ids:
+        rows = np.flatnonzero(meas.image_id == iid)
+        fit = None
+        fid_report = None
+        measured = fiducials.of_image(iid) if fiducials is not None else {}
+        if measured and switches["affine"]:
+            fit = _fit_image_fiducials(measured, cal, unit, iid, fid_source)
+            fid_report, passed = _fiducial_report(fit, cal, unit, io_tolerance_px)
+            if passed is not None:
+                io_checked += 1
+                if not passed:
+                    io_failed.append(iid)
+        entry: dict[str, Any] = {
+            "id": iid,
+            "flying_height": zl[iid],
+            "points": int(rows.size),
+            "fiducials": fid_report,
+        }
+        if rows.size == 0 and fit is None:
+            entry.update({"applied": [], "corrections": {}, "sigma_mm": None})
+            per_image.append(entry)
+            continue
+        res = refine(meas.xy[rows], cal, affine=fit, unit=unit,
+                     flying_height=zl[iid] if terrain is not None else None,
+                     terrain_height=terrain, corrections=switches, image_id=iid)
+        xy_out[rows] = res.xy
+        jac = _sigma_jacobian(fit, cal, unit, res.summary["applied"])
+        sigma_out[rows] = np.sqrt(meas.sigma[rows] ** 2 @ (jac**2).T)
+        sizes = _record_steps(res.summary, bool(rows.size), step_max, applied_any)
+        if "refraction" in res.summary["applied"]:
+            k = res.summary["corrections"]["refraction"].get("K_urad")
+            entry["refraction_K_urad"] = None if k is None else float(k)
+        entry.update({
+            "applied": list(res.summary["applied"]),
+            "corrections": sizes,
+            "sigma_mm": _mean_pair(sigma_out[rows]) if rows.size else None,
+        })
+        per_image.append(entry)
+    applied = [s for s in STEPS if s in applied_any]
+    return _ImagesDone(xy_out, sigma_out, per_image, step_max, applied, io_checked, io_failed)
+
+
+def _fit_image_fiducials(measured: dict, cal: CameraCalibration, unit: str, iid: str,
+                         fid_source: Optional[str]) -> AffineFit:
+    """Fiducial affine of one image; errors name the fiducial file."""
+    try:
+        return fit_fiducial_affine(measured, cal, unit=unit, image_id=iid)
+    except CameraError as exc:
+        raise CameraError(f"{fid_source}: {exc.what}", exc.mend, path=fid_source,
+                          details=exc.details) from exc
+
+
+def _record_steps(summary: Mapping[str, Any], has_points: bool,
+                  step_max: dict[str, Optional[float]], applied_any: set) -> dict:
+    """Sizes (um) of the steps applied to one image; updates the project-wide maxima."""
+    sizes = {}
+    for step in summary["applied"]:
+        size = summary["corrections"][step]["max_um"]
+        sizes[step] = None if size is None else float(size)
+        applied_any.add(step)
+        if size is not None and has_points:
+            step_max[step] = max(step_max.get(step) or 0.0, float(size))
+        else:
+            step_max.setdefault(step, None)
+    return sizes
+
+
 def _check_images(ids: np.ndarray, rows, source: str, image_ids: list) -> None:
     known = np.isin(ids, np.asarray(image_ids, dtype=str))
     bad = np.flatnonzero(~known)

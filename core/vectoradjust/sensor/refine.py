@@ -250,63 +250,10 @@ def fit_fiducial_affine(
                 details={"image_id": image_id, "key": "fiducials"},
             )
         calibrated = calibrated.fiducials
-    if isinstance(measured, Mapping):
-        if not isinstance(calibrated, Mapping):
-            raise TypeError("measured fiducials given by id need calibrated fiducials by id")
-        cal = {str(k): v for k, v in calibrated.items()}
-        ids = [str(k) for k in measured]
-        unknown = [i for i in ids if i not in cal]
-        if unknown:
-            raise CameraError(
-                f"{img}: measured fiducial id(s) {', '.join(repr(i) for i in unknown)} "
-                f"are not in the calibration (which has {', '.join(repr(i) for i in cal)})",
-                "Name the measured fiducials with the ids of the calibration report",
-                details={"image_id": image_id, "fiducials": unknown},
-            )
-        uv = np.array([_pair_of(measured[k], f"{img}, fiducial {k}") for k in measured], float)
-        xy = np.array([_pair_of(cal[i], f"calibrated fiducial {i}") for i in ids], float)
-    else:
-        uv = _as_xy(measured, f"{img}: measured fiducials").reshape(-1, 2)
-        xy = _as_xy(calibrated, "calibrated fiducials").reshape(-1, 2)
-        if uv.shape != xy.shape:
-            raise CameraError(
-                f"{img}: {len(uv)} measured but {len(xy)} calibrated fiducials",
-                "Give the measured and calibrated fiducials in the same order",
-                details={"image_id": image_id},
-            )
-        ids = [str(i) for i in range(len(uv))]
+    uv, xy, ids = _fiducial_pairs(measured, calibrated, img, image_id)
+    _check_fiducials(uv, xy, ids, img, image_id)
     n = len(ids)
-    if n < 3:
-        raise CameraError(
-            f"{img}: only {n} fiducial(s) measured"
-            + (f" ({', '.join(ids)})" if ids else ""),
-            "The 6-parameter affine needs at least 3 fiducials; measure 4 or more so "
-            "that the fit is checked",
-            details={"image_id": image_id, "count": n},
-        )
-    if not (np.all(np.isfinite(uv)) and np.all(np.isfinite(xy))):
-        raise CameraError(
-            f"{img}: a fiducial coordinate is not a finite number",
-            "Check the fiducial measurements",
-            details={"image_id": image_id},
-        )
-    # Centre the measured coordinates for conditioning (pixel values are large).
-    mean = uv.mean(axis=0)
-    d = uv - mean
-    sv = np.linalg.svd(d, compute_uv=False)
-    if sv[-1] <= 1e-9 * max(sv[0], 1e-300):
-        raise CameraError(
-            f"{img}: the measured fiducials {', '.join(ids)} lie on one line",
-            "Measure fiducials that span the image (corners and/or side midpoints)",
-            details={"image_id": image_id},
-        )
-    design = np.column_stack([np.ones(n), d])
-    coef, *_ = np.linalg.lstsq(design, xy, rcond=None)  # (3, 2): columns for x and y
-    lin = coef[1:].T  # [[a1, a2], [b1, b2]]
-    off = coef[0] - lin @ mean
-    params = np.array([off[0], lin[0, 0], lin[0, 1], off[1], lin[1, 0], lin[1, 1]])
-    fitted = uv @ lin.T + off
-    v = fitted - xy
+    params, v = _solve_affine(uv, xy, ids, img, image_id)
     redundancy = 2 * n - 6
     vtv = float(np.sum(v * v))
     rms_um = float(np.sqrt(vtv / (2 * n))) * 1000.0
@@ -341,6 +288,81 @@ def fit_fiducial_affine(
         image_id=image_id,
         note=note,
     )
+
+
+def _fiducial_pairs(measured: Any, calibrated: Any, img: str,
+                    image_id: str | None) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Measured and calibrated fiducials as matching ``(n, 2)`` arrays, and their ids."""
+    if isinstance(measured, Mapping):
+        if not isinstance(calibrated, Mapping):
+            raise TypeError("measured fiducials given by id need calibrated fiducials by id")
+        cal = {str(k): v for k, v in calibrated.items()}
+        ids = [str(k) for k in measured]
+        unknown = [i for i in ids if i not in cal]
+        if unknown:
+            raise CameraError(
+                f"{img}: measured fiducial id(s) {', '.join(repr(i) for i in unknown)} "
+                f"are not in the calibration (which has {', '.join(repr(i) for i in cal)})",
+                "Name the measured fiducials with the ids of the calibration report",
+                details={"image_id": image_id, "fiducials": unknown},
+            )
+        uv = np.array([_pair_of(measured[k], f"{img}, fiducial {k}") for k in measured], float)
+        xy = np.array([_pair_of(cal[i], f"calibrated fiducial {i}") for i in ids], float)
+    else:
+        uv = _as_xy(measured, f"{img}: measured fiducials").reshape(-1, 2)
+        xy = _as_xy(calibrated, "calibrated fiducials").reshape(-1, 2)
+        if uv.shape != xy.shape:
+            raise CameraError(
+                f"{img}: {len(uv)} measured but {len(xy)} calibrated fiducials",
+                "Give the measured and calibrated fiducials in the same order",
+                details={"image_id": image_id},
+            )
+        ids = [str(i) for i in range(len(uv))]
+    return uv, xy, ids
+
+
+def _check_fiducials(uv: np.ndarray, xy: np.ndarray, ids: list[str], img: str,
+                     image_id: str | None) -> None:
+    """Raise unless there are at least 3 fiducials with finite coordinates."""
+    n = len(ids)
+    if n < 3:
+        raise CameraError(
+            f"{img}: only {n} fiducial(s) measured"
+            + (f" ({', '.join(ids)})" if ids else ""),
+            "The 6-parameter affine needs at least 3 fiducials; measure 4 or more so "
+            "that the fit is checked",
+            details={"image_id": image_id, "count": n},
+        )
+    if not (np.all(np.isfinite(uv)) and np.all(np.isfinite(xy))):
+        raise CameraError(
+            f"{img}: a fiducial coordinate is not a finite number",
+            "Check the fiducial measurements",
+            details={"image_id": image_id},
+        )
+
+
+def _solve_affine(uv: np.ndarray, xy: np.ndarray, ids: list[str], img: str,
+                  image_id: str | None) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares affine ``uv -> xy``: parameters (a0, a1, a2, b0, b1, b2), residuals."""
+    n = len(ids)
+    # Centre the measured coordinates for conditioning (pixel values are large).
+    mean = uv.mean(axis=0)
+    d = uv - mean
+    sv = np.linalg.svd(d, compute_uv=False)
+    if sv[-1] <= 1e-9 * max(sv[0], 1e-300):
+        raise CameraError(
+            f"{img}: the measured fiducials {', '.join(ids)} lie on one line",
+            "Measure fiducials that span the image (corners and/or side midpoints)",
+            details={"image_id": image_id},
+        )
+    design = np.column_stack([np.ones(n), d])
+    coef, *_ = np.linalg.lstsq(design, xy, rcond=None)  # (3, 2): columns for x and y
+    lin = coef[1:].T  # [[a1, a2], [b1, b2]]
+    off = coef[0] - lin @ mean
+    params = np.array([off[0], lin[0, 0], lin[0, 1], off[1], lin[1, 0], lin[1, 1]])
+    fitted = uv @ lin.T + off
+    v = fitted - xy
+    return params, v
 
 
 def interior_orientation_check(
