@@ -134,3 +134,60 @@ def test_missing_identification_sigma_is_said(small_shift_run):
     warnings = small_shift_run.summary["warnings"]
     assert any("identification_sigma is not given" in w for w in warnings)
     assert small_shift_run.summary["databases"][0]["identification_sigma"] is None
+
+
+@pytest.mark.slow
+def test_roads_that_disagree_with_the_control_are_reported():
+    """A biased database without an offset moves the images: a finding with the check
+    point ratio; with the offset estimated, roads and control agree."""
+    _, out, _ = _biased(1, offset="none", ident=(0.5, 0.1), reweight="none")
+    rec = out.summary["roads_and_control"]
+    assert rec["harm"] and not rec["eo_test"]["passed"] and rec["check_ratio"] > 1.5
+    assert any("DISAGREE" in w for w in out.summary["warnings"])
+    _, out, _ = _biased(1, offset="shift", ident=(0.5, 0.1), reweight="none")
+    rec = out.summary["roads_and_control"]
+    assert not rec["harm"] and rec["eo_test"]["passed"]
+
+
+@pytest.mark.slow
+def test_the_roads_versus_control_test_rarely_alarms_on_unbiased_databases():
+    """Unbiased databases (iid noise): the EO test passes in at least 8 of 10 runs
+    (nominal 95 %)."""
+    passed = 0
+    for seed in range(10):
+        db = DatabaseModel("DB", "db_id", "db", 25.0, 0.5, (0.0, 0.0), 0.0, 0.0, 2.0)
+        sc = make_scenario(seed, databases=(db,), n_shape_points=300,
+                           shape_sigma=(2.0, 2.0, 2.0))
+        out = run(sc.to_project_data())
+        passed += out.summary["roads_and_control"]["eo_test"]["passed"]
+    assert passed >= 8
+
+
+def test_vce_holds_the_control_at_its_stated_sigma_when_the_data_disagree():
+    _, out, _ = _biased(1, offset="none", ident=None, reweight="vce", n_pts=800)
+    vce = out.summary["variance_components"]
+    assert any(f["group"] == "control" for f in vce["findings"])
+    assert vce["groups"]["control"]["sigma"] == pytest.approx(
+        vce["groups"]["control"]["sigma_initial"])
+    assert any("FINDING" in w for w in out.summary["warnings"])
+
+
+def test_project_file_keys_for_the_error_model(tmp_path):
+    from vectoradjust.errors import ProjectError
+    from vectoradjust.files.project import parse_project
+
+    base = {"crs": "EPSG:32616", "camera": {"focal_length": 152.4},
+            "images": [{"id": "L", "position": [0, 0, 800], "attitude": [0, 0, 0]}],
+            "measurements": {"path": "m.csv"}, "control": {"path": "c.csv"}}
+
+    def spec(**v):
+        raw = dict(base, vectors=[dict({"name": "OSM", "path": "r.shp"}, **v)])
+        return parse_project(raw, tmp_path, tmp_path / "p.toml").vectors[0]
+
+    assert spec().identification_sigma is None and spec().offset == "none"
+    assert spec(identification_sigma=0.5).identification_sigma == (0.5, 0.0)
+    assert spec(identification_sigma=[0.5, 0.2], offset="shift3d").offset == "shift3d"
+    with pytest.raises(ProjectError, match="identification_sigma"):
+        spec(identification_sigma=[0.5])
+    with pytest.raises(ProjectError, match="offset must be one of"):
+        spec(offset="affine")

@@ -26,6 +26,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from vectoradjust.accuracy.consistency import roads_versus_control
 from vectoradjust.accuracy.derived import feature_length_sigma
 from vectoradjust.accuracy.summary import offset_entry, reliability_summary, run_summary
 from vectoradjust.accuracy.tables import LE90_FACTOR, tabulate_control, tabulate_database
@@ -99,6 +100,23 @@ def _database_error_model(out: AdjustmentRun, solution) -> None:
             entry["offset"] = offset_entry(solution.offsets[d.name], d.name, alpha)
 
 
+def _roads_and_control(out: AdjustmentRun, cls, setup) -> None:
+    """Do the databases agree with the control? (the same run without shape points)."""
+    rows = np.flatnonzero(cls.is_check & (setup.imap[cls.img_of_obs] >= 0))
+    check_obs = ((rows, cls.ctrl_of_obs[rows], setup.imap[cls.img_of_obs[rows]])
+                 if rows.size else None)
+    s = out.data.settings
+    rec = roads_versus_control(out, check_obs, alpha=s.alpha, adjust_kwargs={
+        "max_iterations": s.max_iterations, "tolerance_position": s.tolerance_position,
+        "tolerance_angle": s.tolerance_angle})
+    if rec is None:
+        return
+    out.summary["roads_and_control"] = rec
+    if rec["harm"]:
+        out.warnings.append(rec["text"])
+        out.summary["warnings"].append(rec["text"])
+
+
 def run(
     data: ProjectData,
     *,
@@ -154,5 +172,6 @@ def run(
         tabulate_database(out, d)
     _derived(out)
     _summarise(out, solution)
+    _roads_and_control(out, cls, setup)
     report(1.0, "done")
     return out

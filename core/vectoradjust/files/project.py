@@ -259,8 +259,36 @@ def _parse_vectors(vectors_raw: Any, base_dir: Path, where: str) -> list:
             dem=None if v.get("dem") is None else _resolve(base_dir, v["dem"], w, "dem"),
             truth=None if v.get("truth") is None else _resolve(base_dir, v["truth"], w, "truth"),
             layer=None if v.get("layer") is None else str(v["layer"]),
+            identification_sigma=_identification(w, v.get("identification_sigma")),
+            offset=_offset_kind(w, v.get("offset", "none")),
         ))
     return vectors
+
+
+def _identification(where: str, value: Any):
+    """``identification_sigma``: a number (horizontal; vertical 0) or [horizontal, vertical]."""
+    if value is None:
+        return None
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = [value, 0.0]
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise _err(where, f"identification_sigma must be a number or [horizontal, vertical], "
+                   f"not {value!r}", "Write identification_sigma = 0.5 or [0.5, 0.1] (metres)")
+    h, v = (_number(where, "identification_sigma", x) for x in value)
+    if h < 0 or v < 0:
+        raise _err(where, f"identification_sigma must not be negative, not {value!r}",
+                   "Write identification_sigma = 0.5 or [0.5, 0.1] (metres)")
+    return (h, v)
+
+
+def _offset_kind(where: str, value: Any) -> str:
+    """``offset``: none | shift | shift3d."""
+    from vectoradjust.adjust.offsets import OFFSET_KINDS
+
+    if value not in OFFSET_KINDS:
+        raise _err(where, f"offset must be one of {', '.join(OFFSET_KINDS)}, not {value!r}",
+                   'Write offset = "shift" to estimate a horizontal shift of the database')
+    return str(value)
 
 
 def _parse_adjustment(adj: Any, where: str) -> AdjustmentSettings:
