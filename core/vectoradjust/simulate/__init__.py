@@ -3,19 +3,21 @@
 :func:`make_scenario` builds a stereo pair or block, GCPs, road databases with
 database, identification and image errors; :func:`write_project` writes it in the file
 contract; ``python -m vectoradjust.simulate OUT_DIR`` does both from the command line.
+
+Modules: :mod:`.scenario` (:func:`make_scenario` and the command line),
+:mod:`.geometry` (set-up, terrain, DEM, random streams), :mod:`.roads` (true roads and
+road databases), :mod:`.imaging` (orientation, image measurements, effects, scanning),
+:mod:`.container` (:class:`Scenario`), :mod:`.writer` (:func:`write_project`) and
+:mod:`.readme` (:func:`describe`).
 """
 
-from vectoradjust.simulate.scenario import (
-    DATABASES,
-    EFFECTS,
-    DatabaseModel,
-    Scenario,
-    describe,
-    main,
-    make_scenario,
-    terrain_height,
-    write_project,
-)
+from vectoradjust.simulate.container import Scenario
+from vectoradjust.simulate.geometry import terrain_height
+from vectoradjust.simulate.imaging import EFFECTS
+from vectoradjust.simulate.readme import describe
+from vectoradjust.simulate.roads import DATABASES, DatabaseModel
+from vectoradjust.simulate.scenario import main, make_scenario
+from vectoradjust.simulate.writer import write_project
 
 __all__ = ["DatabaseModel", "DATABASES", "EFFECTS", "Scenario", "make_scenario",
            "terrain_height", "write_project", "describe", "main"]
