@@ -191,3 +191,22 @@ def test_project_file_keys_for_the_error_model(tmp_path):
         spec(identification_sigma=[0.5])
     with pytest.raises(ProjectError, match="offset must be one of"):
         spec(offset="affine")
+
+
+def test_a_priori_covariances_are_the_cofactors():
+    """covariance_scale = "a-priori": the covariances are not shrunk by sigma0^2 < 1 (a
+    prior sigma that is too large would otherwise shrink every covariance)."""
+    db = DatabaseModel("DB", "db_id", "db", 25.0, 0.5, (0.0, 0.0), 0.0, 0.0, 1.0)
+    sc = make_scenario(4, databases=(db,), n_shape_points=300, shape_sigma=(3.0, 3.0, 3.0))
+    data = sc.to_project_data()
+    post = run(data)
+    prio = run(replace(data, settings=replace(data.settings, covariance_scale="a-priori")))
+    s0 = post.result.sigma0_squared
+    assert s0 < 0.9  # the 3 m prior is too large for 1 m noise
+    assert np.allclose(prio.result.point_cov, post.result.point_cov / s0)
+    assert np.allclose(prio.result.eo_cov, post.result.eo_cov / s0)
+    assert prio.summary["covariance_scale"]["scale"] == "a-priori"
+    assert prio.summary["covariance_scale"]["factor"] == 1.0
+    ce_ratio = prio.databases[0].vertices["CE90_meas"] / post.databases[0].vertices["CE90_meas"]
+    ok = np.isfinite(ce_ratio)
+    assert np.allclose(ce_ratio[ok], 1 / np.sqrt(s0))

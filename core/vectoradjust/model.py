@@ -266,6 +266,7 @@ class AdjustmentSettings:
     alpha0: float = 0.001
     beta0: float = 0.2
     max_removals: Optional[int] = None
+    covariance_scale: str = "a-posteriori"
 
 
 @dataclass

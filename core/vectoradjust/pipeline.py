@@ -28,7 +28,12 @@ import numpy as np
 
 from vectoradjust.accuracy.consistency import roads_versus_control
 from vectoradjust.accuracy.derived import feature_length_sigma
-from vectoradjust.accuracy.summary import offset_entry, reliability_summary, run_summary
+from vectoradjust.accuracy.summary import (
+    group_factors,
+    offset_entry,
+    reliability_summary,
+    run_summary,
+)
 from vectoradjust.accuracy.tables import LE90_FACTOR, tabulate_control, tabulate_database
 from vectoradjust.adjust.classify import build_problem, classify_measurements
 from vectoradjust.adjust.passes import solve
@@ -73,6 +78,18 @@ def _summarise(out: AdjustmentRun, solution) -> None:
         out.control_points["QA"] = np.asarray(control_qa_field(out, spec), dtype=object)
     out.summary = run_summary(out)
     out.summary["reliability"] = reliability_summary(out, data.settings)
+    out.summary["variance_factors"] = group_factors(out)
+    out.summary["covariance_scale"] = {
+        "scale": out.result.covariance_scale, "factor": out.result.variance_factor,
+        "meaning": ("covariances are the cofactors times sigma0^2 (a posteriori)"
+                    if out.result.covariance_scale == "a-posteriori" else
+                    "covariances are the cofactors (a priori: the stated sigmas are trusted)")}
+    chi = out.summary["chi_square"]
+    if chi.get("passed") is False:
+        note = (f"chi-square test failed (sigma0^2 = {out.summary['sigma0_squared']:.3f}): "
+                + out.summary["variance_factors"]["explanation"])
+        out.warnings.append(note)
+        out.summary["warnings"].append(note)
     if solution.vce is not None:
         out.summary["variance_components"] = solution.vce
     if solution.snooping is not None:

@@ -299,3 +299,53 @@ def offset_entry(rec: dict, name: str, alpha: float = 0.05) -> dict:
     text += "; significant" if entry["test"]["significant"] else "; not significant"
     entry["statement"] = text
     return entry
+
+
+# --------------------------------------------------------------------------- group factors
+def group_factors(out: AdjustmentRun) -> dict:
+    """``v'Pv / r`` of every observation group: which stated sigma the data contradict.
+
+    Groups: image coordinates, control points, each database's horizontal and vertical
+    shape point priors, and the exterior orientation priors. A factor near 1 means the
+    group's stated sigma fits its residuals; the chi-square test of the run is the
+    redundancy-weighted mean of these factors, so when it fails they say why. A factor
+    is flagged when it is more than 3 standard deviations (``sqrt(2 / r)``) from 1.
+
+    Returns
+    -------
+    dict
+        ``{"groups": {name: {vtpv, redundancy, factor, count, flagged}}, "explanation"}``.
+    """
+    from vectoradjust.adjust.vce import group_statistics
+
+    res, rel = out.result, out.reliability
+    m = res.problem.n_points
+    lab = np.full((m, 3), "", dtype=object)
+    lab[out.point_kind == "control"] = "control"
+    groups = ["image", "control"]
+    for d in out.databases:
+        sel = (out.point_kind == "shape") & (out.point_database == d.name)
+        lab[sel, :2] = f"{d.name}:h"
+        lab[sel, 2] = f"{d.name}:v"
+        groups += [f"{d.name}:h", f"{d.name}:v"]
+    obs = np.full(len(res.problem.obs_point), "image", dtype=object)
+    eo = np.full((res.problem.n_images, 6), "exterior orientation priors", dtype=object)
+    groups.append("exterior orientation priors")
+    vtpv, red, cnt = group_statistics(res, rel, obs.astype(str), lab.astype(str),
+                                      eo.astype(str), groups)
+    table, flagged = {}, []
+    for g in groups:
+        if cnt[g] == 0:
+            continue
+        f = vtpv[g] / red[g] if red[g] > 0 else float("nan")
+        bad = bool(red[g] >= 1.0 and abs(f - 1.0) > 3.0 * np.sqrt(2.0 / red[g]))
+        table[g] = {"vtpv": vtpv[g], "redundancy": red[g], "factor": float_or_none(f),
+                    "count": cnt[g], "flagged": bad}
+        if bad:
+            flagged.append(f"{g} {f:.2f} (r = {red[g]:.1f})")
+    text = ("every group's residuals fit its stated sigma" if not flagged else
+            "v'Pv / r far from 1 for: " + ", ".join(flagged) + " - a factor below 1 means "
+            "the stated sigma is too large (e.g. DEM heights after two-pass, whose pass-1 "
+            "residuals include the stereo height error; uninformative exterior orientation "
+            "priors), above 1 too small; reweight = \"vce\" estimates them")
+    return {"groups": table, "explanation": text}

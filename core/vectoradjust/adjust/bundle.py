@@ -238,11 +238,27 @@ class BundleResult:
     a_pt: Optional[np.ndarray] = None
     problem: Optional[BundleProblem] = None
 
+    #: "a-posteriori" (cofactors times sigma0^2) or "a-priori" (times 1)
+    covariance_scale: str = "a-posteriori"
+
     @property
     def variance_factor(self) -> float:
-        """The factor applied to cofactors: sigma0^2, or 1 when dof = 0."""
+        """The factor applied to cofactors: sigma0^2 (1 when dof = 0, or a-priori)."""
+        if self.covariance_scale == "a-priori":
+            return 1.0
         s = self.sigma0_squared
         return float(s) if np.isfinite(s) else 1.0
+
+    def set_covariance_scale(self, scale: str) -> None:
+        """Scale the covariances a posteriori (by sigma0^2) or a priori (by 1), in place."""
+        if scale not in ("a-posteriori", "a-priori"):
+            raise ValueError(f"covariance scale {scale!r}: use 'a-posteriori' or 'a-priori'")
+        old = self.variance_factor
+        self.covariance_scale = scale
+        ratio = self.variance_factor / old
+        self.eo_cov = self.eo_cov * ratio
+        if self.point_cov is not None:
+            self.point_cov = self.point_cov * ratio
 
     def joint_covariance(self, points) -> np.ndarray:
         """Full a-posteriori covariance of a set of object points.

@@ -69,12 +69,26 @@ def _pass_record(label, result: BundleResult, iterations: int, dbs: list) -> dic
 
 
 def _reweight_two_pass(setup: BundleSetup, result: BundleResult) -> None:
-    """Each database's sigma per axis <- RMS of its residuals along it (in place)."""
+    """Each database's sigma per axis <- sqrt(sum v^2 / sum r) of its residuals (in place).
+
+    ``r`` are the redundancy numbers of the shape point priors along that axis: the
+    residuals of a prior that shares its redundancy with the images are smaller than the
+    prior's error, so the plain RMS (``sum v^2 / n``) would underestimate its sigma;
+    ``sum v^2 / sum r`` is the Foerstner estimate (one step of variance component
+    estimation), the same as the RMS when the priors are light (``r ~ 1``).
+    """
+    from vectoradjust.adjust.reliability import reliability
+
+    r_point = reliability(result).r_point
     weight = setup.problem.prior_weight.copy()
     for d in setup.databases:
         m = setup.point_database == d.name
         v = result.v_point[m]
-        new = np.sqrt(np.mean(v**2, axis=0)) if len(v) else np.asarray(d.sigma_used)
+        red = r_point[m].sum(axis=0) if len(v) else np.zeros(3)
+        if len(v) and np.all(red > 0.5):
+            new = np.sqrt(np.sum(v**2, axis=0) / red)
+        else:
+            new = np.sqrt(np.mean(v**2, axis=0)) if len(v) else np.asarray(d.sigma_used)
         new = np.maximum(new, 1e-3)
         d.sigma_used = tuple(float(s) for s in new)
         idx = np.flatnonzero(m)
@@ -288,6 +302,7 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
         progress(0.65, "data snooping")
         sol.result, sol.snooping = _snoop(setup, settings, adjust_kwargs, image_ids, meas,
                                           warnings)
+    sol.result.set_covariance_scale(settings.covariance_scale)
     if model is not None:
         sol.offsets = _offset_record(model, state, sol.result)
     sol.problem = setup.problem

@@ -330,6 +330,12 @@ def _parse_adjustment(adj: Any, where: str) -> AdjustmentSettings:
             raise _err(where, f"[adjustment] max_removals must be a whole number >= 0, not {mr!r}",
                        "Write max_removals = 10")
         settings.max_removals = mr
+    if "covariance_scale" in adj:
+        cs = adj["covariance_scale"]
+        if cs not in ("a-posteriori", "a-priori"):
+            raise _err(where, f"[adjustment] covariance_scale = {cs!r} is not known",
+                       'Use "a-posteriori" (times sigma0^2) or "a-priori"')
+        settings.covariance_scale = cs
     for key in ("tolerance_position", "tolerance_angle", "merge_tolerance"):
         if key in adj:
             setattr(settings, key, _number(where, f"[adjustment] {key}", adj[key], positive=True))
