@@ -210,3 +210,21 @@ def test_a_priori_covariances_are_the_cofactors():
     ce_ratio = prio.databases[0].vertices["CE90_meas"] / post.databases[0].vertices["CE90_meas"]
     ok = np.isfinite(ce_ratio)
     assert np.allclose(ce_ratio[ok], 1 / np.sqrt(s0))
+
+
+@pytest.mark.slow
+def test_identification_sigma_is_estimated_from_truth_and_common_intersections():
+    a = DatabaseModel("A", "a_id", "a", 20.0, 0.5, (3.0, 2.0), 0.0, 0.0, 1.5)
+    b = DatabaseModel("B", "b_id", "b", 25.0, 0.5, (-1.0, 1.0), 0.0, 0.0, 2.0)
+    sc = make_scenario(2, databases=(a, b), n_shape_points=2000, pointing_sigma=0.5,
+                       shape_sigma=(3.0, 3.0, 3.0))
+    out = run(_with(sc.to_project_data(), offset="shift"))
+    est = out.summary["identification_estimates"]
+    for name in ("A", "B"):  # from the truth tables: 0.513 and 0.511 measured
+        e = est["databases"][name]
+        assert abs(e["horizontal"] - 0.5) < 3 * e["horizontal_se"] + 0.02
+    (pair,) = est["pairs"]  # two databases measured separately at the same crossings
+    assert pair["count"] >= 30
+    assert abs(pair["horizontal"] - 0.5) < 3 * pair["horizontal_se"] + 0.02  # 0.469 measured
+    warn = [w for w in out.summary["warnings"] if "identification_sigma is not given" in w]
+    assert warn and "the data suggest" in warn[0]

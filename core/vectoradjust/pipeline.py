@@ -28,6 +28,7 @@ import numpy as np
 
 from vectoradjust.accuracy.consistency import roads_versus_control
 from vectoradjust.accuracy.derived import feature_length_sigma
+from vectoradjust.accuracy.identification import identification_estimates
 from vectoradjust.accuracy.summary import (
     group_factors,
     offset_entry,
@@ -100,18 +101,43 @@ def _summarise(out: AdjustmentRun, solution) -> None:
     out.summary["accuracy"] = accuracy_statements(out)
 
 
+def _warn(out: AdjustmentRun, note: str) -> None:
+    out.warnings.append(note)
+    out.summary["warnings"].append(note)
+
+
+def _identification(out: AdjustmentRun, d, entry: dict, estimates: dict) -> None:
+    """The stated identification sigma, the data's estimates, and what to say about them."""
+    ident = d.spec.identification_sigma
+    entry["identification_sigma"] = list(map(float, ident)) if ident is not None else None
+    found = [e for e in [estimates["databases"].get(d.name)] if e] + [
+        e for e in estimates["pairs"] if d.name in e["source"].split(" ", 2)[-1].split("/")]
+    entry["identification_estimates"] = found
+    said = "; ".join(f"{e['horizontal']:.2f} +- {e['horizontal_se']:.2f} m horizontal from "
+                     f"{e['source']} (n = {e['count']})" for e in found
+                     if e["horizontal"] is not None)
+    if ident is None and entry["adjusted_vertices"]:
+        _warn(out, f"{d.name}: identification_sigma is not given, so CE90/LE90 describe the "
+              "measured point only, not the real road vertex (set identification_sigma in "
+              "its [[vectors]] entry; README: identification error)"
+              + (f"; the data suggest {said}" if said else ""))
+    elif ident is not None:
+        for e in found:
+            if e["horizontal"] is None:
+                continue
+            if abs(e["horizontal"] - ident[0]) > 3 * e["horizontal_se"] + 0.05:
+                _warn(out, f"{d.name}: identification_sigma = {ident[0]:g} m (horizontal) "
+                      f"disagrees with {e['horizontal']:.2f} +- {e['horizontal_se']:.2f} m "
+                      f"estimated from {e['source']}")
+
+
 def _database_error_model(out: AdjustmentRun, solution) -> None:
     """Offsets and identification error per database in the summary (DESIGN section 10)."""
     alpha = out.data.settings.alpha
+    estimates = identification_estimates(out)
+    out.summary["identification_estimates"] = estimates
     for d, entry in zip(out.databases, out.summary["databases"]):
-        ident = d.spec.identification_sigma
-        entry["identification_sigma"] = list(map(float, ident)) if ident is not None else None
-        if ident is None and entry["adjusted_vertices"]:
-            note = (f"{d.name}: identification_sigma is not given, so CE90/LE90 describe the "
-                    "measured point only, not the real road vertex (set identification_sigma "
-                    "in its [[vectors]] entry; README: identification error)")
-            out.warnings.append(note)
-            out.summary["warnings"].append(note)
+        _identification(out, d, entry, estimates)
         entry["offset_model"] = d.spec.offset
         if solution.offsets and d.name in solution.offsets:
             entry["offset"] = offset_entry(solution.offsets[d.name], d.name, alpha)

@@ -431,7 +431,7 @@ def shape_point_sigma(base, sigma_xy, sigma_z):
 
 
 def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field="",
-                    sigma_xy=None, sigma_z=None, dem=None, truth=None):
+                    sigma_xy=None, sigma_z=None, dem=None, truth=None, error_model=None):
     """Read a road layer parameter (a feature source) for the adjustment.
 
     Parameters
@@ -450,6 +450,9 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
         DEM for the heights (default the entry's DEM).
     truth : tuple or None
         Truth table (ids, xyz) (default the entry's).
+    error_model : dict or None
+        ``{"identification": (h, v) or None, "offset": str or None}`` from the dialog
+        (None: the entry's identification_sigma and offset).
 
     Returns
     -------
@@ -473,9 +476,13 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
             dem, line_layer.coords[:, :2], prj.crs, context, f"DEM {dem.name()!r}")
     if truth is None and entry is not None and entry.truth:
         truth = read_truth_points(entry.truth)
+    em = error_model or {}
+    ident = em.get("identification") or (entry.identification_sigma if entry else None)
+    offset = em.get("offset") or (entry.offset if entry else "none")
     spec = VectorSpec(name=name, path=qgis_io.layer_path(vlayer) or where, id_field=id_field,
                       sigma=sigma, dem=dem.source() if dem is not None else None,
-                      truth=entry.truth if entry else None)
+                      truth=entry.truth if entry else None, identification_sigma=ident,
+                      offset=offset)
     return RoadDatabase(spec, line_layer, fields, source.wkbType(), entry, truth, where)
 
 
@@ -584,6 +591,11 @@ NAME = "NAME"
 DEM = "DEM"
 SIGMA_XY = "SIGMA_XY"
 SIGMA_Z = "SIGMA_Z"
+IDENT_XY = "IDENTIFICATION_SIGMA_XY"
+IDENT_Z = "IDENTIFICATION_SIGMA_Z"
+OFFSET = "OFFSET"
+#: the Database offset choices; the first takes the project's [[vectors]] entry
+OFFSET_CHOICES = ["as in the project (default: none)", "none", "shift", "shift3d"]
 
 
 def add_road_parameters(alg, optional=False):
@@ -607,10 +619,31 @@ def add_road_parameters(alg, optional=False):
     alg.addParameter(QgsProcessingParameterNumber(
         SIGMA_Z, "Prior sigma of the shape points, vertical [m] (default 10)",
         QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
+    alg.addParameter(QgsProcessingParameterNumber(
+        IDENT_XY, "Identification sigma, horizontal [m]: where the measured point is relative "
+        "to the real road vertex (default: the project's identification_sigma, else none)",
+        QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
+    p = QgsProcessingParameterNumber(
+        IDENT_Z, "Identification sigma, vertical [m] (default: the project's, else 0)",
+        QgsProcessingParameterNumber.Double, optional=True, minValue=0.0)
+    p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+    alg.addParameter(p)
+    alg.addParameter(QgsProcessingParameterEnum(
+        OFFSET, "Database offset estimated with the adjustment (shift: a horizontal shift "
+        "of the whole database)", options=OFFSET_CHOICES, defaultValue=0))
     p = QgsProcessingParameterString(NAME, "Database name (default: layer name)",
                                      optional=True)
     p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
     alg.addParameter(p)
+
+
+def road_error_model(alg, parameters, context) -> dict:
+    """Identification sigma and offset chosen in the dialog (None: the project's)."""
+    h = _number(alg, parameters, IDENT_XY, context)
+    v = _number(alg, parameters, IDENT_Z, context)
+    choice = alg.parameterAsEnum(parameters, OFFSET, context) if OFFSET in parameters else 0
+    return {"identification": None if h is None and v is None else (h or 0.0, v or 0.0),
+            "offset": None if choice == 0 else OFFSET_CHOICES[choice]}
 
 
 @dataclass
@@ -659,7 +692,8 @@ def run_adjustment(alg, parameters, context, feedback, *, road_optional=False, s
             id_field=alg.parameterAsString(parameters, ID_FIELD, context),
             sigma_xy=_number(alg, parameters, SIGMA_XY, context),
             sigma_z=_number(alg, parameters, SIGMA_Z, context),
-            dem=alg.parameterAsRasterLayer(parameters, DEM, context))
+            dem=alg.parameterAsRasterLayer(parameters, DEM, context),
+            error_model=road_error_model(alg, parameters, context))
         given.append(road)
     check_cancelled(feedback)
     data = project_data_with(prj, given, context, feedback)

@@ -1432,6 +1432,45 @@ def _qa_body(qa: Any) -> str:
     return "".join(out)
 
 
+def _error_model_rows(s: dict) -> list:
+    """One row per database: identification sigma (stated / estimated) and offset."""
+    rows = []
+    for db in s.get("databases") or []:
+        ident = db.get("identification_sigma")
+        est = "; ".join(f"{e['horizontal']:.2f} \u00b1 {e['horizontal_se']:.2f} m "
+                        f"({e['source']}, n = {e['count']})"
+                        for e in db.get("identification_estimates") or []
+                        if e.get("horizontal") is not None)
+        off = db.get("offset") or {}
+        rows.append([db.get("name"),
+                     "not given" if ident is None else f"{ident[0]:g} / {ident[1]:g} m",
+                     est or "-", db.get("offset_model", "none"),
+                     off.get("statement", "not estimated")])
+    return rows
+
+
+def _error_model_body(run) -> str:
+    """Identification error, database offsets, roads versus control, group factors."""
+    s = run.summary or {}
+    parts = [_table(["database", "identification \u03c3 (h / v)",
+                     "identification \u03c3 from the data", "offset model", "offset"],
+                    _error_model_rows(s))]
+    rc = s.get("roads_and_control")
+    if rc:
+        parts.append(_note(rc["text"]))
+    vf = (s.get("variance_factors") or {}).get("groups") or {}
+    if vf:
+        parts.append(_table(["group", "v'Pv", "redundancy r", "v'Pv / r", "flagged"],
+                            [[g, _fmt(e["vtpv"], 2), _fmt(e["redundancy"], 2),
+                              _fmt(e["factor"], 3), "yes" if e["flagged"] else ""]
+                             for g, e in vf.items()]))
+        parts.append(_note(s["variance_factors"].get("explanation", "")))
+    cs = s.get("covariance_scale")
+    if cs:
+        parts.append(_note(f"{cs['meaning']} (factor {cs['factor']:.4g})."))
+    return "".join(parts)
+
+
 def _warnings_body(run) -> str:
     ws = list(dict.fromkeys(list(run.summary.get("warnings") or []) + list(run.warnings or [])))
     if not ws:
@@ -1450,6 +1489,8 @@ def _run_sections(doc: _Doc, run, *, acc: Optional[dict], qa: Any, reliability: 
     sec(f"{prefix}check-points", "Check points", _control_body(run, "check", prefix), level)
     sec(f"{prefix}databases", "Road databases", _databases_body(run, prefix, colors,
                                                                  with_bars=with_bars), level)
+    sec(f"{prefix}error-model", "Error model: identification, offsets, variance factors",
+        _error_model_body(run), level)
     sec(f"{prefix}accuracy", "Accuracy statements", _accuracy_body(acc), level)
     sec(f"{prefix}precision", "Precision of the adjusted points",
         _img(error_ellipse_figure(run, colors=colors), "error ellipses",
