@@ -228,3 +228,66 @@ def test_identification_sigma_is_estimated_from_truth_and_common_intersections()
     assert abs(pair["horizontal"] - 0.5) < 3 * pair["horizontal_se"] + 0.02  # 0.469 measured
     warn = [w for w in out.summary["warnings"] if "identification_sigma is not given" in w]
     assert warn and "the data suggest" in warn[0]
+
+
+def _dense_with_offsets(out):
+    """A, P and the inverse of N of the adjustment with the offsets as unknowns."""
+    prob, res = out.problem, out.result
+    a, p = _dense(prob, res.eo, res.xyz)
+    a = np.hstack([a, np.zeros((a.shape[0], 2))])
+    k_img = 2 * len(prob.obs_point)
+    has = np.flatnonzero(prob.has_prior)
+    row_of = {j: k_img + 3 * r for r, j in enumerate(has)}
+    for j in np.flatnonzero(out.point_kind == "shape"):
+        a[row_of[j] + 0, -2] = 1.0
+        a[row_of[j] + 1, -1] = 1.0
+    return a, p, np.linalg.inv(a.T @ p @ a)
+
+
+def test_reliability_and_joint_covariances_include_the_offsets(small_shift_run):
+    from vectoradjust.accuracy.derived import cross_covariance
+    from vectoradjust.adjust.reliability import reliability
+
+    out = small_shift_run
+    prob, res = out.problem, out.result
+    a, p, q = _dense_with_offsets(out)
+    r_dense = np.diag(np.eye(len(p)) - a @ q @ a.T @ p)
+    rel = reliability(res)
+    assert rel.sum_r == pytest.approx(res.dof, abs=1e-6)  # sum of r = n - u with offsets
+    k = 2 * len(prob.obs_point)
+    assert np.allclose(rel.r_image.ravel(), r_dense[:k], atol=1e-8)
+    has = np.flatnonzero(prob.has_prior)
+    assert np.allclose(rel.r_point[has].ravel(), r_dense[k:k + 3 * len(has)], atol=1e-8)
+    s0 = res.sigma0_squared
+    n = prob.n_images
+    pts = np.flatnonzero(out.point_kind == "shape")[[0, 3, 7]]
+    idx = np.concatenate([6 * n + 3 * j + np.arange(3) for j in pts])
+    assert np.allclose(res.joint_covariance(pts), s0 * q[np.ix_(idx, idx)], rtol=1e-6,
+                       atol=1e-12)
+    cc = cross_covariance(res, pts[[0, 0]], pts[[1, 0]])
+    o0, o1 = 6 * n + 3 * pts[0], 6 * n + 3 * pts[1]
+    assert np.allclose(cc[0], s0 * q[o0:o0 + 3, o1:o1 + 3], rtol=1e-6, atol=1e-12)
+    assert np.allclose(cc[1], s0 * q[o0:o0 + 3, o0:o0 + 3], rtol=1e-6, atol=1e-12)
+
+
+def test_length_sigma_with_offsets_matches_the_joint_covariance(small_shift_run):
+    """LengthSD from the structured formula (offsets' share included) equals g' C g with
+    the dense joint covariance of the feature's measured vertices."""
+    out = small_shift_run
+    d = out.databases[0]
+    layer = d.shape.layer
+    nadj = d.features["NAdj"]
+    f = int(np.flatnonzero((nadj == d.features["NPts"]) & (nadj >= 3))[0])
+    v = np.flatnonzero(layer.vertex_feature == f)
+    xy = d.adjusted_coords[v, :2]
+    seg = np.diff(xy, axis=0)
+    u = seg / np.linalg.norm(seg, axis=1)[:, None]
+    g = np.zeros((len(v), 3))
+    g[:-1, :2] -= u
+    g[1:, :2] += u
+    pts, inv = np.unique(d.vertex_point[v], return_inverse=True)
+    gp = np.zeros((len(pts), 3))
+    np.add.at(gp, inv, g)
+    c = out.result.joint_covariance(pts)
+    assert d.features["LengthSD"][f] == pytest.approx(float(np.sqrt(gp.ravel() @ c @
+                                                                    gp.ravel())), rel=1e-8)

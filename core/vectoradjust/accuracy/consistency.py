@@ -78,7 +78,7 @@ def roads_versus_control(out: AdjustmentRun, check_obs=None, alpha: float = 0.05
     kw.pop("is_cancelled", None)
     res0 = adjust(sub, compute_covariance=False, **kw)
     d = (res.eo - res0.eo).ravel()
-    q = res0.s_inv - res.s_inv
+    q = res0.s_inv - res.eo_cofactor()
     w, v = np.linalg.eigh(0.5 * (q + q.T))
     # directions the roads do not inform have eigenvalues ~1e-7 of the largest and only
     # convergence noise in d; they are left out of the test

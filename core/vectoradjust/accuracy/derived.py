@@ -172,6 +172,7 @@ def cross_covariance(result: BundleResult, pa, pb) -> np.ndarray:
     cov = np.einsum("mij,mjk,mkl->mil", result.npp_inv[pa], acc, result.npp_inv[pb])
     same = pa == pb
     cov[same] += result.npp_inv[pa[same]]
+    cov += result.offset_cross(pa, pb)  # database offsets (zero without)
     return result.variance_factor * cov
 
 
@@ -288,6 +289,11 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult,
         bm = _block_sum((feat[sel] - f0) * n + prob.obs_image[obs[sel]], contrib[sel],
                         (f1 - f0) * n).reshape(f1 - f0, 6 * n)
         quad[f0:f1] = np.einsum("fi,fi->f", bm @ res.s_inv, bm)
+    if res.offset_cofactor is not None:  # the database offsets' share
+        hq = np.einsum("mi,miq->mq", g, res.offset_qb[pp])
+        hq = np.stack([np.bincount(pf, weights=hq[:, c], minlength=nf)
+                       for c in range(hq.shape[1])], axis=1)
+        quad += np.einsum("fq,qr,fr->f", hq, res.offset_cofactor, hq)
     var = res.variance_factor * (diag + quad)
     sd[has] = np.sqrt(np.clip(var[has], 0.0, None))
     sd_nc[has] = np.sqrt(np.clip(var_nc[has], 0.0, None))
@@ -1071,7 +1077,7 @@ def equal_error_grid(
     ia, ib = _pair_indices(run, image_pair)
     eo = res.eo[[ia, ib]]
     sel = np.r_[6 * ia:6 * ia + 6, 6 * ib:6 * ib + 6]
-    cee = res.variance_factor * res.s_inv[np.ix_(sel, sel)]
+    cee = res.variance_factor * res.eo_cofactor()[np.ix_(sel, sel)]
     on_pair = np.isin(prob.obs_image, [ia, ib])
     sig = float(np.median(prob.obs_sigma[on_pair])) if on_pair.any() else \
         float(np.median(prob.obs_sigma))

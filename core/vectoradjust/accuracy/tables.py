@@ -49,7 +49,7 @@ def _intersect_check_points(out: AdjustmentRun, ctrl_of_obs, is_check, img_of_ob
     cinv = np.asarray(cinv).reshape(-1)
     cnt = np.bincount(cinv, minlength=len(cids))
     n_img = res.eo.shape[0]
-    eo_cov_full = res.variance_factor * res.s_inv
+    eo_cov_full = res.variance_factor * res.eo_cofactor()
     assert eo_cov_full.shape == (6 * n_img, 6 * n_img)
     xyz_c, cov_c = intersect(res.eo, cinv, imap[img_of_obs[chk]], meas.xy[chk],
                              meas.sigma[chk], len(cids), data.camera.focal_length,

@@ -240,6 +240,30 @@ class BundleResult:
 
     #: "a-posteriori" (cofactors times sigma0^2) or "a-priori" (times 1)
     covariance_scale: str = "a-posteriori"
+    # database offsets estimated with the adjustment (adjust/offsets.py), None without:
+    # their cofactor Q_TT (q, q), Q_xx B per point (m, 3, q), S^-1 Z' B (6n, q) and the
+    # offsets' design matrix G per point (m, 3, q)
+    offset_cofactor: Optional[np.ndarray] = None
+    offset_qb: Optional[np.ndarray] = None
+    offset_u: Optional[np.ndarray] = None
+    offset_g: Optional[np.ndarray] = None
+
+    def eo_cofactor(self) -> np.ndarray:
+        """Cofactor matrix (6n, 6n) of the exterior orientation, offsets included."""
+        if self.offset_cofactor is None:
+            return self.s_inv
+        u = self.offset_u
+        q = self.s_inv + u @ self.offset_cofactor @ u.T
+        return 0.5 * (q + q.T)
+
+    def offset_cross(self, pa, pb) -> np.ndarray:
+        """The offsets' share ``(Q B)_a Q_TT (Q B)_b'`` of point cofactors, (p, 3, 3)."""
+        pa = np.asarray(pa, np.int64).reshape(-1)
+        pb = np.asarray(pb, np.int64).reshape(-1)
+        if self.offset_cofactor is None:
+            return np.zeros((len(pa), 3, 3))
+        qb = self.offset_qb
+        return np.einsum("piq,qr,pjr->pij", qb[pa], self.offset_cofactor, qb[pb])
 
     @property
     def variance_factor(self) -> float:
@@ -299,6 +323,9 @@ class BundleResult:
         for a in range(3):
             for b in range(3):
                 d[a::3, b::3] += np.diag(self.npp_inv[pts, a, b])
+        if self.offset_cofactor is not None:  # the database offsets' share
+            qb = self.offset_qb[pts].reshape(3 * p, -1)
+            cov = cov + qb @ self.offset_cofactor @ qb.T
         return self.variance_factor * (d + cov)
 
 

@@ -200,13 +200,22 @@ def shifted_problem(base: BundleProblem, db_xyz: np.ndarray, model: OffsetModel,
                          base.obs_point, base.obs_image, base.obs_xy, base.obs_sigma)
 
 
+def _design(prob: BundleProblem, model: OffsetModel) -> np.ndarray:
+    """The offsets' design matrix ``G`` per point (m, 3, q): prior ``X_db = X + G T``."""
+    g = np.zeros((prob.n_points, 3, model.n_params))
+    for pts, axes, cols in zip(model.points, model.axes, model.columns()):
+        g[np.ix_(pts, np.arange(3), cols)] = _e_matrix(axes)[None, :, :]
+    return g
+
+
 def apply_offsets(result: BundleResult, model: OffsetModel, estimate: OffsetEstimate,
                   qb: np.ndarray, s_ztb: np.ndarray) -> None:
     """Put the offsets' unknowns and uncertainty into ``result`` (in place).
 
     The degrees of freedom lose one per offset parameter and sigma0^2 is recomputed;
-    point and EO covariances get the offsets' share ``(Q B) Q_TT (Q B)'``; ``s_inv`` (the
-    EO cofactor matrix used for check points and joint covariances) likewise.
+    point and EO covariances get the offsets' share ``(Q B) Q_TT (Q B)'``; the result
+    keeps ``Q_TT``, ``Q B``, ``S^-1 Z' B`` and ``G`` so that joint covariances,
+    check points and reliability include the offsets too.
     """
     q = model.n_params
     cof = estimate.cofactor
@@ -217,9 +226,12 @@ def apply_offsets(result: BundleResult, model: OffsetModel, estimate: OffsetEsti
                              else float("nan"))
     new_vf = result.variance_factor
     n = result.problem.n_images
-    result.s_inv = result.s_inv + s_ztb @ cof @ s_ztb.T
-    result.s_inv = 0.5 * (result.s_inv + result.s_inv.T)
-    result.eo_cov = new_vf * result.s_inv.reshape(n, 6, n, 6)[np.arange(n), :, np.arange(n), :]
+    result.offset_cofactor = cof
+    result.offset_qb = qb
+    result.offset_u = s_ztb
+    result.offset_g = _design(result.problem, model)
+    q_ee = result.eo_cofactor()
+    result.eo_cov = new_vf * q_ee.reshape(n, 6, n, 6)[np.arange(n), :, np.arange(n), :]
     if result.point_cov is not None:
         extra = np.einsum("miq,qr,mjr->mij", qb, cof, qb)
         result.point_cov = result.point_cov * (new_vf / old_vf) + new_vf * extra

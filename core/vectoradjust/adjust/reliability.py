@@ -248,7 +248,30 @@ def _cofactors(result: BundleResult):
             t_ep = np.einsum("jari,jaim,jarm->jar", ae, gm, ap)
             t_pp = np.einsum("jark,jkm,jarm->jar", ap, qpp, ap)
             aqa[o] = t_ee - 2.0 * t_ep + t_pp
+    if result.offset_cofactor is not None:
+        aqa, q_point = _offset_cofactors(result, aqa, q_point)
     return aqa, q_point
+
+
+def _offset_cofactors(result: BundleResult, aqa: np.ndarray, q_point: np.ndarray):
+    """The database offsets' share of ``A Q A'``: image rows and point priors.
+
+    With the offsets ``T`` (prior ``X_db = X + G T``) the joint cofactors are
+    ``Q_x += (QB) Q_TT (QB)'``, ``Q_e += u Q_TT u'``, ``Q_ex += -u Q_TT (QB)'`` and
+    ``Q_xT = -(QB) Q_TT``; so an image row ``a_e, a_p`` gains ``c Q_TT c'`` with
+    ``c = a_p (QB) - a_e u``, and a point prior ``[I G]`` gains
+    ``(QB - G) Q_TT (QB - G)'``.
+    """
+    prob = result.problem
+    cof, qb, u, g = (result.offset_cofactor, result.offset_qb, result.offset_u,
+                     result.offset_g)
+    n = prob.n_images
+    u_img = u.reshape(n, 6, -1)[prob.obs_image]  # (k, 6, q)
+    c = (np.einsum("kri,kiq->krq", result.a_pt, qb[prob.obs_point])
+         - np.einsum("kri,kiq->krq", result.a_eo, u_img))
+    aqa = aqa + np.einsum("krq,qs,krs->kr", c, cof, c)
+    d = qb - g
+    return aqa, q_point + np.einsum("miq,qs,mjs->mij", d, cof, d)
 
 
 # --------------------------------------------------------------------------- reliability
@@ -311,7 +334,7 @@ def _eo_tests(result: BundleResult, s0, k_crit, d0, min_redundancy):
     n = prob.n_images
     we = prob.eo_weight
     has_eo = we > 0
-    sdiag = np.einsum("iaia->ia", np.asarray(result.s_inv).reshape(n, 6, n, 6))
+    sdiag = np.einsum("iaia->ia", np.asarray(result.eo_cofactor()).reshape(n, 6, n, 6))
     with np.errstate(divide="ignore", invalid="ignore"):
         var_e = np.where(has_eo, 1.0 / np.where(has_eo, we, 1.0), np.nan)
         qvv_e = np.where(has_eo, var_e - sdiag, np.nan)
