@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -13,7 +15,8 @@ from vectoradjust.simulate import make_scenario
 
 def _small_problem(seed=3, n_images=3):
     sc = make_scenario(seed, n_images=n_images, grid=(2, 2), databases=("OSM",), n_tie=6)
-    r = run(sc.to_project_data())
+    data = sc.to_project_data()  # the plain bundle: no database offset (test_offsets.py)
+    r = run(replace(data, vectors=[(replace(s, offset="none"), lay) for s, lay in data.vectors]))
     return r.problem, r.result, sc
 
 

@@ -33,8 +33,12 @@ from vectoradjust.simulate import make_scenario
 # ---------------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module", params=[2, 3], ids=["pair", "strip3"])
 def adj_run(request):
+    # no database offsets: these tests check the structured formulas against the dense
+    # N^-1 of the plain bundle (tests/test_offsets.py checks them with offsets)
     sc = make_scenario(7, n_images=request.param)
-    return run(sc.to_project_data())
+    data = sc.to_project_data()
+    data = replace(data, vectors=[(replace(s, offset="none"), lay) for s, lay in data.vectors])
+    return run(data)
 
 
 def _dense_cov(res) -> np.ndarray:

@@ -184,7 +184,7 @@ def test_project_file_keys_for_the_error_model(tmp_path):
         raw = dict(base, vectors=[dict({"name": "OSM", "path": "r.shp"}, **v)])
         return parse_project(raw, tmp_path, tmp_path / "p.toml").vectors[0]
 
-    assert spec().identification_sigma is None and spec().offset == "none"
+    assert spec().identification_sigma is None and spec().offset == "shift"
     assert spec(identification_sigma=0.5).identification_sigma == (0.5, 0.0)
     assert spec(identification_sigma=[0.5, 0.2], offset="shift3d").offset == "shift3d"
     with pytest.raises(ProjectError, match="identification_sigma"):

@@ -100,7 +100,9 @@ def test_degrees_of_freedom_count(two_pass_run):
     n = obs["image_coordinates"] + obs["point_priors"] + obs["eo_priors"]
     u = 6 * len(two_pass_run.image_ids) + 3 * (obs["control_points"] + obs["shape_points"]
                                                 + obs["tie_points"])
+    u += sum(len(db["offset"]["axes"]) for db in s["databases"] if "offset" in db)
     assert s["degrees_of_freedom"] == n - u
+    assert obs["unknowns"] == u
 
 
 def test_check_points_are_independent_and_accurate(scenario, two_pass_run):
@@ -275,7 +277,9 @@ def test_snooping_removes_a_planted_blunder_and_names_its_line(scenario):
 
 
 def test_vce_estimates_each_databases_accuracy(scenario):
-    """The estimated horizontal sigma equals the true per-axis RMS of database - truth."""
+    """The estimated horizontal sigma equals the true per-axis RMS of database - truth
+    about the database's estimated offset (its systematic part), and the offset is the
+    mean of database - truth."""
     data = scenario.to_project_data()
     data.settings.reweight = "vce"
     r = run(data)
@@ -284,7 +288,10 @@ def test_vce_estimates_each_databases_accuracy(scenario):
     for d in r.databases:
         adj = d.vertices["Adjusted"] == 1
         err = scenario.layers[d.name].coords[adj, :2] - scenario.truth[d.name][1][adj, :2]
-        true_axis = np.sqrt(np.mean(err**2))
+        offset = r.summary["databases"][r.databases.index(d)]["offset"]
+        assert np.allclose(offset["values"], err.mean(axis=0), atol=0.2 + 4 * max(
+            offset["sigma"])), d.name
+        true_axis = np.sqrt(np.mean((err - np.asarray(offset["values"])) ** 2))
         assert groups[f"{d.name}:h"]["sigma"] == pytest.approx(true_axis, rel=0.1), d.name
         assert d.sigma_used[0] == pytest.approx(groups[f"{d.name}:h"]["sigma"])
     assert abs(r.summary["sigma0_squared"] - 1) < 0.05

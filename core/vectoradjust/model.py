@@ -230,7 +230,7 @@ class VectorSpec:
     ``identification_sigma`` is the (horizontal, vertical) uncertainty of where the
     analyst's measured point lies relative to the real road vertex (object space, m;
     None: not given). ``offset`` is the systematic offset estimated for the database:
-    ``"none"``, ``"shift"`` (horizontal) or ``"shift3d"`` (DESIGN section 10).
+    ``"shift"`` (horizontal, the default), ``"shift3d"`` or ``"none"`` (DESIGN section 10).
     """
 
     name: str
@@ -241,7 +241,7 @@ class VectorSpec:
     truth: Optional[str] = None
     layer: Optional[str] = None
     identification_sigma: Optional[tuple[float, float]] = None
-    offset: str = "none"
+    offset: str = "shift"
 
     @property
     def identification_variance(self) -> np.ndarray:

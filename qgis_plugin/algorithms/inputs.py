@@ -478,7 +478,7 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
         truth = read_truth_points(entry.truth)
     em = error_model or {}
     ident = em.get("identification") or (entry.identification_sigma if entry else None)
-    offset = em.get("offset") or (entry.offset if entry else "none")
+    offset = em.get("offset") or (entry.offset if entry else "shift")
     spec = VectorSpec(name=name, path=qgis_io.layer_path(vlayer) or where, id_field=id_field,
                       sigma=sigma, dem=dem.source() if dem is not None else None,
                       truth=entry.truth if entry else None, identification_sigma=ident,
@@ -595,7 +595,7 @@ IDENT_XY = "IDENTIFICATION_SIGMA_XY"
 IDENT_Z = "IDENTIFICATION_SIGMA_Z"
 OFFSET = "OFFSET"
 #: the Database offset choices; the first takes the project's [[vectors]] entry
-OFFSET_CHOICES = ["as in the project (default: none)", "none", "shift", "shift3d"]
+OFFSET_CHOICES = ["as in the project (default: shift)", "none", "shift", "shift3d"]
 
 
 def add_road_parameters(alg, optional=False):

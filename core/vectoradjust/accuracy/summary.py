@@ -214,9 +214,22 @@ def compare_row(summary: dict) -> dict:
         "adjusted_truth_rmse": truth.get("rmse_adjusted_truth_horizontal"),
         "improvement": truth.get("improvement"),
         "vce": _vce_state(summary.get("variance_components")),
-        "offset": (db.get("offset") or {}).get("statement", "-").split(" is ", 1)[-1],
+        "offset": _offset_short(db.get("offset")),
         **_buffer_columns(truth.get("buffer")),
     }
+
+
+_COMPASS = {"north": "N", "north-east": "NE", "east": "E", "south-east": "SE", "south": "S",
+            "south-west": "SW", "west": "W", "north-west": "NW"}
+
+
+def _offset_short(off) -> str:
+    """``1.41 m NW +-0.20 (significant)`` for the compare table; ``-`` without offset."""
+    if not off:
+        return "-"
+    d = _COMPASS.get(off.get("direction", ""), "")
+    sig = " (significant)" if off["test"]["significant"] else ""
+    return f"{off['horizontal']:.2f} m {d} +-{off['horizontal_sigma']:.2f}{sig}"
 
 
 def _vce_state(vce) -> str:

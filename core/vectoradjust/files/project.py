@@ -260,7 +260,7 @@ def _parse_vectors(vectors_raw: Any, base_dir: Path, where: str) -> list:
             truth=None if v.get("truth") is None else _resolve(base_dir, v["truth"], w, "truth"),
             layer=None if v.get("layer") is None else str(v["layer"]),
             identification_sigma=_identification(w, v.get("identification_sigma")),
-            offset=_offset_kind(w, v.get("offset", "none")),
+            offset=_offset_kind(w, v.get("offset", "shift")),
         ))
     return vectors
 
