@@ -189,8 +189,9 @@ def test_project_file_keys_for_the_error_model(tmp_path):
     assert spec(identification_sigma=[0.5, 0.2], offset="shift3d").offset == "shift3d"
     with pytest.raises(ProjectError, match="identification_sigma"):
         spec(identification_sigma=[0.5])
+    assert spec(offset="similarity").offset == "similarity"
     with pytest.raises(ProjectError, match="offset must be one of"):
-        spec(offset="affine")
+        spec(offset="warp")
 
 
 def test_a_priori_covariances_are_the_cofactors():
@@ -291,3 +292,31 @@ def test_length_sigma_with_offsets_matches_the_joint_covariance(small_shift_run)
     c = out.result.joint_covariance(pts)
     assert d.features["LengthSD"][f] == pytest.approx(float(np.sqrt(gp.ravel() @ c @
                                                                     gp.ravel())), rel=1e-8)
+
+
+@pytest.mark.slow
+def test_a_rotated_and_scaled_database_is_absorbed_by_a_similarity_offset():
+    """A database rotated by 2 mrad and scaled by +500 ppm about its centre (plus a
+    shift): the similarity offset recovers rotation and scale, the shift alone leaves
+    them in the residuals and pulls the images more."""
+    db = DatabaseModel("DB", "db_id", "db", 20.0, 0.5, (2.0, 1.0), 0.0, 0.0, 0.5)
+    sc = make_scenario(5, databases=(db,), n_shape_points=1500, shape_sigma=(1.0, 1.0, 1.0))
+    data = sc.to_project_data()
+    spec, layer = data.vectors[0]
+    xy = layer.coords[:, :2]
+    c = xy.mean(axis=0)
+    r, s = 2e-3, 500e-6
+    d = xy - c
+    layer.coords[:, 0] += s * d[:, 0] - r * d[:, 1]
+    layer.coords[:, 1] += r * d[:, 0] + s * d[:, 1]
+    ratios, entries = {}, {}
+    for kind in ("shift", "similarity"):
+        run_ = run(replace(data, vectors=[(replace(spec, offset=kind), layer)]))
+        ratios[kind] = run_.summary["roads_and_control"]["check_ratio"]
+        entries[kind] = run_.summary["databases"][0]["offset"]
+    e = entries["similarity"]
+    i, j = e["axes"].index("rotation"), e["axes"].index("scale")
+    assert abs(e["values"][i] - r) < 4 * e["sigma"][i] + 1e-5
+    assert abs(e["values"][j] - s) < 4 * e["sigma"][j] + 1e-5
+    assert "rotated" in e["statement"]
+    assert ratios["similarity"] <= 1.05

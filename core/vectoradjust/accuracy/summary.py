@@ -309,6 +309,13 @@ def offset_entry(rec: dict, name: str, alpha: float = 0.05) -> dict:
     if "Z" in axes:
         dz, sz = vals[axes.index("Z")], rec["sigma"][axes.index("Z")]
         text += f", {abs(dz):.2f} m {'above' if dz > 0 else 'below'} (+- {sz:.2f} m)"
+    if "rotation" in axes:
+        i, j = axes.index("rotation"), axes.index("scale")
+        text += (f", rotated {vals[i] * 1e3:+.3f} mrad (+- {rec['sigma'][i] * 1e3:.3f}) and "
+                 f"scaled {vals[j] * 1e6:+.0f} ppm (+- {rec['sigma'][j] * 1e6:.0f}) about "
+                 "its centroid")
+    if "a11" in axes:
+        text += ", with an affine distortion about its centroid (a11..a22 in summary.json)"
     text += "; significant" if entry["test"]["significant"] else "; not significant"
     entry["statement"] = text
     return entry

@@ -33,40 +33,95 @@ from vectoradjust.adjust.bundle import BundleProblem, BundleResult
 __all__ = ["OffsetModel", "OffsetEstimate", "offset_normals", "newton_step",
            "apply_offsets", "shifted_problem", "OFFSET_KINDS"]
 
-#: offset kinds and the axes they shift
-OFFSET_KINDS = {"none": (), "shift": (0, 1), "shift3d": (0, 1, 2)}
+#: offset kinds and their parameters: shifts in m; rotation in rad and scale (unitless)
+#: about the database's centroid (small-angle similarity); affine terms unitless
+OFFSET_KINDS = {
+    "none": (),
+    "shift": ("X", "Y"),
+    "shift3d": ("X", "Y", "Z"),
+    "similarity": ("X", "Y", "rotation", "scale"),
+    "affine": ("X", "Y", "a11", "a12", "a21", "a22"),
+}
+
+
+def _kind_design(kind: str, xyz: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """``G`` (p, 3, q_kind) of one database's points: their offset is ``G T``."""
+    params = OFFSET_KINDS[kind]
+    g = np.zeros((len(xyz), 3, len(params)))
+    dx = xyz[:, 0] - center[0]
+    dy = xyz[:, 1] - center[1]
+    for c, name in enumerate(params):
+        if name == "X":
+            g[:, 0, c] = 1.0
+        elif name == "Y":
+            g[:, 1, c] = 1.0
+        elif name == "Z":
+            g[:, 2, c] = 1.0
+        elif name == "rotation":  # dX = -r dy, dY = r dx
+            g[:, 0, c], g[:, 1, c] = -dy, dx
+        elif name == "scale":  # dX = s dx, dY = s dy
+            g[:, 0, c], g[:, 1, c] = dx, dy
+        else:  # affine a11 a12 / a21 a22
+            row = 0 if name in ("a11", "a12") else 1
+            g[:, row, c] = dx if name in ("a11", "a21") else dy
+    return g
 
 
 @dataclass
 class OffsetModel:
-    """Which bundle points belong to which database's offset.
+    """Which bundle points belong to which database's offset, and how.
 
     Attributes
     ----------
     names : list of str
         Databases with an offset, in parameter order.
-    axes : list of tuple of int
-        Shifted axes of each (``(0, 1)`` horizontal, ``(0, 1, 2)`` 3D).
+    kinds : list of str
+        Offset kind of each (a key of :data:`OFFSET_KINDS`).
     points : list of numpy.ndarray of int
         Bundle point indices (shape points) of each.
+    centers : list of numpy.ndarray
+        Centroid (X, Y) of each database's points: the origin of rotation and scale.
+    g : numpy.ndarray, shape (m, 3, q)
+        The design matrix per bundle point (zero for points without offset).
     """
 
     names: list
-    axes: list
+    kinds: list
     points: list
+    centers: list
+    g: np.ndarray
+
+    @classmethod
+    def build(cls, names, kinds, points, db_xyz: np.ndarray) -> OffsetModel:
+        """The model of the given databases from the points' database coordinates."""
+        q = sum(len(OFFSET_KINDS[k]) for k in kinds)
+        g = np.zeros((len(db_xyz), 3, q))
+        centers, c0 = [], 0
+        for kind, pts in zip(kinds, points):
+            center = db_xyz[pts, :2].mean(axis=0)
+            qk = len(OFFSET_KINDS[kind])
+            g[pts, :, c0:c0 + qk] = _kind_design(kind, db_xyz[pts], center)
+            centers.append(center)
+            c0 += qk
+        return cls(list(names), list(kinds), list(points), centers, g)
 
     @property
     def n_params(self) -> int:
         """Number of offset parameters."""
-        return int(sum(len(a) for a in self.axes))
+        return int(self.g.shape[2])
 
     def columns(self) -> list:
-        """Parameter index of each (database, axis), per database."""
+        """Parameter indices of each database."""
         cols, k = [], 0
-        for a in self.axes:
-            cols.append(list(range(k, k + len(a))))
-            k += len(a)
+        for kind in self.kinds:
+            n = len(OFFSET_KINDS[kind])
+            cols.append(list(range(k, k + n)))
+            k += n
         return cols
+
+    def displacement(self, values: np.ndarray) -> np.ndarray:
+        """The offset ``G T`` of every bundle point (m, 3)."""
+        return np.einsum("miq,q->mi", self.g, values)
 
 
 @dataclass
@@ -93,21 +148,9 @@ class OffsetEstimate:
     history: list = field(default_factory=list)
 
 
-def _e_matrix(axes) -> np.ndarray:
-    """(3, q_d) selection matrix of the shifted axes."""
-    e = np.zeros((3, len(axes)))
-    e[list(axes), np.arange(len(axes))] = 1.0
-    return e
-
-
 def _b_blocks(prob: BundleProblem, model: OffsetModel) -> np.ndarray:
-    """``B_j = P_j E`` for every bundle point, (m, 3, q); zero for points without offset."""
-    q = model.n_params
-    b = np.zeros((prob.n_points, 3, q))
-    for pts, axes, cols in zip(model.points, model.axes, model.columns()):
-        e = _e_matrix(axes)
-        b[np.ix_(pts, np.arange(3), cols)] = prob.prior_weight[pts] @ e
-    return b
+    """``B_j = P_j G_j`` for every bundle point, (m, 3, q); zero for points without offset."""
+    return np.einsum("mij,mjq->miq", prob.prior_weight, model.g)
 
 
 def _q_times(result: BundleResult, b: np.ndarray):
@@ -153,15 +196,10 @@ def offset_normals(result: BundleResult, model: OffsetModel, offsets: np.ndarray
     prob = result.problem
     b = _b_blocks(prob, model)
     qb, s_ztb, ztb = _q_times(result, b)
-    q = model.n_params
-    w = np.zeros((q, q))
-    g = np.zeros(q)
-    for pts, axes, cols in zip(model.points, model.axes, model.columns()):
-        e = _e_matrix(axes)
-        w[np.ix_(cols, cols)] = np.einsum("ia,mij,jb->ab", e, prob.prior_weight[pts], e)
-        # prior_xyz = X_db - E T, so X_db - E T - X = prior_xyz - X
-        d = prob.prior_xyz[pts] - result.xyz[pts]
-        g[cols] = np.einsum("ia,mij,mj->a", e, prob.prior_weight[pts], d)
+    # prior_xyz = X_db - G T, so X_db - G T - X = prior_xyz - X
+    d = np.where(prob.has_prior[:, None], prob.prior_xyz - result.xyz, 0.0)
+    w = np.einsum("miq,mir->qr", model.g, b)
+    g = np.einsum("miq,mi->q", b, d)
     btqb = np.einsum("miq,mir->qr", b, qb)
     n_red = w - btqb
     return 0.5 * (n_red + n_red.T), g, qb, s_ztb
@@ -179,7 +217,7 @@ def newton_step(result: BundleResult, model: OffsetModel, offsets: np.ndarray):
 
 def shifted_problem(base: BundleProblem, db_xyz: np.ndarray, model: OffsetModel,
                     offsets: np.ndarray, xyz0=None) -> BundleProblem:
-    """The bundle problem whose shape point priors are ``X_db - E T``.
+    """The bundle problem whose shape point priors are ``X_db - G T``.
 
     Parameters
     ----------
@@ -191,21 +229,11 @@ def shifted_problem(base: BundleProblem, db_xyz: np.ndarray, model: OffsetModel,
     xyz0 : numpy.ndarray, optional
         Start values of the points (default: the base problem's).
     """
-    prior = db_xyz.copy()
-    for pts, axes, cols in zip(model.points, model.axes, model.columns()):
-        prior[np.ix_(pts, list(axes))] -= offsets[cols][None, :]
+    prior = db_xyz - model.displacement(offsets)
     return BundleProblem(base.focal_length, base.principal_point,
                          base.eo0, base.eo_sigma,
                          base.xyz0 if xyz0 is None else xyz0, prior, base.prior_weight,
                          base.obs_point, base.obs_image, base.obs_xy, base.obs_sigma)
-
-
-def _design(prob: BundleProblem, model: OffsetModel) -> np.ndarray:
-    """The offsets' design matrix ``G`` per point (m, 3, q): prior ``X_db = X + G T``."""
-    g = np.zeros((prob.n_points, 3, model.n_params))
-    for pts, axes, cols in zip(model.points, model.axes, model.columns()):
-        g[np.ix_(pts, np.arange(3), cols)] = _e_matrix(axes)[None, :, :]
-    return g
 
 
 def apply_offsets(result: BundleResult, model: OffsetModel, estimate: OffsetEstimate,
@@ -229,7 +257,7 @@ def apply_offsets(result: BundleResult, model: OffsetModel, estimate: OffsetEsti
     result.offset_cofactor = cof
     result.offset_qb = qb
     result.offset_u = s_ztb
-    result.offset_g = _design(result.problem, model)
+    result.offset_g = model.g
     q_ee = result.eo_cofactor()
     result.eo_cov = new_vf * q_ee.reshape(n, 6, n, 6)[np.arange(n), :, np.arange(n), :]
     if result.point_cov is not None:

@@ -22,6 +22,9 @@ __all__ = ["Solution", "solve"]
 
 Progress = Callable[[float, str], None]
 
+#: measured points a database needs for its offset kind (fewer: no offset estimated)
+_MIN_OFFSET_POINTS = {"none": 0, "shift": 1, "shift3d": 1, "similarity": 3, "affine": 4}
+
 #: variance components of the well-known groups may move at most this factor from the
 #: stated sigma; beyond it they are held and a finding is reported (issue: a biased
 #: database must not make the control look 50 times worse than surveyed)
@@ -182,16 +185,17 @@ def _snoop(setup: BundleSetup, settings, adjust_kwargs, image_ids, meas, warning
 # --------------------------------------------------------------------------- offsets
 def _offset_model(setup: BundleSetup) -> Optional[off.OffsetModel]:
     """The databases whose systematic offset is estimated (None: none is)."""
-    names, axes, points = [], [], []
+    names, kinds, points = [], [], []
     for d in setup.databases:
         kind = getattr(d.spec, "offset", "none") or "none"
-        ax = off.OFFSET_KINDS[kind]
         pts = np.flatnonzero((setup.point_kind == "shape") & (setup.point_database == d.name))
-        if ax and len(pts):
+        if off.OFFSET_KINDS[kind] and len(pts) >= _MIN_OFFSET_POINTS[kind]:
             names.append(d.name)
-            axes.append(ax)
+            kinds.append(kind)
             points.append(pts)
-    return off.OffsetModel(names, axes, points) if names else None
+    if not names:
+        return None
+    return off.OffsetModel.build(names, kinds, points, setup.db_prior)
 
 
 def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dict):
@@ -209,7 +213,7 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
     result = adjust(setup.problem, progress=progress, **adjust_kwargs)
     for _ in range(20):
         new, cof, gmax, qb, s_ztb = off.newton_step(result, model, values)
-        step = float(np.abs(new - values).max(initial=0.0))
+        step = float(np.abs(model.displacement(new - values)).max(initial=0.0))  # m
         history.append({"step": step, "gradient": gmax, "values": new.tolist()})
         if step < tol:
             break
@@ -228,9 +232,11 @@ def _offset_record(model, state: dict, result: BundleResult) -> dict:
     """Per database: offset values, sigmas (a posteriori) and the cofactor block."""
     vf = result.variance_factor
     rec = {}
-    for name, axes, cols in zip(model.names, model.axes, model.columns()):
+    for name, kind, center, cols in zip(model.names, model.kinds, model.centers,
+                                        model.columns()):
         cof = state["cofactor"][np.ix_(cols, cols)]
-        rec[name] = {"axes": [("X", "Y", "Z")[a] for a in axes],
+        rec[name] = {"axes": list(off.OFFSET_KINDS[kind]), "kind": kind,
+                     "center": [float(c) for c in center],
                      "values": [float(state["values"][c]) for c in cols],
                      "sigma": np.sqrt(np.maximum(np.diag(cof) * vf, 0.0)).tolist(),
                      "cofactor": cof.tolist(), "variance_factor": vf,

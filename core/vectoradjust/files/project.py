@@ -282,7 +282,7 @@ def _identification(where: str, value: Any):
 
 
 def _offset_kind(where: str, value: Any) -> str:
-    """``offset``: none | shift | shift3d."""
+    """``offset``: none | shift | shift3d | similarity | affine."""
     from vectoradjust.adjust.offsets import OFFSET_KINDS
 
     if value not in OFFSET_KINDS:
