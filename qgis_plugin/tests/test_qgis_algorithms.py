@@ -564,7 +564,7 @@ def test_adjust_with_identification_sigma_and_offset_from_the_dialog(qgis_app, s
     import json
 
     base = tmp_path / "base.json"
-    run("adjustroadvectors", adjust_params(sample, SUMMARY=str(base)))
+    run("adjustroadvectors", adjust_params(sample, SUMMARY=str(base), OFFSET=1))  # none
     with_em = tmp_path / "em.json"
     run("adjustroadvectors", adjust_params(sample, SUMMARY=str(with_em),
                                            IDENTIFICATION_SIGMA_XY=0.5, OFFSET=2))

@@ -111,6 +111,9 @@ class BundleProblem:
     obs_image: np.ndarray
     obs_xy: np.ndarray
     obs_sigma: np.ndarray
+    #: where the iteration starts for the exterior orientation (default ``eo0``, which
+    #: is also the prior mean); a warm start for repeated adjustments
+    eo_start: Optional[np.ndarray] = None
 
     def __post_init__(self) -> None:
         self.principal_point = np.asarray(self.principal_point, float).reshape(2)
@@ -538,7 +541,7 @@ def adjust(
     SingularityError
         If the normal equations are singular (datum defect, undetermined points).
     """
-    eo = prob.eo0.copy()
+    eo = (prob.eo0 if prob.eo_start is None else np.asarray(prob.eo_start, float)).copy()
     xyz = prob.xyz0.copy()
     groups = _group_observations(prob.obs_point, prob.obs_image, prob.n_points)
     history: list = []

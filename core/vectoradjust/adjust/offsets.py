@@ -216,7 +216,7 @@ def newton_step(result: BundleResult, model: OffsetModel, offsets: np.ndarray):
 
 
 def shifted_problem(base: BundleProblem, db_xyz: np.ndarray, model: OffsetModel,
-                    offsets: np.ndarray, xyz0=None) -> BundleProblem:
+                    offsets: np.ndarray, xyz0=None, eo_start=None) -> BundleProblem:
     """The bundle problem whose shape point priors are ``X_db - G T``.
 
     Parameters
@@ -226,14 +226,16 @@ def shifted_problem(base: BundleProblem, db_xyz: np.ndarray, model: OffsetModel,
         Database (unshifted) prior of every point.
     model : OffsetModel
     offsets : numpy.ndarray, shape (q,)
-    xyz0 : numpy.ndarray, optional
-        Start values of the points (default: the base problem's).
+    xyz0, eo_start : numpy.ndarray, optional
+        Start values of the points and the exterior orientation (a warm start; default:
+        the base problem's).
     """
     prior = db_xyz - model.displacement(offsets)
     return BundleProblem(base.focal_length, base.principal_point,
                          base.eo0, base.eo_sigma,
                          base.xyz0 if xyz0 is None else xyz0, prior, base.prior_weight,
-                         base.obs_point, base.obs_image, base.obs_xy, base.obs_sigma)
+                         base.obs_point, base.obs_image, base.obs_xy, base.obs_sigma,
+                         eo_start=eo_start)
 
 
 def apply_offsets(result: BundleResult, model: OffsetModel, estimate: OffsetEstimate,

@@ -207,10 +207,17 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
     if model is None:
         return adjust(setup.problem, progress=progress, **adjust_kwargs)
     values = state.get("values", np.zeros(model.n_params))
-    tol = adjust_kwargs.get("tolerance_position", 1e-4)
+    # the offsets converge to far below the position tolerance: the Newton step is exact
+    # for the linearised problem, so this costs one or two more warm-started adjustments
+    tol = min(adjust_kwargs.get("tolerance_position", 1e-4), 1e-6)
     history = state.setdefault("history", [])
     setup.problem = off.shifted_problem(setup.problem, setup.db_prior, model, values)
     result = adjust(setup.problem, progress=progress, **adjust_kwargs)
+    # warm-started re-adjustments converge far below the usual tolerance, so that the
+    # solution does not depend on where the iteration happened to stop
+    tight = dict(adjust_kwargs)
+    tight["tolerance_position"] = adjust_kwargs.get("tolerance_position", 1e-4) * 1e-3
+    tight["tolerance_angle"] = adjust_kwargs.get("tolerance_angle", 1e-8) * 1e-3
     for _ in range(20):
         new, cof, gmax, qb, s_ztb = off.newton_step(result, model, values)
         step = float(np.abs(model.displacement(new - values)).max(initial=0.0))  # m
@@ -219,8 +226,8 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
             break
         values = new
         setup.problem = off.shifted_problem(setup.problem, setup.db_prior, model, values,
-                                            xyz0=result.xyz)
-        result = adjust(setup.problem, progress=progress, **adjust_kwargs)
+                                            xyz0=result.xyz, eo_start=result.eo)
+        result = adjust(setup.problem, progress=progress, **tight)
     state["values"] = values
     state["cofactor"] = cof
     state["converged"] = step < tol
