@@ -429,3 +429,35 @@ def test_sample_project_is_small_and_consistent():
                                atol=5e-7)
     np.testing.assert_allclose([float(r["y"]) for r in rows], sc.measurements.xy[:, 1],
                                atol=5e-7)
+
+
+def test_real_true_roads_are_split_at_shared_vertices_and_centred():
+    """``true_roads``: lines (here in UTM-like coordinates far from the model) become the
+    true roads; a vertex shared by two lines (one of them 0.4 mm off) is an intersection,
+    the lines are split there, and the databases are projected like the grid's."""
+    x0, y0 = 385_000.0, 6_672_000.0
+    ew = np.array([[x0 - 200.0, y0], [x0, y0], [x0 + 200.0, y0]])  # crossing at (x0, y0)
+    ns = np.array([[x0, y0 - 150.0], [x0 + 0.0004, y0], [x0, y0 + 150.0]])
+    bend = np.array([[x0 + 200.0, y0], [x0 + 230.0, y0 + 60.0], [x0 + 200.0, y0 + 120.0]])
+    sc = make_scenario(2, databases=("OSM", "TNM"), true_roads=[ew, ns, bend],
+                       vertex_spacing=10.0)
+    real = sc.options["true_roads"]
+    assert real["lines"] == 3 and real["features"] == 5  # ew, ns split at the crossing
+    # the bounding box (x0-200 .. x0+230, y0-150 .. y0+150) is centred on the model
+    assert real["shift"] == pytest.approx([sc.center[0] - (x0 + 15.0), sc.center[1] - y0])
+    cross = np.array([x0, y0]) + real["shift"]
+    for name in ("OSM", "TNM"):
+        ids, xyz = sc.truth[name]
+        at = np.flatnonzero(np.all(np.abs(xyz[:, :2] - cross) < 1e-3, axis=1))
+        assert len(at) == 4  # four features meet: one object point, four vertices
+        layer = sc.layers[name]
+        assert len(np.unique(layer.vertex_feature[at])) == 4
+        assert len(np.unique(layer.coords[at, :2], axis=0)) == 1
+        assert sc.measured[name].all()
+    lengths = [np.hypot(*np.diff(c[:, :2], axis=0).T).sum() for c in sc.truth_lines]
+    assert sum(lengths) == pytest.approx(400.0 + 300.0 + 2 * np.hypot(30.0, 60.0), abs=1e-3)
+    w = _reprojection_residuals(sc)
+    assert np.sqrt(np.mean(w**2)) < 1.3
+    # n_shape_points sets the spacing for about that many measured shape points
+    sc = make_scenario(2, databases=("OSM",), true_roads=[ew, ns, bend], n_shape_points=200)
+    assert abs(len(np.unique(sc.truth["OSM"][1], axis=0)) - 200) <= 3

@@ -6,18 +6,21 @@ contract; ``python -m vectoradjust.simulate OUT_DIR`` does both from the command
 
 Modules: :mod:`.scenario` (:func:`make_scenario` and the command line),
 :mod:`.geometry` (set-up, terrain, DEM, random streams), :mod:`.roads` (true roads and
-road databases), :mod:`.imaging` (orientation, image measurements, effects, scanning),
-:mod:`.container` (:class:`Scenario`), :mod:`.writer` (:func:`write_project`) and
-:mod:`.readme` (:func:`describe`).
+road databases), :mod:`.real_roads` (real road geometry as the true roads),
+:mod:`.imaging` (orientation, image measurements, effects, scanning), :mod:`.container`
+(:class:`Scenario`), :mod:`.writer` (:func:`write_project`) and :mod:`.readme`
+(:func:`describe`).
 """
 
 from vectoradjust.simulate.container import Scenario
 from vectoradjust.simulate.geometry import terrain_height
 from vectoradjust.simulate.imaging import EFFECTS
 from vectoradjust.simulate.readme import describe
+from vectoradjust.simulate.real_roads import RoadLines, read_road_lines
 from vectoradjust.simulate.roads import DATABASES, DatabaseModel
 from vectoradjust.simulate.scenario import main, make_scenario
 from vectoradjust.simulate.writer import write_project
 
 __all__ = ["DatabaseModel", "DATABASES", "EFFECTS", "Scenario", "make_scenario",
-           "terrain_height", "write_project", "describe", "main"]
+           "terrain_height", "write_project", "describe", "main", "RoadLines",
+           "read_road_lines"]

@@ -116,7 +116,18 @@ def _roads_section(sc: Scenario, layer_ext: str) -> list:
     """The true scene, how the databases store it, and a table of their errors."""
     o = sc.options
     lines = ["", "## Roads"]
-    if o.get("n_shape_points") is None:
+    real = o.get("true_roads")
+    if real is not None:
+        lines += [
+            f"- True centrelines (`truth_roads.{layer_ext}`): real road geometry "
+            f"({real['source'] or 'given as arrays'}, {real['lines']} lines) translated by "
+            f"({real['shift'][0]:.3f}, {real['shift'][1]:.3f}) m so that its bounding box "
+            f"is centred on the model; split at shared vertices into {real['features']} "
+            "features (vertices outside the stereo overlap are not measured)."
+            + (f" About {o['n_shape_points']} measured shape points in all, vertex "
+               f"spacing {o['dense_spacing']:.2f} m." if o.get("n_shape_points") else ""),
+        ]
+    elif o.get("n_shape_points") is None:
         lines += [
             f"- True centrelines (`truth_roads.{layer_ext}`): {o['grid'][0]} east-west and "
             f"{o['grid'][1]} north-south streets {o['block_size']:g} m apart, split into "
@@ -199,6 +210,8 @@ def _regenerate_section(sc: Scenario, reweight: str) -> list:
         "```",
         f"python -m vectoradjust.simulate OUT_DIR --seed {sc.seed} --images {len(sc.images)}"
         + (f" --shape-points {o['n_shape_points']}" if o.get("n_shape_points") else "")
+        + (f" --roads {o['true_roads']['source']}" if (o.get("true_roads") or {}).get(
+            "source") else "")
         + _regenerate_options(sc, reweight),
         "```",
         "",

@@ -2,7 +2,8 @@
 
 The true scene is a street grid split at intersections, a curved residential street
 and a two-part feature (:func:`_grid_roads`), or, in dense mode, a street grid filling
-the stereo overlap (:func:`_dense_roads`, sized by :func:`_dense_scene`). Each road
+the stereo overlap (:func:`_dense_roads`, sized by :func:`_dense_scene`); real road
+geometry comes from :mod:`~vectoradjust.simulate.real_roads`. Each road
 database (:class:`DatabaseModel`, :data:`DATABASES`: OSM, TNM, TIGER) samples the same
 roads with its own vertices and positional errors (:func:`_make_database`).
 """
@@ -309,15 +310,25 @@ def _dense_scene(in_x, in_y, n_models: int, n_shape_points: int, block_size: flo
     b = math.sqrt(n_models * 2.0 * w * h * per_block / float(n_shape_points))
     b = float(min(max(b, 2.0), block_size, w, h))
     roads = _dense_roads(in_x[0], in_x[1], in_y[0], in_y[1], b)
+    dense_nseg, spacing = _spread_intervals(roads, n_models, n_shape_points)
+    return roads, dense_nseg, spacing
+
+
+def _spread_intervals(roads: _TrueRoads, n_models: int, n_shape_points: int):
+    """Vertex intervals of every part for about ``n_shape_points`` object points in all.
+
+    Object points per database = part end points (nodes) + interior vertices; the
+    intervals are spread over the parts in proportion to their length, rounding
+    cumulatively (at least one per part). Returns the intervals and the mean spacing (m).
+    """
     _, lengths = _part_lengths(roads)
-    n_nodes = len(np.unique(roads.coords, axis=0))
-    # object points per database = nodes + interior vertices; spread the intervals
-    # over the parts in proportion to their length, rounding cumulatively
+    ptr = roads.part_ptr
+    ends = np.concatenate([roads.coords[ptr[:-1]], roads.coords[ptr[1:] - 1]])
+    n_nodes = len(np.unique(ends, axis=0))
     intervals = max(float(n_shape_points) / n_models - n_nodes, 0.0) + len(lengths)
     ideal = np.cumsum(lengths) * intervals / lengths.sum()
-    dense_nseg = np.maximum(1, np.diff(np.concatenate([[0], np.rint(ideal)]))).astype(
-        np.int64)
-    return roads, dense_nseg, float(lengths.sum() / dense_nseg.sum())
+    nseg = np.maximum(1, np.diff(np.concatenate([[0], np.rint(ideal)]))).astype(np.int64)
+    return nseg, float(lengths.sum() / nseg.sum())
 
 
 # --- databases -----------------------------------------------------------------------

@@ -70,6 +70,7 @@ from vectoradjust.simulate.imaging import (
     _scan_measurements,
 )
 from vectoradjust.simulate.readme import describe
+from vectoradjust.simulate.real_roads import RoadLines, _real_roads, read_road_lines
 from vectoradjust.simulate.roads import (
     DATABASES,
     DatabaseModel,
@@ -77,6 +78,7 @@ from vectoradjust.simulate.roads import (
     _dense_scene,
     _grid_roads,
     _make_database,
+    _spread_intervals,
     _TrueRoads,
     _truth_lines,
 )
@@ -92,6 +94,8 @@ __all__ = [
     "write_project",
     "describe",
     "main",
+    "RoadLines",
+    "read_road_lines",
 ]
 
 
@@ -123,6 +127,7 @@ def make_scenario(
     effects: Sequence[str] = (),
     scan: bool = False,
     fiducial_sigma: float = FIDUCIAL_SIGMA,
+    true_roads: RoadLines | str | Path | Sequence[np.ndarray] | None = None,
 ) -> Scenario:
     """Simulate the dissertation's set-up, deterministically from ``seed``.
 
@@ -196,6 +201,16 @@ def make_scenario(
         pixel size. ``measurements`` and their sigmas are then in pixels.
     fiducial_sigma : float
         Pointing precision of a fiducial (mm) when ``scan``.
+    true_roads : RoadLines, str, pathlib.Path or sequence of (n, 2) arrays, optional
+        Real true roads instead of the street grid (``grid`` and ``block_size`` are then
+        ignored): centreline XY in a projected CRS (m), a :class:`RoadLines` or the path
+        of a GeoJSON file of LineStrings (:func:`read_road_lines`). Vertices within 1 mm
+        are one vertex and the lines are split into features at the vertices they share
+        (intersections); the roads are translated so that the centre of their bounding
+        box is ``center`` (about 600 m x 600 m fit the inset stereo overlap of a pair;
+        vertices outside the overlap are not measured). With ``n_shape_points`` the
+        vertex spacing is chosen to give about that many measured shape points in all;
+        otherwise ``vertex_spacing`` or each database's own spacing applies.
 
     Returns
     -------
@@ -214,8 +229,9 @@ def make_scenario(
     images = _images(ids, true_eo, sigma_position, sigma_attitude, date)
     ov_x, in_x, in_y = _stereo_overlap(plan_x, cy)
     dem_grid, dem_transform = _make_dem(true_eo, (cx, cy), seed, dem_noise)
-    roads, spacing, dense_nseg = _true_roads((cx, cy), grid, block_size, vertex_spacing,
-                                             n_shape_points, len(models), ov_x, in_x, in_y)
+    roads, spacing, dense_nseg, real = _true_roads(
+        (cx, cy), grid, block_size, vertex_spacing, n_shape_points, len(models), ov_x, in_x,
+        in_y, true_roads)
     control, control_true = _control_points(seed, in_x, in_y, n_control, n_check, (cx, cy))
     tie_ids, tie_true = _tie_points(seed, in_x, in_y, n_tie, (cx, cy))
     meas_parts = _point_measurements(seed, imaging, control, control_true, tie_ids, tie_true)
@@ -232,7 +248,8 @@ def make_scenario(
         shape_sigma=shape_sigma, position_noise=position_noise, attitude_noise=attitude_noise,
         dem_noise=dem_noise, image_distortion=image_distortion, pointing_sigma=pointing_sigma,
         dense_spacing=spacing if n_shape_points is not None else None,
-        calibration=calibration, effects=effects, scan=scan, fiducial_sigma=fiducial_sigma)
+        calibration=calibration, effects=effects, scan=scan, fiducial_sigma=fiducial_sigma,
+        real_roads=real)
     return Scenario(
         seed=int(seed), crs=CRS, camera=camera, images=images, true_eo=true_eo,
         measurements=measurements, control=control, control_true=control_true,
@@ -274,18 +291,28 @@ def _images(ids: list, true_eo: np.ndarray, sigma_position, sigma_attitude, date
 
 
 def _true_roads(center, grid, block_size, vertex_spacing, n_shape_points, n_models: int,
-                ov_x, in_x, in_y):
+                ov_x, in_x, in_y, true_roads=None):
     """The true roads, the vertex spacing of the databases and, dense, their intervals.
 
     The default scene (:func:`_grid_roads`) has its middle east-west street run 60 m
     west out of the stereo overlap ``ov_x``; dense mode (``n_shape_points``) fills the
-    inset ``in_x, in_y``.
+    inset ``in_x, in_y``; ``true_roads`` (:func:`_real_roads`) replaces both scenes.
+    The last value describes the real roads for :attr:`Scenario.options` (None without).
     """
+    if true_roads is not None:
+        lines = RoadLines.of(true_roads)
+        roads, shift = _real_roads(lines, center)
+        real = {"source": lines.source, "lines": len(lines.lines),
+                "features": len(roads.name), "shift": list(shift)}
+        if n_shape_points is None:
+            return roads, vertex_spacing, None, real
+        nseg, spacing = _spread_intervals(roads, n_models, n_shape_points)
+        return roads, spacing, nseg, real
     if n_shape_points is None:
         roads = _grid_roads(center[0], center[1], grid, float(block_size), ov_x[0] - 60.0)
-        return roads, vertex_spacing, None
+        return roads, vertex_spacing, None, None
     roads, dense_nseg, spacing = _dense_scene(in_x, in_y, n_models, n_shape_points, block_size)
-    return roads, spacing, dense_nseg
+    return roads, spacing, dense_nseg, None
 
 
 def _farthest_points(cand: np.ndarray, n: int, center) -> np.ndarray:
@@ -404,7 +431,7 @@ def _measurements(meas_parts: list, ids: list, sigma_image: float, seed: int, *,
 def _options(*, seed, n_images, grid, block_size, vertex_spacing, n_control, n_check, n_tie,
              sigma_image, models, n_shape_points, shape_sigma, position_noise, attitude_noise,
              dem_noise, image_distortion, pointing_sigma, dense_spacing, calibration, effects,
-             scan, fiducial_sigma) -> dict:
+             scan, fiducial_sigma, real_roads=None) -> dict:
     """The arguments of :func:`make_scenario` as :attr:`Scenario.options` records them."""
     return {
         "seed": int(seed), "n_images": n_images, "grid": list(grid),
@@ -421,6 +448,7 @@ def _options(*, seed, n_images, grid, block_size, vertex_spacing, n_control, n_c
         else Path(calibration.source).name,
         "effects": list(effects), "scan": bool(scan),
         "fiducial_sigma": float(fiducial_sigma) if scan else None,
+        "true_roads": real_roads,
     }
 
 
@@ -456,6 +484,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--scan", action="store_true",
                         help="measure in scanner pixels with fiducials (needs --camera with "
                         "fiducials and pixel_size)")
+    parser.add_argument("--roads", default=None, metavar="GEOJSON",
+                        help="real true roads: GeoJSON LineStrings in a projected CRS (m), "
+                        "centred on the model instead of the street grid")
     parser.add_argument("--reweight", choices=("none", "two-pass", "vce"), default="none",
                         help="[adjustment] reweight written to the project (default none)")
     args = parser.parse_args(argv)
@@ -463,7 +494,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         cal = CameraCalibration.from_file(args.camera) if args.camera else None
         sc = make_scenario(args.seed, n_images=args.images, n_shape_points=args.shape_points,
-                           calibration=cal, effects=args.effects, scan=args.scan)
+                           calibration=cal, effects=args.effects, scan=args.scan,
+                           true_roads=args.roads)
         path = write_project(sc, args.out_dir, format=args.format, reweight=args.reweight)
     except VectorAdjustError as exc:
         print(f"error: {exc}", file=sys.stderr)
