@@ -423,7 +423,9 @@ def test_sample_project_is_small_and_consistent():
     cal = CameraCalibration.from_dict(proj["camera"], root) if "path" in proj["camera"] else None
     effects = [e for e in EFFECTS if proj.get("corrections", {}).get(e)] if cal else []
     scan = proj["measurements"].get("unit", "mm") == "pixel"
-    sc = make_scenario(seed, calibration=cal, effects=effects, scan=scan)
+    ident = proj["vectors"][0].get("identification_sigma")  # the simulated pointing error
+    sc = make_scenario(seed, calibration=cal, effects=effects, scan=scan,
+                       pointing_sigma=float(ident[0]) if ident else 0.0)
     rows = _read_csv(root / "image_points.csv")
     np.testing.assert_allclose([float(r["x"]) for r in rows], sc.measurements.xy[:, 0],
                                atol=5e-7)

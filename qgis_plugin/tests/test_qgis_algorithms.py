@@ -559,18 +559,20 @@ def test_cancel(qgis_app, sample):
 
 def test_adjust_with_identification_sigma_and_offset_from_the_dialog(qgis_app, sample,
                                                                        tmp_path):
-    """The error model's parameters reach the core: CE90 of the real vertex grows by the
-    identification sigma, the offset is estimated and reported."""
+    """The error model's parameters reach the core: the dialog's identification sigma
+    replaces the project's (CE90 of the real vertex grows with it), the offset choice
+    switches the estimated offset off and on."""
     import json
 
     base = tmp_path / "base.json"
     run("adjustroadvectors", adjust_params(sample, SUMMARY=str(base), OFFSET=1))  # none
     with_em = tmp_path / "em.json"
     run("adjustroadvectors", adjust_params(sample, SUMMARY=str(with_em),
-                                           IDENTIFICATION_SIGMA_XY=0.5, OFFSET=2))
+                                           IDENTIFICATION_SIGMA_XY=2.0, OFFSET=2))
     a = json.loads(base.read_text())["databases"][0]
     b = json.loads(with_em.read_text())["databases"][0]
-    assert a["identification_sigma"] is None and "offset" not in a
-    assert b["identification_sigma"] == [0.5, 0.0]
+    assert a["identification_sigma"] == [0.5, 0.0]  # the sample project's
+    assert "offset" not in a
+    assert b["identification_sigma"] == [2.0, 0.0]
     assert b["offset"]["axes"] == ["X", "Y"] and "of the images" in b["offset"]["statement"]
-    assert b["mean_ce90"] > a["mean_ce90"] + 0.5
+    assert b["mean_ce90"] > a["mean_ce90"] + 2.0

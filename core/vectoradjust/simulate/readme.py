@@ -264,6 +264,8 @@ def _regenerate_options(sc: Scenario, reweight: str) -> str:
         text += f" --effects {','.join(sc.effects)}"
     if sc.unit == "pixel":
         text += " --scan"
+    if o.get("pointing_sigma", 0.0):
+        text += f" --pointing-sigma {o['pointing_sigma']:g}"
     if reweight != "none":
         text += f" --reweight {reweight}"
     return text

@@ -394,7 +394,10 @@ def _simulate_database(model: DatabaseModel, roads: _TrueRoads, seed: int, spaci
     spec = VectorSpec(
         name=model.name, path=f"{model.stem}_roads.shp", id_field=model.id_field,
         sigma=tuple(float(s) for s in shape_sigma), dem="dem.tif",
-        truth=f"truth_{model.stem}.csv")
+        truth=f"truth_{model.stem}.csv",
+        # the analyst states the identification error the simulation makes (horizontal;
+        # the measured point lies on the terrain, so vertically only through the slope)
+        identification_sigma=(float(pointing_sigma), 0.0) if pointing_sigma > 0 else None)
     rng_db = _rng(seed, f"image:{model.name}")
     seen_xyz = true_xyz[group_first]
     if pointing_sigma > 0:
@@ -487,6 +490,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--roads", default=None, metavar="GEOJSON",
                         help="real true roads: GeoJSON LineStrings in a projected CRS (m), "
                         "centred on the model instead of the street grid")
+    parser.add_argument("--pointing-sigma", type=float, default=0.0,
+                        help="identification error of the analyst per horizontal axis (m, "
+                        "object space); written as identification_sigma (default 0)")
     parser.add_argument("--reweight", choices=("none", "two-pass", "vce"), default="none",
                         help="[adjustment] reweight written to the project (default none)")
     args = parser.parse_args(argv)
@@ -495,7 +501,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         cal = CameraCalibration.from_file(args.camera) if args.camera else None
         sc = make_scenario(args.seed, n_images=args.images, n_shape_points=args.shape_points,
                            calibration=cal, effects=args.effects, scan=args.scan,
-                           true_roads=args.roads)
+                           true_roads=args.roads, pointing_sigma=args.pointing_sigma)
         path = write_project(sc, args.out_dir, format=args.format, reweight=args.reweight)
     except VectorAdjustError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -76,6 +76,9 @@ def _project_toml(sc: Scenario, layer_ext: str, camera_file: str | None = None,
                 f"id_field = {_toml_value(spec.id_field)}",
                 f"sigma = {_toml_value([float(s) for s in spec.sigma])}",
                 f"dem = {_toml_value(spec.dem)}", f"truth = {_toml_value(spec.truth)}"]
+        if spec.identification_sigma is not None:
+            out.append("identification_sigma = "
+                       f"{_toml_value([float(s) for s in spec.identification_sigma])}")
     rw = f"reweight = {_toml_value(reweight)}"
     if reweight == "two-pass":
         rw += "   # shape-point accuracy unknown: sigma <- RMS of pass-1 residuals"
