@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import math
+from typing import Optional
 
-__all__ = ["fmt_number"]
+__all__ = ["fmt_number", "float_or_none"]
 
 
 def fmt_number(v, nd: int = 3) -> str:
@@ -16,3 +17,11 @@ def fmt_number(v, nd: int = 3) -> str:
     except (TypeError, ValueError):
         return str(v)
     return f"{x:.{nd}f}" if math.isfinite(x) else "-"
+
+
+def float_or_none(x) -> Optional[float]:
+    """A finite float, or None (None, NaN and infinity): for JSON."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None

@@ -42,6 +42,7 @@ from typing import Any, Optional
 import numpy as np
 
 from vectoradjust.accuracy import stats
+from vectoradjust.formatting import float_or_none as _num
 
 __all__ = ["accuracy_statements", "ager_ce90_rule", "ager_le90_rule", "MIN_FEATURE_VERTICES"]
 
@@ -51,14 +52,6 @@ MIN_FEATURE_VERTICES = 5
 _NSSDA_H = 1.7308
 _NSSDA_V = 1.9600
 _NSSDA_GS = 2.4477
-
-
-def _num(x) -> Optional[float]:
-    """Plain float or None (NaN, inf, None)."""
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
 
 
 def _clean(obj):

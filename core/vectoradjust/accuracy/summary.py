@@ -8,25 +8,16 @@ flagged observations. Numpy only.
 
 from __future__ import annotations
 
-from typing import Optional
-
 import numpy as np
 
 from vectoradjust.accuracy import stats
+from vectoradjust.formatting import float_or_none
 from vectoradjust.results import AdjustmentRun
 
 __all__ = ["MAX_FLAGGED_IN_SUMMARY", "float_or_none", "rmse_dict", "run_summary",
            "reliability_summary", "COMPARE_COLUMNS", "compare_row", "compare_columns"]
 
 MAX_FLAGGED_IN_SUMMARY = 1000
-
-
-def float_or_none(x) -> Optional[float]:
-    """A finite float, or None (for JSON)."""
-    if x is None:
-        return None
-    x = float(x)
-    return x if np.isfinite(x) else None
 
 
 def rmse_dict(d: np.ndarray) -> dict:

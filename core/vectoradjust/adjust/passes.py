@@ -17,6 +17,7 @@ import numpy as np
 from vectoradjust.adjust import offsets as off
 from vectoradjust.adjust.bundle import BundleProblem, BundleResult, adjust
 from vectoradjust.adjust.classify import BundleSetup
+from vectoradjust.formatting import float_or_none
 
 __all__ = ["Solution", "solve"]
 
@@ -59,15 +60,8 @@ class Solution:
     offsets: Optional[dict] = None
 
 
-def _float_or_none(x) -> Optional[float]:
-    if x is None:
-        return None
-    x = float(x)
-    return x if np.isfinite(x) else None
-
-
 def _pass_record(label, result: BundleResult, iterations: int, dbs: list) -> dict:
-    return {"pass": label, "sigma0_squared": _float_or_none(result.sigma0_squared),
+    return {"pass": label, "sigma0_squared": float_or_none(result.sigma0_squared),
             "iterations": iterations, "sigma": {d.name: list(d.sigma_used) for d in dbs}}
 
 
@@ -128,9 +122,9 @@ def _vce(problem, point_kind, point_db, db_results, adjust_kwargs, warnings):
                         float(z if z is not None else d.sigma_used[2]))
     info = {
         "iterations": int(v.iterations), "converged": bool(v.converged),
-        "groups": {g: {"sigma": _float_or_none(v.sigma.get(g)),
-                       "sigma_initial": _float_or_none(v.sigma_initial.get(g)),
-                       "redundancy": _float_or_none(v.redundancy.get(g)),
+        "groups": {g: {"sigma": float_or_none(v.sigma.get(g)),
+                       "sigma_initial": float_or_none(v.sigma_initial.get(g)),
+                       "redundancy": float_or_none(v.redundancy.get(g)),
                        "count": int(v.count.get(g, 0)),
                        "estimable": bool(v.estimable.get(g, False)),
                        "unit": "mm" if g == "image" else "m"}

@@ -52,6 +52,7 @@ from vectoradjust.adjust.bundle import (
     inv3x3,
 )
 from vectoradjust.errors import AdjustmentError, SingularityError
+from vectoradjust.formatting import float_or_none as _num
 
 __all__ = [
     "Reliability",
@@ -404,11 +405,6 @@ def reliability(
 
 
 # --------------------------------------------------------------------------- reporting
-def _num(x) -> Optional[float]:
-    x = float(x)
-    return x if np.isfinite(x) else None
-
-
 def flagged_observations(
     rel: Reliability,
     result: BundleResult,

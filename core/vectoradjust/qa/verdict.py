@@ -62,6 +62,8 @@ import numpy as np
 
 from vectoradjust.adjust.bundle import intersect
 from vectoradjust.errors import ProjectError
+from vectoradjust.formatting import float_or_none as _num
+from vectoradjust.formatting import fmt_number
 from vectoradjust.qa.tolerances import (
     PRODUCTS,
     ControlPointQA,
@@ -99,14 +101,6 @@ PAIR_MODES = ("consecutive", "all")
 
 
 # ----------------------------------------------------------------------- helpers
-def _num(x) -> Optional[float]:
-    """JSON number: finite float or None."""
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
 def _na_stage(name: str, values=None, ids: Optional[Sequence] = None, statistic: str = "mean",
               unit: str = "", tolerance: float = float("nan")) -> StageResult:
     """A stage that is reported but not evaluated (tolerance unknown or nothing to judge)."""
@@ -887,16 +881,6 @@ def control_qa_field(run, spec: QASpec, *, point_rule: str = "limit",
 
 
 # --------------------------------------------------------------------- rendering
-def _fmt(v, nd: int = 3) -> str:
-    if v is None:
-        return "-"
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return str(v)
-    return f"{x:.{nd}f}" if math.isfinite(x) else "-"
-
-
 def html_section(report: dict) -> str:
     """An HTML fragment (``<section>``) of a QA report for ``report.html``.
 
@@ -916,26 +900,26 @@ def html_section(report: dict) -> str:
         scale = spec.get("map_scale")
     else:
         scale = spec.get("orthophoto_scale") or spec.get("map_scale")
-    head = f"product {spec['product']}, scale 1:{_fmt(scale, 0)}"
+    head = f"product {spec['product']}, scale 1:{fmt_number(scale, 0)}"
     if spec.get("contour_interval"):
-        head += f", contour interval {_fmt(spec['contour_interval'], 2)} m"
-    head += f", pixel size {_fmt(report.get('pixel_size_mm'), 4)} mm"
+        head += f", contour interval {fmt_number(spec['contour_interval'], 2)} m"
+    head += f", pixel size {fmt_number(report.get('pixel_size_mm'), 4)} mm"
     out = ['<section id="accuracy-control">', "<h2>Accuracy control</h2>",
            f"<p><strong>Verdict: {e(verdict)}</strong> &mdash; {e(head)}</p>"]
     if report["nonconformities"]:
         out.append("<h3>Non-conformities</h3><ul>")
         for n in report["nonconformities"]:
             ids = ", ".join(e(str(i)) for i in n["ids"]) or "(the statistic)"
-            out.append(f"<li>{e(n['stage'])}: {e(n['statistic'])} {_fmt(n['measured'])} "
-                       f"{e(n['unit'])} &gt; {_fmt(n['tolerance'])}; re-measure: {ids}</li>")
+            out.append(f"<li>{e(n['stage'])}: {e(n['statistic'])} {fmt_number(n['measured'])} "
+                       f"{e(n['unit'])} &gt; {fmt_number(n['tolerance'])}; re-measure: {ids}</li>")
         out.append("</ul>")
     out.append("<table><thead><tr><th>stage</th><th>statistic</th><th>measured</th>"
                "<th>tolerance</th><th>point limit</th><th>unit</th><th>status</th>"
                "</tr></thead><tbody>")
     for s in report["stages"]:
         out.append(f"<tr><td>{e(s['name'])}</td><td>{e(s['statistic'])}</td>"
-                   f"<td>{_fmt(s['measured'])}</td><td>{_fmt(s['tolerance'])}</td>"
-                   f"<td>{_fmt(s['point_tolerance'])}</td><td>{e(s['unit'])}</td>"
+                   f"<td>{fmt_number(s['measured'])}</td><td>{fmt_number(s['tolerance'])}</td>"
+                   f"<td>{fmt_number(s['point_tolerance'])}</td><td>{e(s['unit'])}</td>"
                    f"<td>{e(s['status'])}</td></tr>")
     out.append("</tbody></table>")
     if report["notes"]:
