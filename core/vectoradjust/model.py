@@ -242,6 +242,9 @@ class VectorSpec:
     layer: Optional[str] = None
     identification_sigma: Optional[tuple[float, float]] = None
     offset: str = "shift"
+    #: attribute filter applied when the layer is read (an OGR SQL WHERE clause, e.g.
+    #: ``highway IS NOT NULL``); None: every feature
+    where: Optional[str] = None
 
     @property
     def identification_variance(self) -> np.ndarray:
