@@ -81,3 +81,50 @@ def test_compare_with_clashing_input_fields(clashing, tmp_path, capsys):
     assert (tmp_path / "compare.csv").is_file()
     feats = gpd.read_file(tmp_path / "OSM" / "adjusted.gpkg", layer="features")
     assert {"in_length", "Length", "in_RMSE", "RMSE", "in_npts", "NPts"} <= set(feats.columns)
+
+
+# --------------------------------------------------------------------------- quiet writing
+@pytest.fixture(scope="module")
+def long_names(project_dir, tmp_path_factory) -> Path:
+    """OSM roads as a GeoPackage with field names and texts a shapefile cannot hold."""
+    d = tmp_path_factory.mktemp("long") / "p"
+    shutil.copytree(project_dir, d)
+    g = gpd.read_file(d / "osm_roads.shp")
+    g["a_very_long_field_name"] = "x"
+    g["another_long_field"] = "y" * 300
+    g.to_file(d / "osm_roads.gpkg", driver="GPKG")
+    text = (d / "project.toml").read_text()
+    assert '"osm_roads.shp"' in text
+    (d / "project.toml").write_text(text.replace('"osm_roads.shp"', '"osm_roads.gpkg"'))
+    return d
+
+
+def _adjust_recording(args):
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(args) == 0
+    return [str(w.message) for w in caught]
+
+
+def test_gdal_warnings_become_run_warnings(long_names, tmp_path, capfd):
+    out = tmp_path / "o"
+    caught = _adjust_recording(["adjust", str(long_names / "project.toml"), "--out", str(out),
+                                "--format", "shp", "--vectors", "OSM", "-q"])
+    assert caught == []
+    assert capfd.readouterr().err == ""
+    warn = json.loads((out / "summary.json").read_text())["warnings"]
+    assert any("'a_very_long_field_name' is written as 'a_very_lon'" in w for w in warn)
+    assert any("cut to 254 characters" in w for w in warn)
+    assert all(len(w) < 1000 for w in warn)
+
+
+def test_normal_run_writes_only_the_progress_bar_to_stderr(project_dir, tmp_path, capfd):
+    for fmt in ("gpkg", "shp"):
+        caught = _adjust_recording(["adjust", str(project_dir / "project.toml"), "--out",
+                                    str(tmp_path / fmt), "--format", fmt])
+        assert caught == []
+        err = capfd.readouterr().err
+        lines = [ln for ln in err.replace("\r", "\n").splitlines() if ln.strip()]
+        assert lines and all(ln.startswith("adjust [") for ln in lines), err

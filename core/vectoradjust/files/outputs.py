@@ -9,8 +9,10 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Optional
 
@@ -227,11 +229,45 @@ def control_points_frame(run: AdjustmentRun):
     return gpd.GeoDataFrame(pd.DataFrame(cols), geometry=geom, crs=run.data.crs)
 
 
-def _write_layer(gdf, path: Path, layer: Optional[str], fmt: str) -> None:
-    if fmt == "gpkg":
-        gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio")
-    else:
-        gdf.to_file(path, driver="ESRI Shapefile", engine="pyogrio", encoding="UTF-8")
+_LAUNDERED = re.compile(r"Normalized/laundered field name: '(.+)' to '(.+)'")
+_TRUNCATED_VALUE = re.compile(r"Value '.*' of field (\S+) has been truncated to (\d+) characters",
+                              re.DOTALL)
+
+
+def _writer_warning(message: str, where: str) -> Optional[str]:
+    """A GDAL/pyogrio/geopandas warning raised while writing, as a run warning (or None)."""
+    msg = " ".join(str(message).split())
+    if msg.startswith("Column names longer than 10 characters"):
+        return None  # geopandas' generic notice; GDAL names every laundered field
+    m = _LAUNDERED.search(msg)
+    if m:
+        return (f"{where}: input field {m.group(1)!r} is written as {m.group(2)!r} "
+                f"(shapefile field names have at most 10 characters; use --format gpkg to "
+                f"keep the name)")
+    m = _TRUNCATED_VALUE.search(msg)
+    if m:
+        return (f"{where}: text values of field {m.group(1)!r} are cut to {m.group(2)} "
+                f"characters (the shapefile limit; use --format gpkg to keep them whole)")
+    if len(msg) > 300:
+        msg = msg[:300] + "..."
+    return f"{where}: {msg}"
+
+
+def _write_layer(gdf, path: Path, layer: Optional[str], fmt: str) -> list:
+    """Write one layer; returns GDAL's warnings as run warnings instead of printing them."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if fmt == "gpkg":
+            gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio")
+        else:
+            gdf.to_file(path, driver="ESRI Shapefile", engine="pyogrio", encoding="UTF-8")
+    where = f"{path.name} layer {layer}" if layer else path.name
+    out: list = []
+    for w in caught:
+        text = _writer_warning(str(w.message), where)
+        if text and text not in out:
+            out.append(text)
+    return out
 
 
 FLAGGED_COLUMNS = ["kind", "image", "point", "point_kind", "component", "unit", "residual", "w",
@@ -290,15 +326,18 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
     tmp = Path(tempfile.mkdtemp(prefix=".vectoradjust-", dir=out))
     written = {}
     try:
+        notes: list = []
         if fmt == "gpkg":
             for name, gdf in frames.items():
-                _write_layer(gdf, tmp / "adjusted.gpkg", name, fmt)
+                notes += _write_layer(gdf, tmp / "adjusted.gpkg", name, fmt)
             names = ["adjusted.gpkg"]
         else:
             names = []
             for name, gdf in frames.items():
-                _write_layer(gdf, tmp / f"{name}.shp", None, fmt)
+                notes += _write_layer(gdf, tmp / f"{name}.shp", None, fmt)
                 names += [p.name for p in tmp.glob(f"{name}.*")]
+        if notes:  # into the run's warnings (printed, in summary.json and the report)
+            run.summary["warnings"] = list(run.summary.get("warnings", [])) + notes
         if run.flagged:
             _write_flagged(run.flagged, tmp / "flagged_observations.csv")
             names.append("flagged_observations.csv")
