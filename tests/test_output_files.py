@@ -128,3 +128,38 @@ def test_normal_run_writes_only_the_progress_bar_to_stderr(project_dir, tmp_path
         err = capfd.readouterr().err
         lines = [ln for ln in err.replace("\r", "\n").splitlines() if ln.strip()]
         assert lines and all(ln.startswith("adjust [") for ln in lines), err
+
+
+# --------------------------------------------------------------------------- no height
+def test_unmeasured_vertices_outside_the_dem_get_a_problem(project_dir, tmp_path):
+    import numpy as np
+    import shapely
+    from shapely.geometry import LineString
+
+    d = tmp_path / "p"
+    shutil.copytree(project_dir, d)
+    g = gpd.read_file(d / "osm_roads.shp")
+    n = len(g)
+    x0, y0 = g.total_bounds[2] + 5000.0, g.total_bounds[3]
+    extra = g.iloc[[0, 0]].copy()
+    extra["osm_id"] = [999001, 999002]
+    # one road wholly east of the DEM, one from inside it to 2 vertices outside
+    inside = np.asarray(g.geometry.iloc[0].coords)[0]
+    extra["geometry"] = [LineString([(x0, y0), (x0 + 10, y0), (x0 + 20, y0 + 5)]),
+                         LineString([tuple(inside), (x0, y0), (x0 + 10, y0)])]
+    gpd.GeoDataFrame(gpd.pd.concat([g, extra], ignore_index=True), crs=g.crs).to_file(
+        d / "osm_roads.shp")
+    data = load_project_data(d / "project.toml", vectors=["OSM"])
+    r = run(data, vectors=["OSM"])
+    out = write_outputs(r, tmp_path / "o", bands=False)
+    feats = gpd.read_file(out["adjusted.gpkg"], layer="features")
+    assert len(feats) == n + 2
+    assert feats.loc[n, "Problem"] == ("3 vertices without height (outside the DEM); their Z is "
+                                       "written as 0")
+    assert feats.loc[n + 1, "Problem"] == ("2 vertices without height (outside the DEM); their "
+                                           "Z is written as 0")
+    assert (feats.loc[:n - 1, "Problem"].fillna("") == "").all()
+    geoms = feats.geometry.iloc[n:]
+    assert shapely.is_valid(geoms).all() and shapely.has_z(geoms).all()
+    z = shapely.get_coordinates(geoms, include_z=True)[:, 2]
+    assert np.isfinite(z).all() and (z[:3] == 0).all()
