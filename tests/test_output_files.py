@@ -163,3 +163,41 @@ def test_unmeasured_vertices_outside_the_dem_get_a_problem(project_dir, tmp_path
     assert shapely.is_valid(geoms).all() and shapely.has_z(geoms).all()
     z = shapely.get_coordinates(geoms, include_z=True)[:, 2]
     assert np.isfinite(z).all() and (z[:3] == 0).all()
+
+
+# --------------------------------------------------------------------------- file modes
+@pytest.mark.parametrize("umask", [0o022, 0o027])
+def test_output_files_get_a_new_files_usual_mode(project_dir, tmp_path, umask):
+    import os
+    import stat
+
+    old = os.umask(umask)
+    try:
+        out = tmp_path / "o"
+        assert main(["adjust", str(project_dir / "project.toml"), "--out", str(out),
+                     "--vectors", "OSM", "-q"]) == 0
+        cmp_out = tmp_path / "c"
+        assert main(["compare", str(project_dir / "project.toml"), "--out", str(cmp_out),
+                     "-q"]) == 0
+    finally:
+        os.umask(old)
+    files = [p for p in list(out.iterdir()) + list(cmp_out.rglob("*")) if p.is_file()]
+    assert {"report.html", "summary.json", "adjusted.gpkg", "compare.csv"} <= {
+        p.name for p in files}
+    for p in files:
+        assert stat.S_IMODE(p.stat().st_mode) == 0o666 & ~umask, p.name
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporaries left
+
+
+def test_single_database_residual_figure_is_not_clipped(sample_dir):
+    from vectoradjust.files.report import figure_png, residual_vector_figure
+
+    data = load_project_data(sample_dir / "project.toml")
+    fig = residual_vector_figure(run(data, vectors=["OSM"]))
+    figure_png(fig)  # lays the figure out and draws it
+    renderer = fig.canvas.get_renderer()
+    width, height = fig.bbox.width, fig.bbox.height
+    for artist in [fig._suptitle, *fig.legends]:
+        bb = artist.get_window_extent(renderer)
+        assert bb.x0 >= -1 and bb.x1 <= width + 1, artist
+        assert bb.y0 >= -1 and bb.y1 <= height + 1, artist
