@@ -6,6 +6,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.io
@@ -127,12 +128,11 @@ def test_normal_run_writes_only_the_progress_bar_to_stderr(project_dir, tmp_path
         assert caught == []
         err = capfd.readouterr().err
         lines = [ln for ln in err.replace("\r", "\n").splitlines() if ln.strip()]
-        assert lines and all(ln.startswith("adjust [") for ln in lines), err
+        assert lines and all(ln.startswith(("adjust [", "truth [")) for ln in lines), err
 
 
 # --------------------------------------------------------------------------- no height
 def test_unmeasured_vertices_outside_the_dem_get_a_problem(project_dir, tmp_path):
-    import numpy as np
     import shapely
     from shapely.geometry import LineString
 
@@ -201,3 +201,62 @@ def test_single_database_residual_figure_is_not_clipped(sample_dir):
         bb = artist.get_window_extent(renderer)
         assert bb.x0 >= -1 and bb.x1 <= width + 1, artist
         assert bb.y0 >= -1 and bb.y1 <= height + 1, artist
+
+
+# --------------------------------------------------------------------------- truth buffer
+@pytest.fixture(scope="module")
+def sample_run(sample_dir):
+    from vectoradjust.files.project import load_project
+    from vectoradjust.files.truth import project_truth
+
+    spec = load_project(sample_dir / "project.toml")
+    return run(load_project_data(spec)), project_truth(spec)
+
+
+def test_truth_buffer_reports_progress_per_chunk(sample_run, monkeypatch):
+    from vectoradjust.accuracy.buffer import buffer_test
+    from vectoradjust.files import truth as truth_mod
+
+    r, (path, widths) = sample_run
+    monkeypatch.setattr(truth_mod, "TRUTH_CHUNK", 5)
+    calls = []
+    got = truth_mod.truth_buffer(r, path, widths, progress=lambda f, m="": calls.append((f, m)),
+                                 is_cancelled=lambda: False)
+    fractions = [f for f, _ in calls]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
+    assert len(calls) > 3 * 2 * 2  # per database and per chunk of 5 lines
+    assert {f"buffer test: {d.name}" for d in r.databases} <= {m for _, m in calls}
+    # the same shares as buffer_test on all lines at once
+    truth_lines, _ = truth_mod.read_lines(path, r.data.crs)
+    d = r.databases[0]
+    layer = d.shape.layer
+    keep = np.isin(layer.vertex_feature,
+                   layer.vertex_feature[d.vertices["Adjusted"] == 1])
+    lines = truth_mod._lines(d.adjusted_coords[keep, :2], layer.vertex_feature[keep],
+                             layer.vertex_part[keep])
+    ref = [row["share"] for row in buffer_test(lines, truth_lines, widths)]
+    assert got[d.name]["after"] == pytest.approx(ref, abs=1e-12)
+
+
+def test_truth_buffer_can_be_cancelled(sample_run, monkeypatch):
+    from vectoradjust.errors import CancelledError
+    from vectoradjust.files import truth as truth_mod
+
+    r, (path, widths) = sample_run
+    monkeypatch.setattr(truth_mod, "TRUTH_CHUNK", 5)
+    polls = []
+
+    def is_cancelled():
+        polls.append(1)
+        return len(polls) > 6
+
+    with pytest.raises(CancelledError, match="cancelled"):
+        truth_mod.truth_buffer(r, path, widths, is_cancelled=is_cancelled)
+    assert len(polls) == 7
+
+
+def test_cli_shows_the_truth_buffer_stage(sample_dir, tmp_path, capfd):
+    assert main(["adjust", str(sample_dir / "project.toml"), "--out", str(tmp_path / "o"),
+                 "--vectors", "OSM", "--no-bands"]) == 0
+    err = capfd.readouterr().err
+    assert "truth [" in err and "buffer test: OSM" in err and "buffer test: done" in err
