@@ -79,15 +79,18 @@ def residual_fields():
 def feature_fields(input_fields):
     """Fields of the ``features`` layer: every input field, then the contract's.
 
-    Input fields whose names clash with ours (or ``geometry``) are renamed as the
-    headless writer renames them (``<first 7 characters>_in``).
+    Input fields whose names clash with ours case-insensitively (or ``geometry``/``fid``)
+    are renamed as the headless writer renames them
+    (:func:`vectoradjust.files.outputs.renamed_input_fields`: ``length`` -> ``in_length``).
     """
-    ours = _outputs_module().FEATURE_FIELDS
+    outputs = _outputs_module()
+    ours = outputs.FEATURE_FIELDS
+    renamed = outputs.renamed_input_fields([f.name() for f in input_fields])
     fields = QgsFields()
     for f in input_fields:
         g = QgsField(f)
-        if f.name() in ours or f.name().lower() == "geometry":
-            g.setName(f.name()[:7] + "_in")
+        if f.name() in renamed:
+            g.setName(renamed[f.name()])
         fields.append(g)
     for f in fields_for(ours, _FEATURE_TYPES):
         fields.append(f)
@@ -142,8 +145,15 @@ def _feature_parts(d):
 
 
 def feature_features(run, fields, multi):
-    """Features of the ``features`` layer: input attributes, contract fields, adjusted line."""
-    ours = _outputs_module().FEATURE_FIELDS
+    """Features of the ``features`` layer: input attributes, contract fields, adjusted line.
+
+    The renamed input fields go into ``run.summary["renamed_input_fields"]`` (as in the
+    headless ``summary.json``).
+    """
+    outputs = _outputs_module()
+    ours = outputs.FEATURE_FIELDS
+    run.summary["renamed_input_fields"] = outputs.renamed_input_fields(
+        outputs.run_input_fields(run))
     out = []
     for d in run.databases:
         layer = d.shape.layer

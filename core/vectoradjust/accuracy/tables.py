@@ -252,6 +252,25 @@ def _truth_comparison(out: AdjustmentRun, d: DatabaseResult, adj, v, ce, le, mea
     }
 
 
+def _feature_problems(d: DatabaseResult, adj: np.ndarray) -> np.ndarray:
+    """The ``Problem`` text of each feature: the reader's (null geometry, ...) and vertices
+    without a height (unmeasured, outside the DEM: their Z is NaN, written as 0)."""
+    layer = d.shape.layer
+    nf = layer.n_features
+    txt = np.array([layer.problems.get(i, "") for i in range(nf)], dtype=object)
+    if len(adj) == 0:
+        return txt
+    noz = np.bincount(layer.vertex_feature, weights=~np.isfinite(adj[:, 2]),
+                      minlength=nf).astype(np.int64)
+    why = "outside the DEM" if getattr(d.spec, "dem", None) else "the layer has no Z"
+    for f in np.flatnonzero(noz):
+        n = int(noz[f])
+        note = (f"{n} vertices without height ({why}); their Z is written as 0" if n > 1 else
+                f"1 vertex without height ({why}); its Z is written as 0")
+        txt[f] = f"{txt[f]}; {note}" if txt[f] else note
+    return txt
+
+
 def tabulate_database(out: AdjustmentRun, d: DatabaseResult) -> None:
     """Fill ``d.vertices``, ``d.features``, ``d.adjusted_coords`` and ``d.truth``.
 
@@ -267,8 +286,7 @@ def tabulate_database(out: AdjustmentRun, d: DatabaseResult) -> None:
     npts, nadj, rm = _feature_rmse(layer, v, meas_v)
     geometry = _feature_geometry(layer, adj)
     images, dates = _feature_provenance(out, d, meas_v)
-    problem_txt = np.array([layer.problems.get(i, "") for i in range(layer.n_features)],
-                           dtype=object)
+    problem_txt = _feature_problems(d, adj)
     d.features = {
         "NPts": npts.astype(np.int64), "NAdj": nadj,
         "RMSE_X": rm[:, 0], "RMSE_Y": rm[:, 1], "RMSE_Z": rm[:, 2],

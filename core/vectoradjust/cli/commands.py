@@ -116,7 +116,8 @@ def cmd_adjust(args) -> int:
     result = run(data, vectors=args.vectors, progress=bar)
     truth = cli_buffer.project_truth(spec)
     if truth is not None:  # true centrelines: buffer test before/after the adjustment
-        cli_buffer.truth_buffer(result, *truth)
+        cli_buffer.truth_buffer(result, *truth,
+                                progress=ProgressBar("truth", enabled=not args.quiet))
     written = write_outputs(result, args.out, fmt=args.format,
                             bands=not getattr(args, "no_bands", False))
     from vectoradjust.files.report import write_report
@@ -167,7 +168,8 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
         bar = ProgressBar(f"{v.name:>8s} ({i + 1}/{len(spec.vectors)})", enabled=not quiet)
         result = run(data, vectors=[v.name], progress=bar)
         if truth is not None:
-            cli_buffer.truth_buffer(result, *truth)
+            cli_buffer.truth_buffer(result, *truth, progress=ProgressBar(
+                f"{v.name:>8s} truth", enabled=not quiet))
         write_outputs(result, out / v.name, fmt=fmt)
         write_report(result, out / v.name / "report.html", reliability=result.reliability)
         rows.append(compare_row(result.summary))

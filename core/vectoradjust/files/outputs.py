@@ -9,8 +9,10 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Optional
 
@@ -21,7 +23,7 @@ from vectoradjust.files.jsonfile import clean_json
 from vectoradjust.results import AdjustmentRun
 
 __all__ = ["write_outputs", "shape_points_frame", "features_frame", "control_points_frame",
-           "json_default"]
+           "json_default", "renamed_input_fields", "run_input_fields"]
 
 SHAPE_FIELDS = ["point_id", "feature_id", "X", "Y", "Z", "Vx", "Vy", "Vz", "AdjX", "AdjY", "AdjZ",
                 "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "CE90_meas", "LE90_meas",
@@ -31,6 +33,61 @@ FEATURE_FIELDS = ["NPts", "NAdj", "RMSE_X", "RMSE_Y", "RMSE_Z", "RMSE", "Length"
                   "FirstY", "LastX", "LastY", "Images", "ImgDate", "Database", "Problem"]
 CONTROL_FIELDS = ["point_id", "role", "X", "Y", "Z", "AdjX", "AdjY", "AdjZ", "Vx", "Vy", "Vz",
                   "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "NImages", "Used"]
+
+
+#: names an input attribute may not keep besides ours (the geometry column and GeoPackage's fid)
+RESERVED_NAMES = ("geometry", "fid")
+#: longest field name a shapefile holds
+SHAPEFILE_NAME_LENGTH = 10
+
+
+def renamed_input_fields(names) -> dict:
+    """The new names of input attributes that would clash with the product's fields.
+
+    The product's field names (``FEATURE_FIELDS``, the file contract) are fixed. An input
+    field whose name equals one of them case-insensitively (GeoPackage and shapefile
+    names are case-insensitive), or ``geometry``/``fid``, or an earlier input field, is
+    kept as ``in_<name>``: at most 10 characters (shapefile-safe) and unique,
+    case-insensitively, among all fields of the ``features`` layer (a number is
+    appended when needed).
+
+    Parameters
+    ----------
+    names : iterable of str
+        The input field names, in order.
+
+    Returns
+    -------
+    dict
+        ``{input name: output name}`` of the renamed fields only (empty when none clash).
+    """
+    names = [str(n) for n in names]
+    reserved = {f.lower() for f in FEATURE_FIELDS} | set(RESERVED_NAMES)
+    taken = reserved | {n.lower() for n in names}
+    seen: set = set()
+    out: dict = {}
+    for n in names:
+        low = n.lower()
+        if low not in reserved and low not in seen:
+            seen.add(low)
+            continue
+        new = ("in_" + n)[:SHAPEFILE_NAME_LENGTH]
+        k = 1
+        while new.lower() in taken:
+            tail = str(k)
+            new = ("in_" + n)[:SHAPEFILE_NAME_LENGTH - len(tail)] + tail
+            k += 1
+        taken.add(new.lower())
+        out[n] = new
+    return out
+
+
+def run_input_fields(run: AdjustmentRun) -> list:
+    """The input attribute names of all databases of a run (first appearance order)."""
+    names: list = []
+    for d in run.databases:
+        names += [n for n in d.shape.layer.attributes if n not in names]
+    return names
 
 
 def json_default(o):
@@ -133,16 +190,13 @@ def features_frame(run: AdjustmentRun):
     import geopandas as gpd
     import pandas as pd
 
+    renamed = renamed_input_fields(run_input_fields(run))
     frames = []
     for d in run.databases:
         layer = d.shape.layer
         cols: dict = {}
-        ours = set(FEATURE_FIELDS)
         for name, values in layer.attributes.items():
-            out_name = name
-            if name in ours or name.lower() == "geometry":
-                out_name = (name[:7] + "_in")
-            cols[out_name] = list(values)
+            cols[renamed.get(name, name)] = list(values)
         for f in FEATURE_FIELDS:
             if f == "Database":
                 cols[f] = [d.name] * layer.n_features
@@ -175,11 +229,45 @@ def control_points_frame(run: AdjustmentRun):
     return gpd.GeoDataFrame(pd.DataFrame(cols), geometry=geom, crs=run.data.crs)
 
 
-def _write_layer(gdf, path: Path, layer: Optional[str], fmt: str) -> None:
-    if fmt == "gpkg":
-        gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio")
-    else:
-        gdf.to_file(path, driver="ESRI Shapefile", engine="pyogrio", encoding="UTF-8")
+_LAUNDERED = re.compile(r"Normalized/laundered field name: '(.+)' to '(.+)'")
+_TRUNCATED_VALUE = re.compile(r"Value '.*' of field (\S+) has been truncated to (\d+) characters",
+                              re.DOTALL)
+
+
+def _writer_warning(message: str, where: str) -> Optional[str]:
+    """A GDAL/pyogrio/geopandas warning raised while writing, as a run warning (or None)."""
+    msg = " ".join(str(message).split())
+    if msg.startswith("Column names longer than 10 characters"):
+        return None  # geopandas' generic notice; GDAL names every laundered field
+    m = _LAUNDERED.search(msg)
+    if m:
+        return (f"{where}: input field {m.group(1)!r} is written as {m.group(2)!r} "
+                f"(shapefile field names have at most 10 characters; use --format gpkg to "
+                f"keep the name)")
+    m = _TRUNCATED_VALUE.search(msg)
+    if m:
+        return (f"{where}: text values of field {m.group(1)!r} are cut to {m.group(2)} "
+                f"characters (the shapefile limit; use --format gpkg to keep them whole)")
+    if len(msg) > 300:
+        msg = msg[:300] + "..."
+    return f"{where}: {msg}"
+
+
+def _write_layer(gdf, path: Path, layer: Optional[str], fmt: str) -> list:
+    """Write one layer; returns GDAL's warnings as run warnings instead of printing them."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if fmt == "gpkg":
+            gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio")
+        else:
+            gdf.to_file(path, driver="ESRI Shapefile", engine="pyogrio", encoding="UTF-8")
+    where = f"{path.name} layer {layer}" if layer else path.name
+    out: list = []
+    for w in caught:
+        text = _writer_warning(str(w.message), where)
+        if text and text not in out:
+            out.append(text)
+    return out
 
 
 FLAGGED_COLUMNS = ["kind", "image", "point", "point_kind", "component", "unit", "residual", "w",
@@ -238,19 +326,23 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
     tmp = Path(tempfile.mkdtemp(prefix=".vectoradjust-", dir=out))
     written = {}
     try:
+        notes: list = []
         if fmt == "gpkg":
             for name, gdf in frames.items():
-                _write_layer(gdf, tmp / "adjusted.gpkg", name, fmt)
+                notes += _write_layer(gdf, tmp / "adjusted.gpkg", name, fmt)
             names = ["adjusted.gpkg"]
         else:
             names = []
             for name, gdf in frames.items():
-                _write_layer(gdf, tmp / f"{name}.shp", None, fmt)
+                notes += _write_layer(gdf, tmp / f"{name}.shp", None, fmt)
                 names += [p.name for p in tmp.glob(f"{name}.*")]
+        if notes:  # into the run's warnings (printed, in summary.json and the report)
+            run.summary["warnings"] = list(run.summary.get("warnings", [])) + notes
         if run.flagged:
             _write_flagged(run.flagged, tmp / "flagged_observations.csv")
             names.append("flagged_observations.csv")
         summary = dict(run.summary)
+        summary["renamed_input_fields"] = renamed_input_fields(run_input_fields(run))
         if extra_json:
             summary.update(extra_json)
         with open(tmp / "summary.json", "w", encoding="utf-8") as fh:

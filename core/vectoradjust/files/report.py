@@ -520,8 +520,11 @@ def residual_vector_figure(run, *, max_arrows: int = MAX_ARROWS,
             axes[j // ncols][j % ncols].set_visible(False)
         scale_txt = ("arrows at true scale (they end on the adjusted line)" if k == 1 else
                      f"arrows exaggerated \u00d7{k:g}")
-        fig.suptitle(f"Residuals V = adjusted \u2212 database ({scale_txt})", fontsize=11)
-        _figure_legend(fig, axes[0][0], _residual_handles(n, cmap[dbs[0].name]), ncol=5)
+        # one narrow panel: the title on two lines and the legend in rows (not clipped)
+        sep = "\n" if ncols == 1 else " "
+        fig.suptitle(f"Residuals V = adjusted \u2212 database{sep}({scale_txt})", fontsize=11)
+        _figure_legend(fig, axes[0][0], _residual_handles(n, cmap[dbs[0].name]),
+                       ncol=3 if ncols == 1 else 5)
     return fig
 
 
@@ -1709,6 +1712,13 @@ def _prepare(path: Path) -> Path:
     return path
 
 
+def _new_file_mode() -> int:
+    """The mode ``open()`` gives a new file: 0666 less the process's umask (e.g. 0644)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def _write_text(path: Path, text: str) -> Path:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -1716,6 +1726,8 @@ def _write_text(path: Path, text: str) -> Path:
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as fh:
                 fh.write(text)
+            # mkstemp makes the file 0600; the report gets a new file's usual mode
+            os.chmod(tmp, _new_file_mode())
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)

@@ -84,32 +84,112 @@ def _lines(xy: np.ndarray, feature: np.ndarray, part: np.ndarray) -> list:
             if e - s >= 2]
 
 
-def truth_buffer(run, truth_path, widths=(1.0, 2.0)) -> dict:
+#: tested lines intersected with a truth buffer per step (progress and cancel between steps)
+TRUTH_CHUNK = 2000
+
+
+def _check(is_cancelled) -> None:
+    if is_cancelled is not None and is_cancelled():
+        from vectoradjust.errors import CancelledError
+
+        raise CancelledError("The buffer test against the true centrelines was cancelled",
+                             "Run again to completion, or remove [truth] from the project")
+
+
+def _truth_buffers(truth, widths, is_cancelled=None) -> list:
+    """The united true lines buffered by each width (None: an empty buffer), prepared.
+
+    The same buffers as :func:`vectoradjust.accuracy.buffer.buffer_test` (round caps, 32
+    chords per quarter circle), built once for every database, before and after.
+    """
+    import shapely
+
+    parts = [p for g in truth if g is not None and not g.is_empty
+             for p in shapely.get_parts(g)]
+    lines = shapely.multilinestrings(parts) if parts else None
+    out = []
+    for w in widths:
+        _check(is_cancelled)
+        if lines is None or w <= 0:
+            out.append(None)
+            continue
+        buf = shapely.buffer(lines, float(w), quad_segs=32, cap_style="round")
+        shapely.prepare(buf)
+        out.append(buf)
+    return out
+
+
+def _shares(lines: list, buffers: list, widths, step) -> list:
+    """Share of the lines' length inside each buffer, in chunks (``step()`` after each)."""
+    import shapely
+
+    tst = np.asarray([g for g in lines if not g.is_empty], dtype=object)
+    total = float(np.sum(shapely.length(tst))) if tst.size else 0.0
+    inside = np.zeros(len(widths))
+    for k in range(0, max(len(tst), 1), TRUTH_CHUNK):
+        part = tst[k:k + TRUTH_CHUNK]
+        for j, buf in enumerate(buffers):
+            if buf is None or total <= 0 or not part.size:
+                continue
+            hit = shapely.intersects(buf, part)
+            if np.any(hit):
+                inside[j] += float(np.sum(shapely.length(shapely.intersection(part[hit], buf))))
+        step(len(part))
+    return [None if total <= 0 else min(max(x / total, 0.0), 1.0) for x in inside]
+
+
+def truth_buffer(run, truth_path, widths=(1.0, 2.0), progress=None, is_cancelled=None) -> dict:
     """Share of each database's lines inside buffers of the true lines, before and after.
 
     Only features with at least one adjusted vertex are compared (the others did not
     move). Returns ``{database: {"widths", "before", "after"}}`` and writes the same into
-    ``run.summary["databases"][i]["truth"]["buffer"]``.
+    ``run.summary["databases"][i]["truth"]["buffer"]``. The shares are those of
+    :func:`vectoradjust.accuracy.buffer.buffer_test`.
+
+    Parameters
+    ----------
+    progress : callable, optional
+        ``progress(fraction, message)``, called per database and per chunk of
+        ``TRUTH_CHUNK`` lines.
+    is_cancelled : callable, optional
+        Polled as often; when it returns True, :class:`vectoradjust.errors.CancelledError`
+        is raised.
     """
     from pyproj import CRS
 
-    from vectoradjust.accuracy.buffer import buffer_test
-
+    widths = [float(w) for w in widths]
+    say = progress or (lambda fraction, message="": None)
+    say(0.0, "buffer test: reading the true centrelines")
     truth, _ = read_lines(truth_path, CRS.from_user_input(run.data.crs))
-    out = {}
+    say(0.0, "buffer test: buffering the true centrelines")
+    buffers = _truth_buffers(truth, widths, is_cancelled)
+    jobs = []
     for d, entry in zip(run.databases, run.summary.get("databases", [])):
         layer = d.shape.layer
         measured = np.unique(layer.vertex_feature[d.vertices["Adjusted"] == 1])
         keep = np.isin(layer.vertex_feature, measured)
-        if not keep.any():
-            continue
-        fp = (layer.vertex_feature[keep], layer.vertex_part[keep])
-        before = buffer_test(_lines(layer.coords[keep, :2], *fp), truth, widths)
-        after = buffer_test(_lines(d.adjusted_coords[keep, :2], *fp), truth, widths)
-        res = {"widths": list(widths), "before": [r["share"] for r in before],
-               "after": [r["share"] for r in after], "truth_lines": str(truth_path)}
+        if keep.any():
+            fp = (layer.vertex_feature[keep], layer.vertex_part[keep])
+            jobs.append((d, entry, _lines(layer.coords[keep, :2], *fp),
+                         _lines(d.adjusted_coords[keep, :2], *fp)))
+    todo = max(sum(len(b) + len(a) for _, _, b, a in jobs), 1)
+    done = [0]
+    out = {}
+    for d, entry, before_lines, after_lines in jobs:
+        def step(n, name=d.name):
+            done[0] += n
+            say(done[0] / todo, f"buffer test: {name}")
+            _check(is_cancelled)
+
+        _check(is_cancelled)
+        say(done[0] / todo, f"buffer test: {d.name}")
+        before = _shares(before_lines, buffers, widths, step)
+        after = _shares(after_lines, buffers, widths, step)
+        res = {"widths": list(widths), "before": before, "after": after,
+               "truth_lines": str(truth_path)}
         out[d.name] = res
         entry.setdefault("truth", {})["buffer"] = res
+    say(1.0, "buffer test: done")
     return out
 
 
