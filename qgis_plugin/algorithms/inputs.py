@@ -36,6 +36,7 @@ from qgis.core import (
     QgsRasterLayer,
     QgsVectorLayer,
 )
+from qgis.PyQt.QtCore import QVariant
 
 from .. import qgis_io
 
@@ -162,9 +163,20 @@ class ProjectInputs:
                             fiducials=self.fiducials, map_projection=True, source=self.source)
 
 
+def _blank(v):
+    """True for None, a NULL QVariant and an empty or blank string."""
+    if v is None or (isinstance(v, str) and not v.strip()):
+        return True
+    return isinstance(v, QVariant) and v.isNull()
+
+
 def _is_set(parameters, name):
+    """True when the parameter has a value: not None/NULL/empty, nor a list of such
+    (the dialog gives an untouched table as ``[NULL]``)."""
     v = parameters.get(name)
-    return v is not None and v != "" and not (isinstance(v, (list, tuple)) and len(v) == 0)
+    if isinstance(v, (list, tuple)):
+        return not all(_blank(x) for x in v)
+    return not _blank(v)
 
 
 def _number(alg, parameters, name, context) -> Optional[float]:
@@ -176,7 +188,9 @@ def _number(alg, parameters, name, context) -> Optional[float]:
 def _images_from_matrix(values, where):
     from vectoradjust.errors import ProjectError
 
-    values = ["" if v is None else str(v).strip() for v in values]
+    values = ["" if _blank(v) else str(v).strip() for v in values or []]
+    if not any(values):  # an untouched table: the images of the project file
+        return []
     ncol = len(IMAGE_HEADERS)
     if len(values) % ncol:
         raise ProjectError(f"{where}: the table has {len(values)} cells, not a multiple of "
