@@ -1,0 +1,127 @@
+"""Road layers of the dialog that are not literally the file of a ``[[vectors]]`` entry (a
+memory copy, a reprojected copy, a layer named like the entry, a selection) still stand for
+that entry: their measurements are found, and a selection adjusts exactly its roads."""
+
+import pytest
+
+pytest.importorskip("qgis.core")
+
+from .util import close, columns  # noqa: E402
+
+pytestmark = pytest.mark.qgis
+
+OUTPUTS = ("SHAPE_POINTS", "FEATURES")
+
+
+def run(params, feedback=None):
+    import processing
+
+    return processing.run("vectoradjust:adjustroadvectors", params, feedback=feedback)
+
+
+def params(sample, layer, **extra):
+    p = {"INPUT": layer, "PROJECT": str(sample / "project.toml")}
+    p.update({k: "TEMPORARY_OUTPUT" for k in OUTPUTS})
+    p.update(extra)
+    return p
+
+
+def measured(out):
+    """Sorted point ids of the measured shape points (NImages > 0)."""
+    cols = columns(out["SHAPE_POINTS"])
+    return sorted(p for p, n in zip(cols["point_id"], cols["NImages"]) if n)
+
+
+def osm_layer(sample, name="osm_roads"):
+    from qgis.core import QgsVectorLayer
+
+    lyr = QgsVectorLayer(str(sample / "osm_roads.shp"), name, "ogr")
+    assert lyr.isValid()
+    return lyr
+
+
+def memory_copy(sample, name):
+    from qgis.core import QgsFeatureRequest
+
+    lyr = osm_layer(sample).materialize(QgsFeatureRequest())
+    lyr.setName(name)
+    return lyr
+
+
+@pytest.fixture(scope="module")
+def file_run(qgis_app, sample):
+    """The OSM file itself (the reference)."""
+    return run(params(sample, str(sample / "osm_roads.shp")))
+
+
+def assert_same_run(out, ref, atol=1e-9):
+    assert measured(out) and measured(out) == measured(ref)
+    assert out["DEGREES_OF_FREEDOM"] == ref["DEGREES_OF_FREEDOM"]
+    assert close(out["SIGMA0_SQUARED"], ref["SIGMA0_SQUARED"],
+                 atol * max(1.0, ref["SIGMA0_SQUARED"]))
+    assert set(columns(out["SHAPE_POINTS"])["Database"]) == {"OSM"}
+
+
+def test_memory_copy_matched_by_ids(file_run, sample):
+    """A memory copy with another name, no id field chosen: the entry by its ids."""
+    assert_same_run(run(params(sample, memory_copy(sample, "my roads"))), file_run)
+
+
+def test_memory_copy_named_like_the_entry(file_run, sample):
+    """A copy called like the entry ("OSM") takes its place (no "both called")."""
+    assert_same_run(run(params(sample, memory_copy(sample, "OSM"))), file_run)
+
+
+def test_memory_copy_with_an_id_field_is_not_ambiguous(file_run, sample):
+    out = run(params(sample, memory_copy(sample, "osm copy"), ID_FIELD="osm_id"))
+    assert_same_run(out, file_run)
+
+
+def test_reprojected_copy(file_run, sample):
+    """A copy reprojected to WGS 84 (transformed back to the ground CRS when read)."""
+    import processing
+
+    reproj = processing.run("native:reprojectlayer", {
+        "INPUT": str(sample / "osm_roads.shp"), "TARGET_CRS": "EPSG:4326",
+        "OUTPUT": "TEMPORARY_OUTPUT"})["OUTPUT"]
+    assert reproj.name() != "OSM"
+    assert_same_run(run(params(sample, reproj)), file_run, atol=1e-6)
+
+
+def test_selected_features_only(file_run, sample):
+    """Only the selected roads are in the run: their measurements are found and the
+    measurements of the other OSM roads are left out (not taken for tie points: the
+    degrees of freedom drop by exactly two per left-out measurement)."""
+    from qgis.core import QgsProcessingFeatureSourceDefinition, QgsProcessingFeedback, QgsProject
+
+    from vectoradjust.files.tables import read_measurements
+
+    layer = osm_layer(sample)
+    QgsProject.instance().addMapLayer(layer)
+    try:
+        ids = [f["osm_id"] for f in layer.getFeatures()]
+        chosen = {str(i) for i in ids[: len(ids) // 2]}
+        layer.selectByExpression(f"osm_id IN ({', '.join(map(str, sorted(map(int, chosen))))})")
+        assert layer.selectedFeatureCount() == len(chosen)
+        infos = []
+
+        class Recorder(QgsProcessingFeedback):
+            def pushInfo(self, text):
+                infos.append(text)
+                super().pushInfo(text)
+
+        source = QgsProcessingFeatureSourceDefinition(layer.id(), True)
+        out = run(params(sample, source), feedback=Recorder())
+    finally:
+        QgsProject.instance().removeMapLayer(layer.id())
+    feats = columns(out["FEATURES"])
+    assert len(feats["osm_id"]) == len(chosen)
+    assert {str(v) for v in feats["osm_id"]} == chosen
+    mine = measured(out)
+    assert mine and mine == [p for p in measured(file_run) if p.rsplit("_", 1)[0] in chosen]
+    meas = read_measurements(str(sample / "image_points.csv"), 0.015)
+    other = {p for p in measured(file_run) if p.rsplit("_", 1)[0] not in chosen}
+    n_left_out = sum(1 for p in meas.point_id if p in other)
+    assert n_left_out > 0
+    assert any(f"{n_left_out} image measurements" in t for t in infos)
+    assert out["DEGREES_OF_FREEDOM"] == file_run["DEGREES_OF_FREEDOM"] - 2 * n_left_out
