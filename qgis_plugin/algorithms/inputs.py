@@ -426,7 +426,7 @@ class RoadDatabase:
     entry: object = None
     truth: object = None
     where: str = ""
-    missing: set = field(default_factory=set)
+    renames: dict = field(default_factory=dict)
 
 
 def shape_point_sigma(base, sigma_xy, sigma_z):
@@ -474,7 +474,7 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
     from vectoradjust.files.tables import read_truth_points
     from vectoradjust.model import VectorSpec
 
-    from .matching import missing_features
+    from .matching import vertex_renames
 
     entry = matching_vector_spec(prj, vlayer, source, (id_field or "").strip())
     name = (name or "").strip() or (entry.name if entry else source.sourceName())
@@ -499,10 +499,10 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
                       truth=entry.truth if entry else None, identification_sigma=ident,
                       offset=offset)
     # roads of the entry's file the layer does not hold (selection, filter, deletions)
-    missing = (missing_features(entry, id_field, line_layer.feature_ids)
-               if entry is not None and id_field else set())
+    renames = (vertex_renames(prj, entry, id_field, line_layer, context)
+               if entry is not None and id_field else {})
     return RoadDatabase(spec, line_layer, fields, source.wkbType(), entry, truth, where,
-                        missing)
+                        renames)
 
 
 def open_vector_entry(entry, where):
@@ -642,16 +642,16 @@ def _without_missing_roads(prj, given, feedback):
     does not hold (they are not in the run: neither shape points nor tie points)."""
     import dataclasses
 
-    from .matching import drop_measurements
+    from .matching import apply_renames
 
     meas = prj.measurements
     for g in given:
-        if g.entry is None or not g.missing:
+        if g.entry is None or not g.renames:
             continue
-        meas, n = drop_measurements(meas, g.spec.name, g.missing)
+        meas, n = apply_renames(meas, g.spec.name, g.renames)
         if n:
-            feedback.pushInfo(f"{g.spec.name}: {n} image measurements of {len(g.missing)} roads "
-                              f"of {g.entry.path} that {g.where} does not hold (not selected, "
+            feedback.pushInfo(f"{g.spec.name}: {n} image measurements of roads of "
+                              f"{g.entry.path} that {g.where} does not hold (not selected, "
                               "filtered or deleted) are left out")
     return prj if meas is prj.measurements else dataclasses.replace(prj, measurements=meas)
 

@@ -12,11 +12,11 @@ points are found, and the entry is not read a second time) when
 
 When the layer holds fewer roads than the entry's file (a selection, a filter, deleted
 features), the measurements of the roads it does not hold are left out of the run
-(:func:`drop_measurements`): they are neither shape points nor tie points.
+(:func:`vertex_renames`, :func:`apply_renames`): they are neither shape points nor tie
+points - except at a vertex shared with a road it holds (a junction), which stays measured.
 """
 
 import os
-import re
 from pathlib import Path
 
 import numpy as np
@@ -140,30 +140,76 @@ def missing_features(entry, id_field, given_ids):
     return set(known) - {str(i) for i in given_ids}
 
 
-def drop_measurements(meas, name, feature_ids):
-    """``meas`` without the shape point measurements of the features ``feature_ids`` of
-    database ``name`` (point ids ``<feature id>_<vertex>``, optionally ``name:``-qualified).
+def vertex_renames(prj, entry, id_field, line_layer, context):
+    """What becomes of the measured ids of the entry's roads ``line_layer`` does not hold.
+
+    A vertex of such a road that lies on a vertex of a road that is held (a junction,
+    within the merge tolerance) is that vertex: its measurements are renamed to it. The
+    other vertices are not in the run: their measurements are left out (None).
+
+    Returns
+    -------
+    dict
+        ``{vertex id: vertex id of line_layer, or None}`` (empty: nothing is missing).
+    """
+    from scipy.spatial import cKDTree
+
+    from vectoradjust.adjust.shapepoints import vertex_ids
+
+    missing = missing_features(entry, id_field, line_layer.feature_ids)
+    if not missing:
+        return {}
+    where = f"[[vectors]] entry {entry.name!r} ({entry.path})"
+    layer = entry_layer(entry)
+    request = entry_request(entry, where)
+    if request.filterExpression() is not None:
+        layer = layer.materialize(request)
+    full, _ = qgis_io.read_line_source(layer, entry.name, id_field, prj.crs, context, where)
+    ids = vertex_ids(full)
+    gone = np.isin(full.feature_ids[full.vertex_feature].astype(str), sorted(missing))
+    renames = dict.fromkeys(ids[gone].tolist())
+    kept_ids = vertex_ids(line_layer)
+    if len(kept_ids) and gone.any():
+        tol = prj.spec.settings.merge_tolerance
+        dist, idx = cKDTree(line_layer.coords[:, :2]).query(full.coords[gone, :2],
+                                                            distance_upper_bound=tol)
+        for old, d, k in zip(ids[gone].tolist(), dist, idx):
+            if d <= tol:
+                renames[old] = str(kept_ids[k])
+    return renames
+
+
+def apply_renames(meas, name, renames):
+    """``meas`` with the shape point ids of database ``name`` renamed or left out as
+    ``renames`` (from :func:`vertex_renames`) says; a (point, image) pair a rename repeats
+    is kept once.
 
     Returns
     -------
     (Measurements, int)
-        The measurements kept and the number of rows left out.
+        The measurements and the number of rows left out.
     """
     import dataclasses
 
-    if not feature_ids:
+    if not renames:
         return meas, 0
-    pattern = re.compile(r"^(?:(?P<db>[^:]+):)?(?P<fid>.+)_\d+$")
-
-    def dropped(pid):
-        m = pattern.match(str(pid))
-        return bool(m) and m.group("db") in (None, name) and m.group("fid") in feature_ids
-
-    mask = np.array([not dropped(p) for p in meas.point_id], bool)
-    if mask.all():
-        return meas, 0
+    prefix = f"{name}:"
+    new_ids = []
+    for pid in meas.point_id.tolist():
+        bare = pid[len(prefix):] if pid.startswith(prefix) else pid
+        if ":" in bare or bare not in renames:
+            new_ids.append(pid)
+        else:
+            new_ids.append(renames[bare])
+    seen = set()
+    mask = np.zeros(len(new_ids), bool)
+    for i, (pid, img) in enumerate(zip(new_ids, meas.image_id.tolist())):
+        if pid is not None and (pid, img) not in seen:
+            seen.add((pid, img))
+            mask[i] = True
     k = len(mask)
     changes = {f.name: getattr(meas, f.name)[mask] for f in dataclasses.fields(meas)
                if isinstance(getattr(meas, f.name), np.ndarray)
                and len(getattr(meas, f.name)) == k}
+    changes["point_id"] = np.asarray([p for p, m in zip(new_ids, mask) if m], dtype=object)
     return dataclasses.replace(meas, **changes), int((~mask).sum())

@@ -2,6 +2,8 @@
 memory copy, a reprojected copy, a layer named like the entry, a selection) still stand for
 that entry: their measurements are found, and a selection adjusts exactly its roads."""
 
+import re
+
 import pytest
 
 pytest.importorskip("qgis.core")
@@ -89,9 +91,10 @@ def test_reprojected_copy(file_run, sample):
 
 
 def test_selected_features_only(file_run, sample):
-    """Only the selected roads are in the run: their measurements are found and the
-    measurements of the other OSM roads are left out (not taken for tie points: the
-    degrees of freedom drop by exactly two per left-out measurement)."""
+    """Only the selected roads are in the run: their measurements are found (also at a
+    junction measured under the id of a road not selected) and the other OSM roads'
+    measurements are left out (not taken for tie points: the degrees of freedom drop by
+    exactly two per left-out measurement)."""
     from qgis.core import QgsProcessingFeatureSourceDefinition, QgsProcessingFeedback, QgsProject
 
     from vectoradjust.files.tables import read_measurements
@@ -121,7 +124,38 @@ def test_selected_features_only(file_run, sample):
     assert mine and mine == [p for p in measured(file_run) if p.rsplit("_", 1)[0] in chosen]
     meas = read_measurements(str(sample / "image_points.csv"), 0.015)
     other = {p for p in measured(file_run) if p.rsplit("_", 1)[0] not in chosen}
-    n_left_out = sum(1 for p in meas.point_id if p in other)
-    assert n_left_out > 0
-    assert any(f"{n_left_out} image measurements" in t for t in infos)
-    assert out["DEGREES_OF_FREEDOM"] == file_run["DEGREES_OF_FREEDOM"] - 2 * n_left_out
+    rows_of_others = sum(1 for p in meas.point_id if p in other)
+    said = [int(re.match(r"OSM: (\d+) image measurements", t).group(1)) for t in infos
+            if re.match(r"OSM: \d+ image measurements", t)]
+    assert len(said) == 1 and 0 < said[0] <= rows_of_others
+    assert out["DEGREES_OF_FREEDOM"] == file_run["DEGREES_OF_FREEDOM"] - 2 * said[0]
+
+def test_geopackage_export(file_run, sample, tmp_path):
+    """A GeoPackage export of the entry's file (another file, another name): by its ids."""
+    from qgis.core import QgsCoordinateTransformContext, QgsVectorFileWriter, QgsVectorLayer
+
+    opts = QgsVectorFileWriter.SaveVectorOptions()
+    opts.driverName = "GPKG"
+    opts.layerName = "exported"
+    path = str(tmp_path / "export.gpkg")
+    err = QgsVectorFileWriter.writeAsVectorFormatV3(osm_layer(sample), path,
+                                                    QgsCoordinateTransformContext(), opts)
+    assert err[0] == QgsVectorFileWriter.NoError, err
+    layer = QgsVectorLayer(f"{path}|layername=exported", "exported", "ogr")
+    assert layer.isValid()
+    assert_same_run(run(params(sample, layer)), file_run)
+
+
+def test_filtered_layer_adjusts_its_roads(file_run, sample):
+    """The entry's file with a layer filter: its roads, the others' measurements left out;
+    a junction with a filtered-out road measured under that road's vertex id stays
+    measured."""
+    layer = osm_layer(sample)
+    assert layer.setSubsetString("\"highway\" = 'tertiary'")
+    kept = {str(f["osm_id"]) for f in layer.getFeatures()}
+    assert 0 < len(kept) < 26
+    out = run(params(sample, layer))
+    assert {str(v) for v in columns(out["FEATURES"])["osm_id"]} == kept
+    mine = measured(out)
+    assert mine and mine == [p for p in measured(file_run) if p.rsplit("_", 1)[0] in kept]
+    assert out["DEGREES_OF_FREEDOM"] < file_run["DEGREES_OF_FREEDOM"]
