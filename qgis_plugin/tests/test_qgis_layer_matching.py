@@ -159,3 +159,22 @@ def test_filtered_layer_adjusts_its_roads(file_run, sample):
     mine = measured(out)
     assert mine and mine == [p for p in measured(file_run) if p.rsplit("_", 1)[0] in kept]
     assert out["DEGREES_OF_FREEDOM"] < file_run["DEGREES_OF_FREEDOM"]
+
+
+def test_compare_with_a_copy_named_like_the_entry(qgis_app, sample):
+    """Compare: a memory copy called "OSM" takes the OSM entry's place (the OSM row of the
+    file itself), instead of "two road databases are both called 'OSM'"."""
+    import processing
+
+    def compare(layer):
+        out = processing.run("vectoradjust:compareroaddatabases", {
+            "LAYERS": [layer], "PROJECT": str(sample / "project.toml"),
+            "OUTPUT": "TEMPORARY_OUTPUT"})
+        return columns(out["OUTPUT"])
+
+    mine, ref = compare(memory_copy(sample, "OSM")), compare(str(sample / "osm_roads.shp"))
+    assert mine["database"] == ["OSM"]
+    for key in ref:
+        if key != "_geom":
+            assert mine[key] == ref[key] or all(
+                close(a, b, 1e-9 * max(1.0, abs(b))) for a, b in zip(mine[key], ref[key])), key
