@@ -92,3 +92,17 @@ def test_dialog_defaults_run(qgis_app, sample, layers, alg_id):
         if isinstance(layer, str):
             layer = context.getMapLayer(layer)
         assert layer is not None and layer.featureCount() > 0
+
+
+def test_messages_name_the_dialog_parameters(qgis_app, sample, layers):
+    """A core message that names a command-line flag names the dialog's parameter instead."""
+    import processing
+    from qgis.core import QgsProcessingException
+
+    params = dialog_parameters("equalerrormap", dict(
+        user_choices("equalerrormap", sample, layers), SPACING=100000.0))
+    with pytest.raises(QgsProcessingException) as exc:
+        processing.run("vectoradjust:equalerrormap", params)
+    msg = str(exc.value)
+    assert "do not overlap" in msg
+    assert "--images" not in msg and "'Stereo pair'" in msg
