@@ -6,8 +6,9 @@ Usage (any Python 3.9+, no QGIS needed)::
 
 writes ``DIR/vectoradjust_qgis-<version>.zip`` (default ``dist/``) holding one folder,
 ``vectoradjust_qgis/``: the plugin, its QML styles (``styles/``, from
-``resources/styles``) and the vectoradjust core package vendored in ``ext/`` (the
-plugin puts ``ext`` first on ``sys.path``). Install it in QGIS with *Plugins > Manage and
+``resources/styles``), the vectoradjust core package vendored in ``ext/`` (the
+plugin puts ``ext`` first on ``sys.path``) and ``LICENSE`` (the GNU GPL version 2, from
+the repository root). Install it in QGIS with *Plugins > Manage and
 Install Plugins > Install from ZIP*. QGIS's Python must have numpy and scipy.
 """
 
@@ -60,10 +61,8 @@ def members():
     for p in _walk(core):
         if p.endswith(".py"):
             out.append((p, f"{PLUGIN_NAME}/ext/vectoradjust/{os.path.relpath(p, core)}"))
-    for name in ("LICENSE", "COPYING"):
-        p = os.path.join(REPO, name)
-        if os.path.isfile(p):
-            out.append((p, f"{PLUGIN_NAME}/{name}"))
+    # the plugin repository wants the licence in the plugin folder (a missing one fails)
+    out.append((os.path.join(REPO, "LICENSE"), f"{PLUGIN_NAME}/LICENSE"))
     return [(src, arc.replace(os.sep, "/")) for src, arc in out]
 
 

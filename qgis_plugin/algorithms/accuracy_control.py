@@ -114,6 +114,8 @@ class AccuracyControl(VectorAdjustAlgorithm):
     OUTPUT = "OUTPUT"
     QA_JSON = "QA_JSON"
     CONTROL_POINTS = "CONTROL_POINTS"
+    CLI_FLAGS = {"--product": PRODUCT, "--scale": SCALE, "--contour-interval": CONTOUR_INTERVAL,
+                 "--terrain": TERRAIN, "--pixel-size": PIXEL_SIZE}
 
     def initAlgorithm(self, config=None):
         advanced = QgsProcessingParameterDefinition.FlagAdvanced

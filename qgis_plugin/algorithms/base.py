@@ -9,9 +9,13 @@
 """
 
 import os
+import re
 
 from qgis.core import QgsProcessingAlgorithm, QgsProcessingException
 from qgis.PyQt.QtGui import QIcon
+
+#: a parameter label up to its explanations: "Product (default: ...)" -> "Product"
+_SHORT_LABEL = re.compile(r" \(|, e\.g\.| \[|:")
 
 PLUGIN_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -50,6 +54,23 @@ class VectorAdjustAlgorithm(QgsProcessingAlgorithm):
     def createInstance(self):
         return type(self)()
 
+    #: command-line flags the core's messages name -> the parameter that does the same here
+    CLI_FLAGS: dict = {}
+
+    def dialog_message(self, text):
+        """The core's message with the command-line flags of :attr:`CLI_FLAGS` replaced by
+        the names of this algorithm's parameters (as the dialog shows them)."""
+        def label(match):
+            p = self.parameterDefinition(self.CLI_FLAGS.get(match.group(0), ""))
+            if p is None:
+                return match.group(0)
+            return "'" + _SHORT_LABEL.split(p.description())[0].strip() + "'"
+
+        if not any(flag in text for flag in self.CLI_FLAGS):
+            return text
+        text = text.replace("on the command line", "as parameters of this algorithm")
+        return re.sub(r"--[a-z][a-z-]*", label, text)
+
     def processAlgorithm(self, parameters, context, feedback):
         try:
             from vectoradjust.errors import CancelledError, VectorAdjustError
@@ -60,7 +81,7 @@ class VectorAdjustAlgorithm(QgsProcessingAlgorithm):
         except CancelledError as exc:
             raise QgsProcessingException(f"Cancelled: {exc}") from None
         except VectorAdjustError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.dialog_message(str(exc))) from None
         except ImportError as exc:
             raise QgsProcessingException(_missing_core(exc)) from exc
 

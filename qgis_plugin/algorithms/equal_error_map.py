@@ -121,6 +121,7 @@ class EqualErrorMap(VectorAdjustAlgorithm):
     FLAT = "FLAT"
     SPACING = "SPACING"
     IMAGE_PAIR = "IMAGE_PAIR"
+    CLI_FLAGS = {"--images": IMAGE_PAIR, "--spacing": SPACING}
     OUTPUT = "OUTPUT"
 
     def initAlgorithm(self, config=None):

@@ -9,10 +9,10 @@ the same way, so both routes give the same checks and the same numbers.
 
 Every ``[[vectors]]`` entry of the project file is read through QGIS (as the command
 line reads them all), so that measurements of the databases that are not adjusted are
-recognised and left out rather than taken for tie points. A road layer whose file is the
-``path`` of an entry takes that entry's place, name, id field, sigma, DEM and truth
-unless parameters say otherwise; a road layer that is not in the project is one more
-database. The tables are assembled into the core's ProjectData by
+recognised and left out rather than taken for tie points. A road layer that stands for an
+entry (its file, its name or its ids: :mod:`.matching`) takes that entry's place, name, id
+field, sigma, DEM and truth unless parameters say otherwise; a road layer that is not in
+the project is one more database. The tables are assembled into the core's ProjectData by
 :func:`vectoradjust.files.assemble.project_data`, the function the command line uses.
 """
 
@@ -36,6 +36,7 @@ from qgis.core import (
     QgsRasterLayer,
     QgsVectorLayer,
 )
+from qgis.PyQt.QtCore import QVariant
 
 from .. import qgis_io
 
@@ -162,9 +163,20 @@ class ProjectInputs:
                             fiducials=self.fiducials, map_projection=True, source=self.source)
 
 
+def _blank(v):
+    """True for None, a NULL QVariant and an empty or blank string."""
+    if v is None or (isinstance(v, str) and not v.strip()):
+        return True
+    return isinstance(v, QVariant) and v.isNull()
+
+
 def _is_set(parameters, name):
+    """True when the parameter has a value: not None/NULL/empty, nor a list of such
+    (the dialog gives an untouched table as ``[NULL]``)."""
     v = parameters.get(name)
-    return v is not None and v != "" and not (isinstance(v, (list, tuple)) and len(v) == 0)
+    if isinstance(v, (list, tuple)):
+        return not all(_blank(x) for x in v)
+    return not _blank(v)
 
 
 def _number(alg, parameters, name, context) -> Optional[float]:
@@ -176,7 +188,9 @@ def _number(alg, parameters, name, context) -> Optional[float]:
 def _images_from_matrix(values, where):
     from vectoradjust.errors import ProjectError
 
-    values = ["" if v is None else str(v).strip() for v in values]
+    values = ["" if _blank(v) else str(v).strip() for v in values or []]
+    if not any(values):  # an untouched table: the images of the project file
+        return []
     ncol = len(IMAGE_HEADERS)
     if len(values) % ncol:
         raise ProjectError(f"{where}: the table has {len(values)} cells, not a multiple of "
@@ -360,16 +374,11 @@ def project_inputs(alg, parameters, context, feedback, fallback_crs) -> ProjectI
                          source=where, fiducials=fiducials, vectors=list(spec.vectors))
 
 
-def matching_vector_spec(inputs, layer):
-    """The project's ``[[vectors]]`` entry whose path is ``layer``'s file, or None."""
-    path = qgis_io.layer_path(layer)
-    if not path or inputs is None:
-        return None
-    real = os.path.realpath(path)
-    for v in inputs.vectors:
-        if v.path and os.path.realpath(v.path) == real:
-            return v
-    return None
+def matching_vector_spec(inputs, layer, source=None, id_field=""):
+    """The ``[[vectors]]`` entry ``layer`` stands for (see :mod:`.matching`), or None."""
+    from .matching import matching_vector_spec as match
+
+    return match(inputs, layer, source, id_field)
 
 
 def raster_from_path(path, where):
@@ -390,10 +399,13 @@ def raster_from_path(path, where):
 ROAD_HELP = """
 <p>When the project file lists <code>[[vectors]]</code>, every listed road database is read
 (through QGIS) as the command line does, so that measurements of the other databases' shape
-points are recognised and left out instead of being taken for tie points. A road layer whose
-file is the path of a <code>[[vectors]]</code> entry takes that entry's place (and its name,
-id field, sigma, DEM and truth unless set here); a road layer that is not in the project is
-one more database.</p>
+points are recognised and left out instead of being taken for tie points. A road layer that
+stands for a <code>[[vectors]]</code> entry takes that entry's place (and its name, id field,
+sigma, DEM and truth unless set here): the entry's file itself (also filtered, edited or only
+its selected features), a layer named like the entry or its file, or a copy (memory,
+reprojected, exported) whose ids are ids of the entry's file. When it holds only some of the
+entry's roads (a selection), the measurements of the other roads are left out. A road layer
+that is not in the project is one more database.</p>
 """
 
 
@@ -414,6 +426,7 @@ class RoadDatabase:
     entry: object = None
     truth: object = None
     where: str = ""
+    renames: dict = field(default_factory=dict)
 
 
 def shape_point_sigma(base, sigma_xy, sigma_z):
@@ -440,7 +453,7 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
     source : QgsFeatureSource
         The layer's features (the selection when only selected features are used).
     vlayer : QgsVectorLayer or None
-        The layer (its file matches a ``[[vectors]]`` entry of the project).
+        The layer (matched to a ``[[vectors]]`` entry by :func:`matching_vector_spec`).
     name, id_field : str
         Database name and id field; empty = the entry's, else the layer name / the
         feature index.
@@ -461,7 +474,9 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
     from vectoradjust.files.tables import read_truth_points
     from vectoradjust.model import VectorSpec
 
-    entry = matching_vector_spec(prj, vlayer)
+    from .matching import vertex_renames
+
+    entry = matching_vector_spec(prj, vlayer, source, (id_field or "").strip())
     name = (name or "").strip() or (entry.name if entry else source.sourceName())
     id_field = (id_field or "").strip() or (entry.id_field if entry else None)
     sigma = shape_point_sigma(entry.sigma if entry else (10.0, 10.0, 10.0), sigma_xy, sigma_z)
@@ -483,7 +498,11 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
                       sigma=sigma, dem=dem.source() if dem is not None else None,
                       truth=entry.truth if entry else None, identification_sigma=ident,
                       offset=offset)
-    return RoadDatabase(spec, line_layer, fields, source.wkbType(), entry, truth, where)
+    # roads of the entry's file the layer does not hold (selection, filter, deletions)
+    renames = (vertex_renames(prj, entry, id_field, line_layer, context)
+               if entry is not None and id_field else {})
+    return RoadDatabase(spec, line_layer, fields, source.wkbType(), entry, truth, where,
+                        renames)
 
 
 def open_vector_entry(entry, where):
@@ -507,6 +526,39 @@ def open_vector_entry(entry, where):
     return layer
 
 
+def filtered_entry_layer(layer, entry, where):
+    """``layer`` with the entry's ``where`` attribute filter applied (a memory copy of the
+    features it selects), or ``layer`` itself without a filter.
+
+    Raises
+    ------
+    LayerError
+        The filter is not a valid expression, names a field the layer does not have, or
+        selects no feature.
+    """
+    from vectoradjust.errors import LayerError
+
+    from .matching import entry_request
+
+    text = getattr(entry, "where", None)
+    if not text:
+        return layer
+    request = entry_request(entry, where)
+    unknown = sorted(c for c in request.filterExpression().referencedColumns()
+                     if layer.fields().lookupField(c) < 0)
+    if unknown:
+        raise LayerError(f"{where}: where = {text!r} names {', '.join(map(repr, unknown))}, not a "
+                         f"field of {entry.path} (fields: {', '.join(layer.fields().names())})",
+                         "Correct the field name in the where filter of the [[vectors]] entry",
+                         path=entry.path)
+    out = layer.materialize(request)
+    if out.featureCount() == 0:
+        raise LayerError(f"{where}: where = {text!r} selects no feature of {entry.path}",
+                         "Correct the where filter of the [[vectors]] entry", path=entry.path)
+    out.setName(layer.name())
+    return out
+
+
 def read_project_entry(prj, entry, context, feedback, dems=None):
     """A ``[[vectors]]`` entry read from its file through QGIS, as the command line reads it.
 
@@ -518,7 +570,7 @@ def read_project_entry(prj, entry, context, feedback, dems=None):
 
     where = f"[[vectors]] entry {entry.name!r} of {prj.source}"
     feedback.setProgressText(f"reading {entry.name} ({entry.path})")
-    layer = open_vector_entry(entry, where)
+    layer = filtered_entry_layer(open_vector_entry(entry, where), entry, where)
     line_layer, _ = qgis_io.read_line_source(layer, entry.name, entry.id_field, prj.crs,
                                              context, f"{where} ({entry.path})")
     if entry.dem:
@@ -581,7 +633,27 @@ def project_data_with(prj, given, context, feedback):
                 "Names), or choose the file of the project's [[vectors]] entry")
         seen[spec.name] = where
     truth = {spec.name: t for spec, _, t, _ in items if t is not None}
+    prj = _without_missing_roads(prj, given, feedback)
     return prj.project_data([(spec, layer) for spec, layer, _, _ in items], truth)
+
+
+def _without_missing_roads(prj, given, feedback):
+    """``prj`` without the measurements of roads of a matched entry's file that its layer
+    does not hold (they are not in the run: neither shape points nor tie points)."""
+    import dataclasses
+
+    from .matching import apply_renames
+
+    meas = prj.measurements
+    for g in given:
+        if g.entry is None or not g.renames:
+            continue
+        meas, n = apply_renames(meas, g.spec.name, g.renames)
+        if n:
+            feedback.pushInfo(f"{g.spec.name}: {n} image measurements of roads of "
+                              f"{g.entry.path} that {g.where} does not hold (not selected, "
+                              "filtered or deleted) are left out")
+    return prj if meas is prj.measurements else dataclasses.replace(prj, measurements=meas)
 
 
 # --------------------------------------------------------------------------- one adjustment

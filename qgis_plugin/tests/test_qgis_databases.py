@@ -124,12 +124,15 @@ def test_database_name_clash(qgis_app, sample):
     assert "both called 'TNM'" in msg and "tnm_roads.shp" in msg
 
 
-def test_copy_of_a_project_database_makes_ids_ambiguous(qgis_app, sample):
-    msg = error("adjustroadvectors", {
+def test_copy_of_a_project_database_takes_its_place(qgis_app, sample):
+    """A renamed copy of a project database stands for its entry (by its ids): its
+    measurements are its own, not ambiguous with the entry's file."""
+    out = run("adjustroadvectors", {
         "INPUT": _memory_copy(sample / "osm_roads.shp", "osm copy"), "ID_FIELD": "osm_id",
         "NAME": "OSM2", "PROJECT": str(sample / "project.toml"),
         "SHAPE_POINTS": "TEMPORARY_OUTPUT"})
-    assert "ambiguous" in msg and "image_points.csv" in msg
+    cols = columns(out["SHAPE_POINTS"])
+    assert set(cols["Database"]) == {"OSM2"} and any(cols["NImages"])
 
 
 def test_missing_project_database_file(qgis_app, sample, tmp_path):

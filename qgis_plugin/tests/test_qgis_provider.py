@@ -1,6 +1,7 @@
 """The provider, the plugin entry points, metadata, styles and the plugin zip."""
 
 import configparser
+import re
 import zipfile
 from pathlib import Path
 
@@ -91,9 +92,17 @@ def test_metadata_complete():
     cp = configparser.ConfigParser()
     cp.read(PLUGIN / "metadata.txt", encoding="utf-8")
     meta = cp["general"]
+    # mandatory for the QGIS plugin repository, then recommended
     for key in ("name", "qgisMinimumVersion", "description", "about", "version", "author",
-                "email", "tracker", "repository", "tags", "icon", "hasProcessingProvider"):
+                "email", "repository", "tracker", "homepage", "tags", "icon",
+                "hasProcessingProvider"):
         assert meta.get(key), key
+    assert re.fullmatch(r"\d+\.\d+\.\d+", meta["version"])
+    assert "\n" not in meta["description"].strip()
+    assert meta["experimental"] in ("True", "False") and meta["deprecated"] in ("True", "False")
+    for key in ("repository", "tracker", "homepage"):
+        assert re.fullmatch(r"https://\S+", meta[key]), key
+    assert re.fullmatch(r"[^@\s]+@[^@\s]+\.\w+", meta["email"])
     assert meta["qgisMinimumVersion"] == "3.22"
     assert meta["hasProcessingProvider"] == "yes"
     assert (PLUGIN / meta["icon"]).is_file()
@@ -203,6 +212,11 @@ def test_build_zip(tmp_path):
                  "vectoradjust_qgis/ext/vectoradjust/pipeline.py",
                  "vectoradjust_qgis/ext/vectoradjust/adjust/bundle.py"):
         assert must in names, must
+    # the plugin repository wants the licence in the zip: the GNU GPL version 2
+    assert "vectoradjust_qgis/LICENSE" in names
+    with zipfile.ZipFile(path) as zf:
+        text = zf.read("vectoradjust_qgis/LICENSE").decode("utf-8")
+    assert "GNU GENERAL PUBLIC LICENSE" in text and "Version 2, June 1991" in text
     assert not any("/tests/" in n or "__pycache__" in n or n.endswith(".pyc") for n in names)
     assert all(n.startswith("vectoradjust_qgis/") for n in names)
 

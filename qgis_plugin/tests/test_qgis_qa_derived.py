@@ -175,8 +175,11 @@ def test_accuracy_control_bad_inputs(qgis_app, sample, tmp_path):
     base = {"PROJECT": str(sample / "project.toml"), "OUTPUT": "TEMPORARY_OUTPUT"}
     msg = error("accuracycontrol", base)
     assert "no product specification" in msg and "[qa]" in msg
+    # the dialog's parameters are named, not the command line's flags
+    assert "--" not in msg and "'Product'" in msg and "'Scale denominator of the product'" in msg
     msg = error("accuracycontrol", dict(base, PRODUCT=0))
     assert "map_scale is missing" in msg
+    assert "--" not in msg and "command line" not in msg and "'Contour interval'" in msg
     msg = error("accuracycontrol", dict(base, **QA_OPTIONS, PIXEL_SIZE=0.0))
     assert "not a pixel size" in msg
     msg = error("accuracycontrol", dict(base, PROJECT=str(tmp_path / "nope.toml"), PRODUCT=1,
