@@ -461,7 +461,8 @@ def test_project_key_errors(broken):
     with pytest.raises(ProjectError, match=r"\[measurements\]: unit = 'inch' is not known"):
         _load(broken)
     _edit(broken / "project.toml", 'unit = "inch"', 'unit = "px"\nfiducial = "x.csv"')
-    with pytest.raises(ProjectError, match=r"\[measurements\] has unknown key\(s\) fiducial"):
+    with pytest.raises(ProjectError,
+                       match=r"\[measurements\]: unknown key .fiducial. \(did you mean .fiducials"):
         _load(broken)
     _edit(broken / "project.toml", 'fiducial = "x.csv"', "")
     _edit(broken / "project.toml", "refraction = true", "refraction = 1")

@@ -321,7 +321,7 @@ def test_csv_line_numbers_survive_blank_lines(copy):
 
 
 def test_osm_pbf_input_gives_the_same_adjustment(sample_dir, tmp_path):
-    """An OpenStreetMap PBF (GDAL's OSM driver, layer 'lines') as road layer.
+    """An OpenStreetMap PBF (GDAL's OSM driver, layer = "lines") as road layer.
 
     tests/data/osm/sample_roads.osm.pbf holds the sample project's single-part OSM-like
     ways with their osm_id as way id (made by make_sample_pbf.py). PBF stores degrees to
@@ -331,7 +331,9 @@ def test_osm_pbf_input_gives_the_same_adjustment(sample_dir, tmp_path):
     proj = tmp_path / "sample"
     shutil.copytree(sample_dir, proj)
     shutil.copy(pbf, proj / "roads.osm.pbf")
-    _edit(proj / "project.toml", 'path = "osm_roads.shp"', 'path = "roads.osm.pbf"')
+    # a PBF holds two layers with lines (ways and route relations): the entry names one
+    _edit(proj / "project.toml", 'path = "osm_roads.shp"',
+          'path = "roads.osm.pbf"\nlayer = "lines"')
     got = run(load_project_data(proj / "project.toml"), vectors=["OSM"])
     ref = run(load_project_data(sample_dir / "project.toml"), vectors=["OSM"])
     layer = got.databases[0].shape.layer

@@ -20,6 +20,7 @@ __all__ = [
     "DEMError",
     "ControlError",
     "MeasurementError",
+    "NothingAdjustedError",
     "CameraError",
     "AdjustmentError",
     "NonConvergenceError",
@@ -99,6 +100,10 @@ class ControlError(VectorAdjustError):
 
 class MeasurementError(VectorAdjustError):
     """Image measurements are inconsistent (unknown image, duplicate, single ray)."""
+
+
+class NothingAdjustedError(MeasurementError):
+    """A road database selected for the run has no measured shape point (ids do not match)."""
 
 
 class CameraError(VectorAdjustError):

@@ -22,6 +22,7 @@ plugin). No file I/O here; numpy and scipy only, so the QGIS plugin calls it dir
 
 from __future__ import annotations
 
+from collections import Counter
 from typing import Callable, Optional
 
 import numpy as np
@@ -36,13 +37,13 @@ from vectoradjust.accuracy.summary import (
     run_summary,
 )
 from vectoradjust.accuracy.tables import LE90_FACTOR, tabulate_control, tabulate_database
-from vectoradjust.adjust.classify import build_problem, classify_measurements
+from vectoradjust.adjust.classify import build_problem, classify_measurements, reading_info
 from vectoradjust.adjust.passes import solve
 from vectoradjust.errors import ProjectError
 from vectoradjust.model import ProjectData
 from vectoradjust.results import AdjustmentRun, DatabaseResult
 
-__all__ = ["AdjustmentRun", "DatabaseResult", "run", "LE90_FACTOR"]
+__all__ = ["AdjustmentRun", "DatabaseResult", "run", "distinct_warnings", "LE90_FACTOR"]
 
 Progress = Callable[[float, str], None]
 
@@ -143,6 +144,37 @@ def _database_error_model(out: AdjustmentRun, solution) -> None:
             entry["offset"] = offset_entry(solution.offsets[d.name], d.name, alpha)
 
 
+def _inputs(out: AdjustmentRun) -> None:
+    """How each database was read (layer, ``where`` filter, features kept, CRS
+    transformations) as summary.json ``databases[].input``; an inaccurate transformation
+    is a warning."""
+    for d, entry in zip(out.databases, out.summary["databases"]):
+        info = reading_info(d.shape.layer)
+        if not info:
+            continue
+        entry["input"] = {k: v for k, v in info.items() if k != "excluded_feature_ids"}
+        for what, crs in (("layer", info.get("crs")), ("DEM", (info.get("dem") or {}).get("crs"))):
+            if crs and crs.get("warning"):
+                _warn(out, f"{d.name}: the transformation of its {what} {crs['warning']}")
+
+
+def distinct_warnings(warnings: list, databases=()) -> list:
+    """Each warning once: the same text of several databases (``"OSM: ..."``,
+    ``"TNM: ..."``) as one (``"OSM, TNM: ..."``), a repeated one with its count."""
+    counts = Counter(warnings)
+    groups: dict = {}
+    for w in counts:
+        name = next((n for n in databases if w.startswith(f"{n}: ")), None)
+        key = w[len(name) + 2:] if name else w
+        groups.setdefault((name is not None, key), []).append((name, counts[w]))
+    out = []
+    for (per_db, key), members in groups.items():
+        n = max(c for _, c in members)
+        text = f"{', '.join(m for m, _ in members)}: {key}" if per_db else key
+        out.append(text + (f" ({n} times)" if n > 1 else ""))
+    return out
+
+
 def _roads_and_control(out: AdjustmentRun, cls, setup) -> None:
     """Do the databases agree with the control? (the same run without shape points)."""
     rows = np.flatnonzero(cls.is_check & (setup.imap[cls.img_of_obs] >= 0))
@@ -215,6 +247,10 @@ def run(
         tabulate_database(out, d)
     _derived(out)
     _summarise(out, solution)
+    _inputs(out)
     _roads_and_control(out, cls, setup)
+    names = [spec.name for spec, _ in data.vectors]
+    out.warnings = distinct_warnings(out.warnings, names)
+    out.summary["warnings"] = list(out.warnings)
     report(1.0, "done")
     return out

@@ -22,7 +22,13 @@ import numpy as np
 
 from vectoradjust.adjust.bundle import BundleProblem, ray_intersection
 from vectoradjust.adjust.shapepoints import ShapePoints, extract_shape_points, lookup
-from vectoradjust.errors import ControlError, DEMError, LayerError, MeasurementError
+from vectoradjust.errors import (
+    ControlError,
+    DEMError,
+    LayerError,
+    MeasurementError,
+    NothingAdjustedError,
+)
 from vectoradjust.model import ProjectData
 from vectoradjust.results import DatabaseResult
 
@@ -48,6 +54,9 @@ class Classification:
         Distinct tie point ids and each tie measurement's index into them.
     ctrl_used : numpy.ndarray of bool
         Control-file rows (role control) measured on an image.
+    is_excluded : numpy.ndarray of bool, optional
+        Measurements of features that a database's ``where`` filter left out of the run
+        (left out, not made tie points).
     """
 
     image_ids: np.ndarray
@@ -61,6 +70,7 @@ class Classification:
     tie_ids: np.ndarray
     tie_inv: np.ndarray
     ctrl_used: np.ndarray
+    is_excluded: Optional[np.ndarray] = None
 
 
 @dataclass
@@ -99,20 +109,57 @@ def _line(meas, i: int) -> str:
     return f"{meas.source}, line {int(meas.rows[i])}"
 
 
+def _bare_ids(meas_ids: np.ndarray, name: str):
+    """The measured ids without a ``NAME:`` qualifier of this database, and which ids are
+    qualified with another database's name (they never match here)."""
+    ids = meas_ids.astype(str)
+    prefix = f"{name}:"
+    qualified = np.char.startswith(ids, prefix)
+    bare = np.where(qualified, np.char.replace(ids, prefix, "", count=1), ids)
+    other = (np.char.find(ids, ":") >= 0) & ~qualified
+    return bare, other
+
+
 def _match_database(meas_ids: np.ndarray, name: str, sp: ShapePoints) -> np.ndarray:
     """Vertex index of each measured id in this database (-1 if none).
 
     Ids may be qualified ``NAME:<feature id>_<vertex>`` to disambiguate databases.
     """
-    prefix = f"{name}:"
-    qualified = np.char.startswith(meas_ids.astype(str), prefix)
-    bare = np.where(qualified, np.char.replace(meas_ids.astype(str), prefix, "", count=1),
-                    meas_ids)
+    bare, other = _bare_ids(meas_ids, name)
     idx = lookup(sp.vertex_ids, bare)
-    # a qualified id naming another database never matches here
-    other = np.char.find(meas_ids.astype(str), ":") >= 0
-    idx[other & ~qualified] = -1
+    idx[other] = -1
     return idx
+
+
+def _feature_part(ids) -> np.ndarray:
+    """``<feature id>`` of ids shaped ``<feature id>_<vertex index>``; "" for other ids."""
+    out = []
+    for i in np.asarray(ids).astype(str):
+        f, _, v = i.rpartition("_")
+        out.append(f if f and v.isdigit() else "")
+    return np.array(out, dtype=object).astype(str)
+
+
+def reading_info(layer) -> dict:
+    """What the reader says about a layer (``LineLayer.reading``; empty when not given).
+
+    :func:`vectoradjust.files.readers.read_line_layer` sets it: ``where``,
+    ``features_in_layer``, ``features_kept``, ``features_filtered``,
+    ``excluded_feature_ids`` and the CRS transformation (``crs``, ``dem``).
+    """
+    info = getattr(layer, "reading", None)
+    return info if isinstance(info, dict) else {}
+
+
+def _excluded_by_filter(meas_ids: np.ndarray, name: str, layer) -> np.ndarray:
+    """Measurements naming a vertex of a feature the database's ``where`` filter excluded."""
+    excluded = reading_info(layer).get("excluded_feature_ids") or []
+    if not len(excluded):
+        return np.zeros(len(meas_ids), bool)
+    bare, other = _bare_ids(meas_ids, name)
+    feat = _feature_part(bare)
+    return (feat != "") & np.isin(feat, np.asarray(list(excluded), dtype=object).astype(str)) \
+        & ~other
 
 
 def _collinear(xyz: np.ndarray) -> bool:
@@ -142,17 +189,20 @@ def _image_of_measurements(data: ProjectData):
 
 
 def _match_points(data: ProjectData):
-    """Control row and per-database vertex of each measurement (ambiguous ids: error)."""
+    """Control row and per-database vertex of each measurement (ambiguous ids: error), and
+    per database the measurements of features its ``where`` filter excluded."""
     meas = data.measurements
     ctrl_of_obs = lookup(data.control.point_id, meas.point_id)
     shapes: list = []
     matches = (ctrl_of_obs >= 0).astype(int)
     db_vertex_of_obs = []
+    excluded = []
     for spec, layer in data.vectors:
         sp = extract_shape_points(layer, data.settings.merge_tolerance)
         shapes.append((spec, sp))
         vi = _match_database(meas.point_id, spec.name, sp)
         db_vertex_of_obs.append(vi)
+        excluded.append(_excluded_by_filter(meas.point_id, spec.name, layer) & (vi < 0))
         matches += (vi >= 0)
     amb = np.flatnonzero(matches > 1)
     if amb.size:
@@ -164,7 +214,77 @@ def _match_points(data: ProjectData):
             "control point",
             path=meas.source, details={"line": int(meas.rows[i])},
         )
-    return ctrl_of_obs, shapes, db_vertex_of_obs
+    return ctrl_of_obs, shapes, db_vertex_of_obs, excluded
+
+
+def _text(v) -> str:
+    """An attribute value as an id text (``123.0`` -> ``"123"``)."""
+    if isinstance(v, float) and v.is_integer():
+        return str(int(v))
+    return str(v)
+
+
+def _field_holding(layer, features: np.ndarray) -> Optional[str]:
+    """The attribute field whose values are most of the measured ``features``, or None."""
+    best, best_n = None, 0
+    wanted = set(features.tolist())
+    for fname, values in layer.attributes.items():
+        n = len(wanted & {_text(v) for v in values if v is not None})
+        if n > best_n:
+            best, best_n = fname, n
+    return best
+
+
+def _why_unmeasured(data: ProjectData, spec, sp: ShapePoints, unmatched: np.ndarray,
+                    n_excluded: int) -> str:
+    """The likely reason why no measurement names a vertex of this database."""
+    meas, layer = data.measurements, sp.layer
+    info = reading_info(layer)
+    if n_excluded:
+        return (f"the {n_excluded} measurement(s) of its shape points name features that "
+                f"where = {info.get('where')!r} excluded")
+    if not len(sp.vertex_ids):
+        filt = (f" (where = {info.get('where')!r} kept {info.get('features_kept')} of "
+                f"{info.get('features_in_layer')} features)" if info.get("where") else "")
+        return f"the layer has no vertices{filt}"
+    ids = meas.point_id[unmatched].astype(str)
+    names = {s.name for s, _ in data.vectors}
+    prefixes = sorted({i.split(":", 1)[0] for i in ids if ":" in i} - names)
+    feats = _feature_part(np.array([i.split(":", 1)[-1] for i in ids], dtype=object))
+    shaped = ids[feats != ""]
+    db_id = str(sp.vertex_ids[0])
+    if not len(shaped):
+        return (f"no measured id has the form of a shape point id '<feature id>_<vertex>' "
+                f"(its first is {db_id!r})")
+    field = _field_holding(layer, feats[feats != ""])
+    hint = (f"; the field {field!r} holds the measured feature ids: "
+            f"set id_field = \"{field}\"" if field and field != spec.id_field else "")
+    qual = (f"; ids are qualified with {', '.join(p + ':' for p in prefixes)} but the "
+            f"databases are named {', '.join(sorted(names))}" if prefixes else "")
+    if spec.id_field is None:
+        return ("no id_field is given, so its shape point ids are the 0-based feature index "
+                f"and the vertex (e.g. {db_id!r}), while the measurements use ids such as "
+                f"{str(shaped[0])!r}" + hint + qual)
+    return (f"its shape point ids (id_field = {spec.id_field!r}, e.g. {db_id!r}) match none of "
+            f"the measured ids (e.g. {str(shaped[0])!r})" + hint + qual)
+
+
+def _check_measured(data: ProjectData, selected: set, shapes: list, db_vertex_of_obs: list,
+                    excluded: list, unmatched: np.ndarray) -> None:
+    """Every selected database has a measured shape point; else a clear error with the cause."""
+    for (spec, sp), vi, ex in zip(shapes, db_vertex_of_obs, excluded):
+        if spec.name not in selected or np.any(vi >= 0):
+            continue
+        meas = data.measurements
+        raise NothingAdjustedError(
+            f"{spec.name} ({sp.layer.source}): none of its shape points is measured in "
+            f"{meas.source}, so nothing of it would be adjusted: "
+            + _why_unmeasured(data, spec, sp, unmatched, int(ex.sum())),
+            "Match the ids (id_field in its [[vectors]] entry, or the ids in the measurements: "
+            "'<feature id>_<vertex index>'), or leave the database out of this run "
+            "(--vectors)",
+            path=sp.layer.source, details={"database": spec.name},
+        )
 
 
 def _tie_points(meas, is_tie: np.ndarray):
@@ -216,8 +336,9 @@ def classify_measurements(data: ProjectData, selected: set, warnings: list) -> C
     ----------
     data : ProjectData
     selected : set of str
-        Names of the databases in this run; measurements of the others' shape points are
-        left out (a warning), not made tie points.
+        Names of the databases in this run; measurements of the others' shape points, and
+        of features a database's ``where`` filter excluded, are left out (a warning), not
+        made tie points.
     warnings : list of str
         Appended to.
 
@@ -227,12 +348,15 @@ def classify_measurements(data: ProjectData, selected: set, warnings: list) -> C
 
     Raises
     ------
+    NothingAdjustedError
+        A selected database has no measured shape point (the message names the likely
+        cause: no or another ``id_field``, ids that match no measurement, a ``where`` filter).
     MeasurementError, ControlError
         Unknown image, ambiguous id, tie point on one image, too few or collinear control.
     """
     meas, ctrl = data.measurements, data.control
     image_ids, img_of_obs = _image_of_measurements(data)
-    ctrl_of_obs, shapes, db_vertex_of_obs = _match_points(data)
+    ctrl_of_obs, shapes, db_vertex_of_obs, excluded_db = _match_points(data)
     k = len(meas.point_id)
     is_check = np.zeros(k, bool)
     is_ctrl = np.zeros(k, bool)
@@ -245,15 +369,23 @@ def classify_measurements(data: ProjectData, selected: set, warnings: list) -> C
         is_shape |= vi >= 0
         if spec.name in selected:
             use_shape |= vi >= 0
-    is_tie = ~(has_c | is_shape)
+    excluded_db = [ex & ~(has_c | is_shape) for ex in excluded_db]
+    is_excluded = np.logical_or.reduce(excluded_db) if excluded_db else np.zeros(k, bool)
+    is_tie = ~(has_c | is_shape | is_excluded)
+    _check_measured(data, selected, shapes, db_vertex_of_obs, excluded_db, is_tie)
     dropped = int((is_shape & ~use_shape).sum())
     if dropped:
         warnings.append(f"{dropped} measurement(s) of shape points of road databases not in this "
                         "run were left out")
+    for (spec, sp), ex in zip(shapes, excluded_db):
+        if ex.any():
+            warnings.append(f"{spec.name}: {int(ex.sum())} measurement(s) of features that "
+                            f"where = {reading_info(sp.layer).get('where')!r} excluded were "
+                            "left out")
     tie_ids, tie_inv = _tie_points(meas, is_tie)
     ctrl_used = _control_used(ctrl, ctrl_of_obs, is_ctrl, warnings)
     return Classification(image_ids, img_of_obs, ctrl_of_obs, shapes, db_vertex_of_obs,
-                          is_ctrl, is_check, is_tie, tie_ids, tie_inv, ctrl_used)
+                          is_ctrl, is_check, is_tie, tie_ids, tie_inv, ctrl_used, is_excluded)
 
 
 # --------------------------------------------------------------------------- bundle points

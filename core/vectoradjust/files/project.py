@@ -7,7 +7,9 @@ and DEMs the spec points to.
 
 from __future__ import annotations
 
+import difflib
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
@@ -16,22 +18,46 @@ import numpy as np
 
 from vectoradjust.errors import ProjectError
 from vectoradjust.model import AdjustmentSettings, Camera, ImageSpec, VectorSpec
-from vectoradjust.sensor.camera import CameraCalibration
-from vectoradjust.sensor.interior import normalize_unit, parse_corrections
+from vectoradjust.qa.tolerances import _SPEC_KEYS as _QA_KEYS
+from vectoradjust.sensor.camera import (
+    _CAMERA_KEYS,
+    _DISTORTION_META,
+    _POLY_KEYS,
+    _SMAC_KEYS,
+    CameraCalibration,
+)
+from vectoradjust.sensor.interior import CORRECTION_KEYS, normalize_unit, parse_corrections
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python < 3.11
     import tomli as tomllib
 
-__all__ = ["ProjectSpec", "load_project", "parse_project"]
+__all__ = ["PROJECT_SCHEMA", "ProjectSpec", "load_project", "parse_project", "check_keys"]
 
-_TOP_KEYS = {
-    "crs", "camera", "corrections", "images", "measurements", "control", "vectors",
-    "adjustment", "qa", "truth", "name", "description", "report",
+#: The keys each table of the project file may hold (README: "The project file"). The
+#: camera's keys are the camera file's (:mod:`vectoradjust.sensor.camera`) plus ``path``;
+#: ``[corrections]`` those of :func:`vectoradjust.sensor.interior.parse_corrections`;
+#: ``[qa]`` those of :class:`vectoradjust.qa.tolerances.QASpec`.
+PROJECT_SCHEMA: dict = {
+    "top level": ("name", "description", "crs", "camera", "corrections", "images",
+                  "measurements", "control", "vectors", "adjustment", "truth", "qa"),
+    "[camera]": tuple(_CAMERA_KEYS),
+    "[corrections]": tuple(CORRECTION_KEYS),
+    "[[images]]": ("id", "position", "attitude", "sigma_position", "sigma_attitude", "date"),
+    "[measurements]": ("path", "unit", "sigma", "fiducials"),
+    "[control]": ("path",),
+    "[[vectors]]": ("name", "path", "layer", "where", "id_field", "sigma",
+                    "identification_sigma", "offset", "dem", "truth"),
+    "[adjustment]": ("max_iterations", "reweight", "alpha", "snooping", "alpha0", "beta0",
+                     "max_removals", "covariance_scale", "tolerance_position",
+                     "tolerance_angle", "merge_tolerance"),
+    "[truth]": ("path", "widths"),
+    "[qa]": tuple(_QA_KEYS),
 }
+#: the optional tables that are single tables (``[name]``), not arrays (``[[name]]``)
+_TABLES = ("camera", "corrections", "measurements", "control", "adjustment", "truth", "qa")
 _REWEIGHT = ("none", "two-pass", "vce")
-_MEASUREMENT_KEYS = ("path", "sigma", "unit", "fiducials")
 
 
 @dataclass
@@ -160,13 +186,19 @@ def _resolve(base_dir: Path, value: Any, where: str, key: str) -> str:
 
 
 def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
-    """Validate a parsed TOML mapping (see :func:`load_project`)."""
+    """Validate a parsed TOML mapping (see :func:`load_project`).
+
+    Every table's keys are checked against :data:`PROJECT_SCHEMA`: an unknown key is an
+    error naming the table (the ``[[vectors]]`` or ``[[images]]`` entry), the key and the
+    nearest known key.
+    """
     where = str(path) if path else "<project>"
     base_dir = Path(base_dir)
-    unknown = sorted(set(raw) - _TOP_KEYS)
-    if unknown:
-        raise _err(where, f"unknown top-level key(s) {', '.join(unknown)}",
-                   f"Allowed keys are {', '.join(sorted(_TOP_KEYS))}; check the spelling")
+    check_keys(raw, PROJECT_SCHEMA["top level"], where, "")
+    for name in _TABLES:
+        if name in raw and not isinstance(raw[name], Mapping):
+            raise _err(where, f"{name} must be a table ([{name}]), not {raw[name]!r}",
+                       f"Write [{name}] on a line of its own, followed by its keys")
     crs = raw.get("crs")
     if not isinstance(crs, str) or not crs.strip():
         raise _err(where, "crs is missing", 'Add crs = "EPSG:xxxxx" (a projected CRS in metres)')
@@ -182,6 +214,10 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
     control = _parse_control(raw.get("control"), base_dir, where)
     vectors = _parse_vectors(raw.get("vectors", []) or [], base_dir, where)
     settings = _parse_adjustment(raw.get("adjustment", {}) or {}, where)
+    for name in ("truth", "qa"):  # read where they are used (files.truth, qa.verdict)
+        if name in raw:
+            check_keys(raw[name], PROJECT_SCHEMA[f"[{name}]"], where, f"[{name}]")
+    _check_truth(raw.get("truth"), where)
 
     return ProjectSpec(
         path=Path(path) if path else None, base_dir=base_dir, crs=crs.strip(), camera=camera,
@@ -190,16 +226,79 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
     )
 
 
+def _suggestion(key: str, allowed) -> Optional[str]:
+    """The allowed key ``key`` is most likely a misspelling of, or None."""
+    lower = {str(a).lower(): str(a) for a in allowed}
+    k = str(key).lower()
+    if k in lower:
+        return lower[k]
+    close = difflib.get_close_matches(k, list(lower), n=1, cutoff=0.6)
+    return lower[close[0]] if close else None
+
+
+def check_keys(table: Mapping, allowed, where: str, label: str,
+               generic: Optional[str] = None) -> None:
+    """Raise a :class:`ProjectError` for every key of ``table`` that is not ``allowed``.
+
+    Parameters
+    ----------
+    table : mapping
+        A table as read from TOML.
+    allowed : sequence of str
+        Its keys (:data:`PROJECT_SCHEMA`).
+    where : str
+        The project file, for the message.
+    label : str
+        The table as the message names it (``"[adjustment]"``, ``"[[vectors]] entry 2
+        ('TNM')"``); ``""`` for the top level.
+    generic : str, optional
+        The table's kind for the list of keys (``"[[vectors]]"``); default ``label``.
+
+    Raises
+    ------
+    ProjectError
+        Naming the table, each unknown key and the nearest allowed one ("did you mean").
+    """
+    unknown = [str(k) for k in table if k not in allowed]
+    if not unknown:
+        return
+    guesses = {k: _suggestion(k, allowed) for k in unknown}
+    said = ", ".join(f"{k!r}" + (f" (did you mean {guesses[k]!r}?)" if guesses[k] else "")
+                     for k in unknown)
+    plural = "s" if len(unknown) > 1 else ""
+    what = (f"{label}: unknown key{plural} {said}" if label else
+            f"unknown top-level key{plural} {said}")
+    kind = generic or label or "the top level"
+    raise ProjectError(
+        f"{where} {what}" if label else f"{where}: {what}",
+        f"Check the spelling (README: 'The project file'); the keys of {kind} are "
+        f"{', '.join(allowed)}",
+        path=where,
+        details={"table": kind, "keys": unknown, "suggestions": guesses,
+                 "allowed": list(allowed)},
+    )
+
+
+def _check_truth(truth: Any, where: str) -> None:
+    """``[truth]`` (optional) needs ``path`` (the widths are read by ``files.truth``)."""
+    if truth is not None and (not isinstance(truth.get("path"), str) or not truth["path"]):
+        raise _err(where, "[truth] has no path", 'Add [truth] path = "truth_roads.shp"')
+
+
 def _parse_corrections(corrections: Any, where: str) -> dict:
     """``[corrections]``: validated, returned as written."""
     if not isinstance(corrections, dict):
         raise _err(where, "[corrections] must be a table", "Write [corrections] refraction = true")
+    check_keys(corrections, PROJECT_SCHEMA["[corrections]"], where, "[corrections]")
     parse_corrections(corrections, f"{where} [corrections]")  # validates keys and values
     return corrections
 
 
 def _parse_images(images_raw: Any, where: str) -> list:
     """``[[images]]``: one :class:`ImageSpec` per entry, unique ids."""
+    if isinstance(images_raw, Mapping):
+        raise _err(where, "images is a single table", "Write [[images]] (an array of tables, "
+                   "one per image) instead of [images]")
     if not isinstance(images_raw, list) or not images_raw:
         raise _err(where, "no [[images]] entries", "Add one [[images]] table per image")
     images = []
@@ -209,6 +308,8 @@ def _parse_images(images_raw: Any, where: str) -> list:
         if not isinstance(im, dict) or "id" not in im:
             raise _err(w, "has no id", 'Add id = "L"')
         iid = str(im["id"])
+        check_keys(im, PROJECT_SCHEMA["[[images]]"], where, f"[[images]] entry {i} ({iid!r})",
+                   "[[images]]")
         w = f"{where} [[images]] id {iid!r}"
         if iid in seen:
             raise _err(w, "is defined twice", "Give every image a unique id")
@@ -227,10 +328,11 @@ def _parse_images(images_raw: Any, where: str) -> list:
 
 
 def _parse_control(control: Any, base_dir: Path, where: str) -> Optional[dict]:
-    """``[control]`` (optional): its path resolved, further keys as written."""
+    """``[control]`` (optional): its path resolved."""
     if control is not None:
         if not isinstance(control, dict) or "path" not in control:
             raise _err(where, "[control] has no path", 'Add [control] path = "gcps.csv"')
+        check_keys(control, PROJECT_SCHEMA["[control]"], where, "[control]")
         control = dict(control)
         control["path"] = _resolve(base_dir, control["path"], where, "[control] path")
     return control
@@ -238,6 +340,9 @@ def _parse_control(control: Any, base_dir: Path, where: str) -> Optional[dict]:
 
 def _parse_vectors(vectors_raw: Any, base_dir: Path, where: str) -> list:
     """``[[vectors]]``: one :class:`VectorSpec` per entry, unique names, paths resolved."""
+    if isinstance(vectors_raw, Mapping):
+        raise _err(where, "vectors is a single table", "Write [[vectors]] (an array of tables, "
+                   "one per road database) instead of [vectors]")
     vectors = []
     names: set = set()
     for i, v in enumerate(vectors_raw, start=1):
@@ -245,6 +350,9 @@ def _parse_vectors(vectors_raw: Any, base_dir: Path, where: str) -> list:
         if not isinstance(v, dict):
             raise _err(w, "must be a table", "Write [[vectors]] name = ... path = ...")
         name = str(v.get("name", f"vectors{i}"))
+        check_keys(v, PROJECT_SCHEMA["[[vectors]]"], where, f"[[vectors]] entry {i} ({name!r})",
+                   "[[vectors]]")
+        w = f"{where} [[vectors]] entry {i} ({name!r})"
         if name in names:
             raise _err(w, f"name {name!r} is used twice", "Give every [[vectors]] a unique name")
         names.add(name)
@@ -258,11 +366,22 @@ def _parse_vectors(vectors_raw: Any, base_dir: Path, where: str) -> list:
             sigma=tuple(float(s) for s in sigma),
             dem=None if v.get("dem") is None else _resolve(base_dir, v["dem"], w, "dem"),
             truth=None if v.get("truth") is None else _resolve(base_dir, v["truth"], w, "truth"),
-            layer=None if v.get("layer") is None else str(v["layer"]),
+            layer=_text(w, "layer", v.get("layer"), 'layer = "lines"'),
             identification_sigma=_identification(w, v.get("identification_sigma")),
             offset=_offset_kind(w, v.get("offset", "shift")),
+            where=_text(w, "where", v.get("where"), "where = \"highway IS NOT NULL\""),
         ))
     return vectors
+
+
+def _text(where: str, key: str, value: Any, example: str) -> Optional[str]:
+    """An optional non-empty string (``layer``, ``where``); None when not given."""
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value.strip():
+        raise _err(where, f"{key} must be a non-empty text, not {value!r}",
+                   f"Write {example}, or leave {key} out")
+    return value.strip()
 
 
 def _identification(where: str, value: Any):
@@ -293,6 +412,7 @@ def _offset_kind(where: str, value: Any) -> str:
 
 def _parse_adjustment(adj: Any, where: str) -> AdjustmentSettings:
     """``[adjustment]``: the settings that differ from :class:`AdjustmentSettings`."""
+    check_keys(adj, PROJECT_SCHEMA["[adjustment]"], where, "[adjustment]")
     settings = AdjustmentSettings()
     if "max_iterations" in adj:
         mi = adj["max_iterations"]
@@ -347,10 +467,7 @@ def _parse_measurements(meas: Any, base_dir: Path, where: str) -> dict:
     if not isinstance(meas, dict) or "path" not in meas:
         raise _err(where, "[measurements] path is missing",
                    'Add [measurements] path = "image_points.csv"')
-    unknown = sorted(set(meas) - set(_MEASUREMENT_KEYS))
-    if unknown:
-        raise _err(where, f"[measurements] has unknown key(s) {', '.join(unknown)}",
-                   f"Accepted keys: {', '.join(_MEASUREMENT_KEYS)}")
+    check_keys(meas, PROJECT_SCHEMA["[measurements]"], where, "[measurements]")
     meas = dict(meas)
     meas["path"] = _resolve(base_dir, meas["path"], where, "[measurements] path")
     meas["unit"] = normalize_unit(meas.get("unit", "mm"), f"{where} [measurements]")
@@ -368,10 +485,19 @@ def _parse_camera(cam: dict, base_dir: Path, where: str) -> Camera:
 
     Raises
     ------
+    ProjectError
+        An unknown key in ``[camera]`` or ``[camera.distortion]``.
     CameraError
         Whatever :meth:`CameraCalibration.from_dict` finds wrong (missing
         ``focal_length``, unknown keys or distortion model, a missing camera file ...).
     """
+    check_keys(cam, PROJECT_SCHEMA["[camera]"], where, "[camera]")
+    dist = cam.get("distortion")
+    if isinstance(dist, Mapping):  # its coefficients are checked against the model by the camera
+        known = tuple(dict.fromkeys(_DISTORTION_META + _SMAC_KEYS + _POLY_KEYS))
+        lower = {k.lower() for k in known}
+        check_keys({k: 0 for k in dist if str(k).lower() not in lower}, known, where,
+                   "[camera.distortion]")
     cal = CameraCalibration.from_dict(cam, base_dir, where=f"{where} [camera]")
     return Camera(focal_length=cal.focal_length, principal_point=tuple(cal.principal_point),
                   calibration=cal)

@@ -18,7 +18,10 @@ from vectoradjust.model import LineLayer, ProjectData
 
 __all__ = [
     "check_projected_crs",
+    "choose_layer",
+    "line_layers",
     "read_line_layer",
+    "transformation_info",
     "read_dem",
     "sample_dem",
     "load_project_data",
@@ -101,46 +104,174 @@ def layer_from_geometries(name, geoms, attributes: dict, feature_ids, crs, sourc
                                 problems, crs, source, geometry_type)
 
 
+#: a transformation less accurate than this (m), or of unknown accuracy, is a warning
+TRANSFORMATION_ACCURACY_LIMIT = 1.0
+
+
+def line_layers(path) -> list:
+    """``(name, geometry type)`` of every layer of a source (GeoPackage, FileGDB, OSM PBF ...).
+
+    Raises
+    ------
+    LayerError
+        The source cannot be opened.
+    """
+    import pyogrio
+
+    try:
+        return [(str(n), str(t) if t is not None else "Unknown")
+                for n, t in pyogrio.list_layers(str(path))]
+    except Exception as exc:  # pyogrio raises DataSourceError and others
+        raise LayerError(f"{path}: cannot be read as a vector source ({exc})",
+                         "Give a shapefile, GeoPackage, GeoJSON, FileGDB or OSM PBF with line "
+                         "features", path=str(path)) from exc
+
+
+def _holds_lines(gtype: str) -> bool:
+    return "linestring" in gtype.lower() or "linearring" in gtype.lower()
+
+
+def choose_layer(path, layer: Optional[str], entry: str) -> Optional[str]:
+    """The layer of ``path`` to read: ``layer`` if given, else the source's only line layer.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    layer : str or None
+        ``[[vectors]] layer``.
+    entry : str
+        The ``[[vectors]]`` entry, for messages (``"[[vectors]] 'OSM'"``).
+
+    Returns
+    -------
+    str or None
+        None for a single-layer source (shapefile, GeoJSON).
+
+    Raises
+    ------
+    LayerError
+        ``layer`` is not in the source; or no ``layer`` is given and the source holds
+        several layers with lines (the message lists them) or several layers none of which
+        holds lines.
+    """
+    layers = line_layers(path)
+    listing = ", ".join(f"{n} ({t})" for n, t in layers)
+    if layer is not None:
+        if layer not in [n for n, _ in layers]:
+            raise LayerError(f"{path} ({entry}): there is no layer {layer!r} (layers: {listing})",
+                             "Correct layer in the [[vectors]] entry", path=str(path))
+        return layer
+    if len(layers) <= 1:
+        return None
+    lines = [(n, t) for n, t in layers if _holds_lines(t)]
+    if len(lines) == 1:
+        return lines[0][0]
+    if lines:
+        raise LayerError(
+            f"{path} ({entry}) holds {len(lines)} layers with lines: "
+            + ", ".join(f"{n} ({t})" for n, t in lines),
+            f'Add layer = "{lines[0][0]}" (or another of them) to its [[vectors]] entry',
+            path=str(path), details={"layers": [n for n, _ in lines]})
+    raise LayerError(f"{path} ({entry}) holds {len(layers)} layers and none holds lines: "
+                     f"{listing}",
+                     'Give the road centrelines (a line layer), or name the layer with '
+                     'layer = "..." in the [[vectors]] entry',
+                     path=str(path), details={"layers": [n for n, _ in layers]})
+
+
+def _read_frame(p: Path, layer: Optional[str], where: Optional[str], entry: str):
+    """The layer as a GeoDataFrame (indexed by FID when filtered), with its fields checked."""
+    import pyogrio
+
+    kwargs = {"layer": layer} if layer else {}
+    try:
+        if where is None:
+            return pyogrio.read_dataframe(p, **kwargs)
+        return pyogrio.read_dataframe(p, where=where, fid_as_index=True, **kwargs)
+    except Exception as exc:  # pyogrio raises many types
+        if where is None:
+            raise LayerError(f"{p}: cannot be read as a vector layer ({exc})",
+                             "Give a shapefile, GeoPackage, GeoJSON or OSM PBF with line "
+                             "features", path=str(p)) from exc
+        try:
+            fields = ", ".join(map(str, pyogrio.read_info(p, **kwargs)["fields"]))
+        except Exception:  # the expression is what we report
+            fields = "?"
+        raise LayerError(
+            f"{p} ({entry}): where = {where!r} is not a valid attribute filter ({exc})",
+            "Write an OGR SQL WHERE clause over the layer's fields "
+            f"({fields}), e.g. where = \"highway IS NOT NULL\" or "
+            "where = \"highway IN ('primary', 'residential')\"",
+            path=str(p), details={"where": where}) from exc
+
+
+def _filtered_ids(p: Path, layer: Optional[str], gdf, id_field: Optional[str]):
+    """Feature ids of a filtered read: ``(kept ids or None, excluded ids, features in layer)``.
+
+    Without ``id_field`` the ids are the 0-based positions in the *unfiltered* layer, so
+    a feature keeps its id (and its shape point ids) whatever the filter.
+    """
+    import pyogrio
+
+    kwargs = {"layer": layer} if layer else {}
+    full = pyogrio.read_dataframe(p, read_geometry=False, fid_as_index=True,
+                                  columns=[id_field] if id_field else [], **kwargs)
+    kept = np.isin(full.index.to_numpy(), gdf.index.to_numpy())
+    if id_field is None:
+        pos = {fid: i for i, fid in enumerate(full.index.to_numpy())}
+        ids = np.array([str(pos[f]) for f in gdf.index.to_numpy()], dtype=object).astype(str)
+        excluded = [str(i) for i in np.flatnonzero(~kept)]
+    else:
+        ids = None
+        excluded = [_id_text(v) for v in full[id_field].to_numpy()[~kept] if v == v]
+    return ids, excluded, len(full)
+
+
 def read_line_layer(path: str, name: str, id_field: Optional[str], target_crs,
-                    layer: Optional[str] = None) -> LineLayer:
+                    layer: Optional[str] = None, where: Optional[str] = None) -> LineLayer:
     """Read a line layer (any OGR format) and transform it to the project CRS.
 
     Parameters
     ----------
     path : str
-        Shapefile, GeoPackage, GeoJSON, OSM PBF ...
+        Shapefile, GeoPackage, GeoJSON, FileGDB, OSM PBF ...
     name : str
         Database name.
     id_field : str or None
-        Field whose values are the feature ids; None for the 0-based feature index.
+        Field whose values are the feature ids; None for the 0-based feature index (in
+        the layer as stored, before any ``where`` filter).
     target_crs : pyproj.CRS
         Project CRS.
     layer : str, optional
-        Layer name inside a multi-layer source (e.g. ``"lines"`` of an OSM PBF).
+        Layer name inside a multi-layer source (e.g. ``"lines"`` of an OSM PBF); needed
+        when the source holds more than one layer with lines (:func:`choose_layer`).
+    where : str, optional
+        Attribute filter (OGR SQL WHERE clause, ``[[vectors]] where``): the features it
+        rejects are not read.
+
+    Returns
+    -------
+    LineLayer
+        With an extra attribute ``reading`` (dict): ``source``, ``layer``, ``where``,
+        ``features_in_layer``, ``features_kept``, ``features_filtered``,
+        ``excluded_feature_ids`` (ids of the filtered features, so that their measurements
+        are left out, not made tie points) and ``crs`` (:func:`transformation_info`).
 
     Raises
     ------
     LayerError
-        Missing file, unreadable layer, no line geometries, missing id field,
-        duplicate ids.
+        Missing file, unreadable layer, several line layers and no ``layer``, a bad
+        ``where``, no line geometries, missing id field, duplicate ids.
     CRSError
         Layer without CRS.
     """
-    import geopandas as gpd
-
     p = Path(path)
+    entry = f"[[vectors]] {name!r}"
     if not p.exists():
         raise InputFileError(f"Road layer {str(p)!r} does not exist",
                              "Check the path in the [[vectors]] entry", path=str(p))
-    try:
-        kwargs = {"layer": layer} if layer else {}
-        if p.suffix.lower() == ".pbf" and not layer:
-            kwargs["layer"] = "lines"
-        gdf = gpd.read_file(p, **kwargs)
-    except Exception as exc:  # pyogrio/fiona raise many types
-        raise LayerError(f"{p}: cannot be read as a vector layer ({exc})",
-                         "Give a shapefile, GeoPackage, GeoJSON or OSM PBF with line features",
-                         path=str(p)) from exc
+    chosen = choose_layer(p, layer, entry)
+    gdf = _read_frame(p, chosen, where, entry)
     if gdf.crs is None:
         raise CRSError(f"{p}: the layer has no coordinate reference system",
                        "Add a .prj file (or define the CRS in your GIS and save again)",
@@ -152,33 +283,125 @@ def read_line_layer(path: str, name: str, id_field: Optional[str], target_crs,
             f"{p}: the layer holds {', '.join(sorted(types))} geometries, not lines",
             "Give the road centrelines as a LineString layer", path=str(p))
     attr_cols = [c for c in gdf.columns if c != gdf.geometry.name]
-    if id_field is not None:
-        if id_field not in gdf.columns:
-            raise LayerError(f"{p}: id_field {id_field!r} is not a field of the layer "
-                             f"(fields: {', '.join(attr_cols)})",
-                             "Correct id_field in the [[vectors]] entry or omit it", path=str(p))
-        vals = gdf[id_field]
-        if vals.isna().any():
-            i = int(np.flatnonzero(vals.isna().to_numpy())[0])
-            raise LayerError(f"{p}: feature {i} has no value in id field {id_field!r}",
-                             "Give every feature an id, or omit id_field to use the index",
-                             path=str(p))
-        ids = np.array([_id_text(v) for v in vals], dtype=object).astype(str)
-        u, c = np.unique(ids, return_counts=True)
-        if np.any(c > 1):
-            raise LayerError(f"{p}: the id {u[c > 1][0]!r} of field {id_field!r} is used by "
-                             f"{int(c[c > 1][0])} features",
-                             "Use a field with unique values as id_field", path=str(p))
-    else:
-        ids = np.arange(len(gdf)).astype(str)
-    if geom.notna().any():
-        gdf_t = gdf.to_crs(target_crs) if not gdf.crs.equals(target_crs) else gdf
-    else:
-        gdf_t = gdf
+    index_ids, excluded, n_layer = (None, [], len(gdf)) if where is None else _filtered_ids(
+        p, chosen, gdf, id_field)
+    ids = _feature_ids(p, gdf, id_field, attr_cols) if id_field is not None else (
+        index_ids if index_ids is not None else np.arange(len(gdf)).astype(str))
+    geoms, crs_info = _to_project_crs(gdf, target_crs)
     attributes = {c: gdf[c].tolist() for c in attr_cols}
     gtype = ",".join(sorted(types)) or "none"
-    return layer_from_geometries(name, gdf_t.geometry.to_numpy(), attributes, ids,
-                                 target_crs.to_wkt(), str(p), gtype)
+    out = layer_from_geometries(name, geoms, attributes, ids, target_crs.to_wkt(), str(p), gtype)
+    out.reading = {
+        "source": str(p), "layer": chosen, "where": where, "features_in_layer": int(n_layer),
+        "features_kept": int(len(gdf)), "features_filtered": int(n_layer - len(gdf)),
+        "excluded_feature_ids": excluded, "crs": crs_info,
+    }
+    return out
+
+
+def _feature_ids(p: Path, gdf, id_field: str, attr_cols: list) -> np.ndarray:
+    """The values of ``id_field`` as text (missing field, missing or duplicate ids: error)."""
+    if id_field not in gdf.columns:
+        raise LayerError(f"{p}: id_field {id_field!r} is not a field of the layer "
+                         f"(fields: {', '.join(attr_cols)})",
+                         "Correct id_field in the [[vectors]] entry or omit it", path=str(p))
+    vals = gdf[id_field]
+    if vals.isna().any():
+        i = int(np.flatnonzero(vals.isna().to_numpy())[0])
+        raise LayerError(f"{p}: feature {i} has no value in id field {id_field!r}",
+                         "Give every feature an id, or omit id_field to use the index",
+                         path=str(p))
+    ids = np.array([_id_text(v) for v in vals], dtype=object).astype(str)
+    u, c = np.unique(ids, return_counts=True)
+    if np.any(c > 1):
+        raise LayerError(f"{p}: the id {u[c > 1][0]!r} of field {id_field!r} is used by "
+                         f"{int(c[c > 1][0])} features",
+                         "Use a field with unique values as id_field", path=str(p))
+    return ids
+
+
+def transformation_info(source_crs, target_crs, bounds=None):
+    """The transformation from ``source_crs`` to ``target_crs`` PROJ chooses, and a verdict.
+
+    Parameters
+    ----------
+    source_crs, target_crs : pyproj.CRS
+    bounds : sequence of 4 floats, optional
+        ``xmin, ymin, xmax, ymax`` of the data in ``source_crs``: the transformation is
+        chosen for that area (as PROJ would per point), so that it can be named.
+
+    Returns
+    -------
+    transformer : pyproj.Transformer
+        The one to use (``always_xy``).
+    info : dict
+        ``source_crs``, ``target_crs`` (names), ``transformation`` (PROJ's description),
+        ``accuracy_m`` (None when unknown), ``ballpark`` and ``warning`` (text or None:
+        a ballpark transformation, or an accuracy unknown or worse than
+        :data:`TRANSFORMATION_ACCURACY_LIMIT`).
+    """
+    from pyproj import Transformer
+
+    aoi = _area_of_interest(source_crs, bounds)
+    t = Transformer.from_crs(source_crs, target_crs, always_xy=True, area_of_interest=aoi)
+    desc = str(t.description)
+    acc = float(t.accuracy) if t.accuracy is not None else -1.0
+    ballpark = "ballpark" in desc.lower()
+    info = {"source_crs": source_crs.name, "target_crs": target_crs.name,
+            "transformation": desc, "accuracy_m": acc if acc >= 0 else None,
+            "ballpark": ballpark, "warning": None}
+    if ballpark or acc < 0 or acc > TRANSFORMATION_ACCURACY_LIMIT:
+        why = ("a ballpark transformation (datum shift ignored; errors of metres possible)"
+               if ballpark else "of unknown accuracy" if acc < 0 else
+               f"accurate to about {acc:g} m only")
+        info["warning"] = (f"from {source_crs.name} to {target_crs.name} is {why}: {desc}; "
+                           "positions may be off by that much (an offset of the database "
+                           "absorbs a constant shift): give the data in the project CRS's "
+                           "datum, or install PROJ's transformation grids (projsync) if one "
+                           "applies")
+    return t, info
+
+
+def _area_of_interest(crs, bounds):
+    """The data's extent in degrees (pyproj AreaOfInterest), or None when unknown."""
+    if bounds is None or not np.all(np.isfinite(bounds)):
+        return None
+    from pyproj import Transformer
+    from pyproj.aoi import AreaOfInterest
+
+    try:
+        to_deg = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+        w, s, e, n = to_deg.transform_bounds(*bounds)
+        return AreaOfInterest(max(w, -180.0), max(s, -90.0), min(e, 180.0), min(n, 90.0))
+    except Exception:  # no extent: PROJ chooses without it
+        return None
+
+
+def _transform_geometries(geoms: np.ndarray, transformer) -> np.ndarray:
+    """The geometries through ``transformer`` (Z passed on where the geometry has one)."""
+    import shapely
+
+    def xy(c):
+        return np.column_stack(transformer.transform(c[:, 0], c[:, 1]))
+
+    def xyz(c):
+        return np.column_stack(transformer.transform(c[:, 0], c[:, 1], c[:, 2]))
+
+    out = np.array(geoms, dtype=object)
+    has_z = shapely.has_z(out)
+    for mask, fn, z in ((~has_z, xy, False), (has_z, xyz, True)):
+        if mask.any():
+            out[mask] = shapely.transform(out[mask], fn, include_z=z)
+    return out
+
+
+def _to_project_crs(gdf, target_crs):
+    """The layer's geometries in the project CRS and the transformation used (dict or None)."""
+    geoms = gdf.geometry.to_numpy()
+    if not gdf.geometry.notna().any() or gdf.crs.equals(target_crs):
+        return geoms, None
+    transformer, info = transformation_info(gdf.crs, target_crs, gdf.total_bounds)
+    return _transform_geometries(geoms, transformer), info
 
 
 def _id_text(v) -> str:
@@ -220,21 +443,32 @@ def read_dem(path: str, target_crs=None):
     return grid, gt, nodata, crs
 
 
-def sample_dem(path: str, xy: np.ndarray, project_crs) -> np.ndarray:
-    """Heights at ``xy`` (project CRS) by bilinear interpolation; NaN where uncovered."""
-    from pyproj import Transformer
+def sample_dem(path: str, xy: np.ndarray, project_crs, report: Optional[dict] = None
+               ) -> np.ndarray:
+    """Heights at ``xy`` (project CRS) by bilinear interpolation; NaN where uncovered.
+
+    ``report``, when given, receives ``"crs"``: the transformation from the project CRS to
+    the DEM's (:func:`transformation_info`; None when the DEM is in the project CRS).
+    """
+    from pyproj import CRS
 
     from vectoradjust.adjust.dem import bilinear
 
     grid, gt, nodata, crs = read_dem(path)
     pts = np.asarray(xy, float)
-    if crs is not None and not crs.equals(project_crs):
-        t = Transformer.from_crs(project_crs, crs, always_xy=True)
-        x, y = t.transform(pts[:, 0], pts[:, 1])
-        pts = np.column_stack([x, y])
-    elif crs is None:
+    info = None
+    if crs is None:
         raise CRSError(f"{path}: the DEM has no coordinate reference system",
                        "Assign the CRS to the GeoTIFF (gdal_edit.py -a_srs)", path=str(path))
+    if not crs.equals(project_crs):
+        pcrs = CRS.from_user_input(project_crs)
+        finite = pts[np.isfinite(pts).all(axis=1)]
+        bounds = (np.r_[finite.min(axis=0), finite.max(axis=0)] if len(finite) else None)
+        t, info = transformation_info(pcrs, crs, bounds)
+        x, y = t.transform(pts[:, 0], pts[:, 1])
+        pts = np.column_stack([x, y])
+    if report is not None:
+        report["crs"] = info
     return bilinear(grid, gt, pts, nodata=nodata)
 
 
@@ -276,10 +510,11 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
     for v in spec.vectors:
         if v.name not in names:
             continue
-        layer = read_line_layer(v.path, v.name, v.id_field, crs, v.layer)
+        layer = read_line_layer(v.path, v.name, v.id_field, crs, v.layer, v.where)
         if v.dem:
-            z = sample_dem(v.dem, layer.coords[:, :2], crs)
-            layer.coords[:, 2] = z
+            dem_report: dict = {}
+            layer.coords[:, 2] = sample_dem(v.dem, layer.coords[:, :2], crs, dem_report)
+            layer.reading["dem"] = {"source": v.dem, "crs": dem_report.get("crs")}
         layers.append((v, layer))
         if v.truth:
             truth[v.name] = read_truth_points(v.truth)
