@@ -171,6 +171,9 @@ class LineLayer:
         File path, for error messages.
     geometry_type : str
         Geometry type as read (for messages).
+    reading : dict
+        What the reader reports about the layer (filter, counts, CRS transformation,
+        ``excluded_feature_ids``); empty when the layer was not read from a file.
     """
 
     name: str
@@ -184,6 +187,7 @@ class LineLayer:
     crs: Optional[str] = None
     source: str = "<layer>"
     geometry_type: str = "LineString"
+    reading: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.feature_ids = np.asarray(self.feature_ids, dtype=object).astype(str)
