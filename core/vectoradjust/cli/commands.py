@@ -22,7 +22,7 @@ from vectoradjust.cli import propagate as cli_propagate
 from vectoradjust.cli import qa as cli_qa
 from vectoradjust.cli.progress import ProgressBar
 from vectoradjust.cli.tools import run_command
-from vectoradjust.errors import VectorAdjustError
+from vectoradjust.errors import NothingAdjustedError, VectorAdjustError
 
 __all__ = ["main", "ProgressBar", "sample_project_dir", "compare", "compare_row", "print_table"]
 
@@ -90,7 +90,7 @@ def _print_summary(summary: dict, out=None) -> None:
 def print_table(rows: list, out=None) -> None:
     """Print the side-by-side comparison table."""
     out = out or sys.stdout
-    cols = compare_columns(rows)
+    cols = [(k, h) for k, h in compare_columns(rows) if k != "error"]
     heads = [h for _, h in cols]
     cells = [[_fmt(r.get(k)) if k != "database" else str(r.get(k)) for k, _ in cols]
              for r in rows]
@@ -164,9 +164,15 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
     rows = []
     runs = []
     out = Path(out_dir)
+    failed = []
     for i, v in enumerate(spec.vectors):
         bar = ProgressBar(f"{v.name:>8s} ({i + 1}/{len(spec.vectors)})", enabled=not quiet)
-        result = run(data, vectors=[v.name], progress=bar)
+        try:
+            result = run(data, vectors=[v.name], progress=bar)
+        except NothingAdjustedError as exc:  # one database without measurements: go on
+            print(f"\nvectoradjust compare: {v.name}: {exc}", file=sys.stderr)
+            failed.append({"database": v.name, "adjusted": 0, "error": str(exc)})
+            continue
         if truth is not None:
             cli_buffer.truth_buffer(result, *truth, progress=ProgressBar(
                 f"{v.name:>8s} truth", enabled=not quiet))
@@ -174,8 +180,13 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
         write_report(result, out / v.name / "report.html", reliability=result.reliability)
         rows.append(compare_row(result.summary))
         runs.append(result)
+    if not runs:
+        raise NothingAdjustedError(
+            f"{project}: no road database has a measured shape point",
+            "See the messages above: set id_field, or measure the shape points")
     out.mkdir(parents=True, exist_ok=True)
     write_compare_report(runs, rows, out / "report.html")
+    rows = rows + failed  # the databases that could not be adjusted, with the reason
     with open(out / "compare.csv", "w", newline="", encoding="utf-8") as fh:
         cols = compare_columns(rows)
         w = csv.DictWriter(fh, fieldnames=[k for k, _ in cols])
@@ -191,6 +202,9 @@ def cmd_compare(args) -> int:
     rows = compare(args.project, args.out, fmt=args.format, quiet=args.quiet)
     print(f"vectoradjust compare: {args.project} (each database adjusted alone)")
     print_table(rows)
+    for r in rows:
+        if r.get("error"):
+            print(f"  {r['database']}: not adjusted (see compare.csv, column error)")
     print(f"  wrote {Path(args.out) / 'compare.csv'} and {Path(args.out) / 'report.html'}")
     return 0
 
