@@ -123,7 +123,7 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
     # ------------------------------------------------------------------ run
     def run_algorithm(self, parameters, context, feedback):
         t0 = time.perf_counter()
-        adj = inputs.run_adjustment(self, parameters, context, feedback)
+        adj = inputs.run_adjustment(self, parameters, context, feedback, span=70.0)
         out = adj.run
         # true centrelines ([truth]): buffer shares before/after, into the summary
         project_truth_buffer(adj.prj, [out], context, feedback)
