@@ -331,6 +331,6 @@ class BufferAccuracyTest(VectorAdjustAlgorithm):
             feedback.pushInfo(f"width {row['width']:g} m: "
                               + ("no tested length" if share is None else
                                  f"{100.0 * share:.1f} % of {row['length_total']:.1f} m inside"))
-        add_all(sink, feats)
+        add_all(sink, feats, feedback)
         feedback.setProgress(100)
         return {self.OUTPUT: dest}

@@ -107,3 +107,75 @@ def test_cancel_during_the_buffer_accuracy_test(qgis_app, sample, small_chunks):
     with pytest.raises(QgsProcessingException, match="[Cc]ancelled"):
         run("bufferaccuracytest", _buffer_params(sample), feedback=fb)
     assert 100.0 not in fb.values()
+
+
+# --------------------------------------------------------------- reading, sinks, report
+def test_cancel_while_reading_a_line_layer(qgis_app, sample):
+    from qgis.core import QgsProcessingContext, QgsProcessingFeedback, QgsVectorLayer
+
+    from qgis_plugin import qgis_io
+    from vectoradjust.errors import CancelledError
+
+    layer = QgsVectorLayer(str(sample / "osm_roads.shp"), "osm", "ogr")
+    fb = QgsProcessingFeedback()
+    fb.cancel()
+    with pytest.raises(CancelledError):
+        qgis_io.read_line_source(layer, "OSM", None, layer.crs(), QgsProcessingContext(),
+                                 "osm", fb)
+
+
+def test_cancel_while_writing_the_sinks_stops_adjust(qgis_app, sample):
+    """Cancel while the features are written: a cancellation, not a partial result."""
+    from qgis.core import QgsProcessingException
+
+    fb = _feedback(cancel_on="writing the outputs")
+    with pytest.raises(QgsProcessingException, match="[Cc]ancelled"):
+        run("adjustroadvectors", adjust_params(sample), feedback=fb)
+
+
+def test_cancel_before_the_report_stops_adjust(qgis_app, sample, tmp_path):
+    from qgis.core import QgsProcessingException
+
+    fb = _feedback(cancel_on="writing the report")
+    report = tmp_path / "report.html"
+    with pytest.raises(QgsProcessingException, match="[Cc]ancelled"):
+        run("adjustroadvectors", adjust_params(sample, REPORT=str(report)), feedback=fb)
+    assert not report.exists()
+
+
+def _compare_params(sample, folder):
+    return {"LAYERS": [str(sample / f"{n}_roads.shp") for n in ("osm", "tnm", "tiger")],
+            "PROJECT": str(sample / "project.toml"), "OUTPUT": "TEMPORARY_OUTPUT",
+            "SHAPE_POINTS": "TEMPORARY_OUTPUT", "RESIDUALS": "TEMPORARY_OUTPUT",
+            "OUTPUT_FOLDER": str(folder)}
+
+
+def test_compare_reports_and_cancels_the_truth_buffer_stage(qgis_app, sample, tmp_path):
+    from qgis.core import QgsProcessingException
+
+    fb = _feedback(cancel_on="buffer test: TNM")
+    with pytest.raises(QgsProcessingException, match="[Cc]ancelled"):
+        run("compareroaddatabases", _compare_params(sample, tmp_path / "c"), feedback=fb)
+    texts = fb.texts()
+    assert any(t.startswith("buffer test: OSM") for t in texts)  # the first run's stage
+    assert "writing the outputs" not in texts
+    assert not (tmp_path / "c").exists()
+
+
+def test_cancel_while_compare_writes_the_folder(qgis_app, sample, tmp_path):
+    """Cancel after the sinks: the per-database GeoPackages are not all written."""
+    from qgis.core import QgsProcessingException
+
+    fb = _feedback()
+    folder = tmp_path / "c"
+    orig = fb.pushInfo
+
+    def push(text):  # the table rows are echoed just before the sinks and the folder
+        if text.startswith("name ") or "rmse" in text.lower():
+            fb.cancel()
+        orig(text)
+
+    fb.pushInfo = push
+    with pytest.raises(QgsProcessingException, match="[Cc]ancelled"):
+        run("compareroaddatabases", _compare_params(sample, folder), feedback=fb)
+    assert not (folder / "compare.json").exists()
