@@ -192,7 +192,7 @@ def _line_parts(geom):
     return out
 
 
-def read_line_source(source, name, id_field, target_crs, context, where):
+def read_line_source(source, name, id_field, target_crs, context, where, feedback=None):
     """Flatten a line feature source to a :class:`LineLayer` in ``target_crs``.
 
     Parameters
@@ -251,6 +251,8 @@ def read_line_source(source, name, id_field, target_crs, context, where):
     problems = {}
     coords, vf, vi, vp = [], [], [], []
     for i, f in enumerate(source.getFeatures(request)):
+        if feedback is not None and i % 1000 == 0:
+            _check_cancelled(feedback)
         attrs = f.attributes()
         for n, v in zip(names, attrs):
             attributes[n].append(None if is_null(v) else v)  # NULL -> None, as headless
@@ -295,6 +297,12 @@ def read_line_source(source, name, id_field, target_crs, context, where):
                                  coords, vf, vi, vp, problems, target_crs.toWkt(), where,
                                  QgsWkbTypes.displayString(wkb))
     return layer, fields
+
+
+def _check_cancelled(feedback):
+    from .algorithms.base import check_cancelled
+
+    check_cancelled(feedback)
 
 
 # --------------------------------------------------------------------------- DEM

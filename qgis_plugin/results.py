@@ -214,12 +214,15 @@ def residual_features(run, fields, scale=1.0):
 
 
 def add_all(sink, features, feedback=None, start=0.0, span=0.0):
-    """Add features to a sink (or file writer) in batches."""
+    """Add features to a sink (or file writer) in batches; Cancel in ``feedback`` raises
+    :class:`vectoradjust.errors.CancelledError` between batches."""
     n = len(features)
     step = 5000
     for k in range(0, n, step):
         if feedback is not None and feedback.isCanceled():
-            break
+            from .algorithms.base import check_cancelled
+
+            check_cancelled(feedback)  # CancelledError: the algorithm stops, no result
         ok = sink.addFeatures(features[k:k + step], QgsFeatureSink.FastInsert)
         if ok is False:
             from vectoradjust.errors import InputFileError
@@ -256,7 +259,7 @@ def write_json(path, obj):
         json.dump(clean_json(obj), fh, indent=2)
 
 
-def write_gpkg(path, layers, crs, transform_context=None):
+def write_gpkg(path, layers, crs, transform_context=None, feedback=None):
     """Write several layers into one GeoPackage (replacing the file).
 
     Parameters
@@ -280,7 +283,7 @@ def write_gpkg(path, layers, crs, transform_context=None):
         if writer.hasError() != QgsVectorFileWriter.NoError:
             raise InputFileError(f"Cannot write {path} (layer {name}): {writer.errorMessage()}",
                                  "Choose a writable output folder")
-        add_all(writer, feats)
+        add_all(writer, feats, feedback)
         del writer
 
 

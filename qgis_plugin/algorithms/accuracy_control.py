@@ -242,7 +242,7 @@ class AccuracyControl(VectorAdjustAlgorithm):
                                           QgsWkbTypes.PointZ, prj.crs,
                                           QgsFeatureSink.RegeneratePrimaryKey)
         if sink is not None:
-            results.add_all(sink, results.control_point_features(view, cfields))
+            results.add_all(sink, results.control_point_features(view, cfields), feedback)
             style_output(context, dest, "control_points")
             outputs[self.CONTROL_POINTS] = dest
         return outputs

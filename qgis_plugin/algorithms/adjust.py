@@ -17,7 +17,7 @@ from qgis.core import (
 from .. import results
 from ..styles import style_output
 from . import inputs
-from .base import VectorAdjustAlgorithm
+from .base import VectorAdjustAlgorithm, check_cancelled
 from .buffer_test import project_truth_buffer
 
 HELP = """
@@ -123,7 +123,7 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
     # ------------------------------------------------------------------ run
     def run_algorithm(self, parameters, context, feedback):
         t0 = time.perf_counter()
-        adj = inputs.run_adjustment(self, parameters, context, feedback)
+        adj = inputs.run_adjustment(self, parameters, context, feedback, span=70.0)
         out = adj.run
         # true centrelines ([truth]): buffer shares before/after, into the summary
         project_truth_buffer(adj.prj, [out], context, feedback)
@@ -162,6 +162,7 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
              "residuals"),
         ]
         for k, (key, fields, wkb, make, kind) in enumerate(specs):
+            check_cancelled(feedback)
             sink, dest = self.parameterAsSink(parameters, key, context, fields, wkb, crs,
                                               QgsFeatureSink.RegeneratePrimaryKey)
             if sink is None:
@@ -195,6 +196,7 @@ def write_html_report(alg, parameters, context, feedback, key, run=None, runs=No
     if not path:
         return None
     feedback.setProgressText("writing the report")
+    check_cancelled(feedback)
     try:
         from vectoradjust.files import report
     except ImportError as exc:  # pragma: no cover - depends on the machine

@@ -19,7 +19,10 @@ from qgis.core import (
 
 from .. import qgis_io
 from ..results import add_all
-from .base import VectorAdjustAlgorithm, check_cancelled
+from .base import VectorAdjustAlgorithm, cancel_callback, check_cancelled, progress_callback
+
+#: tested lines intersected with a buffer per step (progress and Cancel between steps)
+CHUNK = 2000
 
 HELP = """
 <p>The buffer test of line accuracy (Goodchild &amp; Hunter 1997): the reference lines are
@@ -75,7 +78,7 @@ def parse_widths(text):
     return out
 
 
-def _lines(source, crs, context, where):
+def _lines(source, crs, context, where, feedback=None):
     from vectoradjust.errors import CRSError, LayerError
 
     wkb = source.wkbType()
@@ -89,7 +92,9 @@ def _lines(source, crs, context, where):
     if source.sourceCrs() != crs:
         request.setDestinationCrs(crs, context.transformContext())
     geoms = []
-    for f in source.getFeatures(request):
+    for k, f in enumerate(source.getFeatures(request)):
+        if k % CHUNK == 0:
+            check_cancelled(feedback)
         g = f.geometry()
         if g is None or g.isNull() or g.isEmpty():
             continue
@@ -97,60 +102,94 @@ def _lines(source, crs, context, where):
     return geoms
 
 
-def buffer_shares(tested, reference, widths, quad_segs=32, cap_style="round", feedback=None):
-    """Share of the tested lines' length inside buffers of the reference lines.
-
-    The QGIS/GEOS twin of :func:`vectoradjust.accuracy.buffer.buffer_test` (same result
-    dictionaries): the reference lines' parts are collected into one multi-line and
-    buffered; each tested geometry is intersected with the buffer.
-    """
-    total = float(sum(g.length() for g in tested))
+def _buffers(reference, widths, quad_segs=32, cap_style="round", feedback=None):
+    """The united reference lines buffered by each width (None: an empty buffer), each
+    with a prepared GEOS engine: ``[(buffer, engine) or None]``."""
     parts = []
     for g in reference:
         parts.extend(QgsGeometry(p.clone()) for p in g.constParts())
     ref = QgsGeometry.collectGeometry(parts) if parts else None
-    results = []
-    for k, width in enumerate(widths):
-        if feedback is not None:
-            check_cancelled(feedback)
-            feedback.setProgress(100.0 * k / max(len(widths), 1))
-        inside = 0.0
-        if total > 0 and width > 0 and ref is not None:
-            buf = ref.buffer(float(width), int(quad_segs), _cap(cap_style),
-                             Qgis.JoinStyle.Round, 5.0)
-            engine = QgsGeometry.createGeometryEngine(buf.constGet())
-            engine.prepareGeometry()
-            for g in tested:
-                if engine.intersects(g.constGet()):
-                    inside += g.intersection(buf).length()
-        share = (inside / total) if total > 0 else None
-        if share is not None:
-            share = min(max(share, 0.0), 1.0)
-        results.append({"width": float(width), "share": share, "length_inside": inside,
-                        "length_total": total})
-    return results
+    out = []
+    for width in widths:
+        check_cancelled(feedback)
+        if ref is None or width <= 0:
+            out.append(None)
+            continue
+        buf = ref.buffer(float(width), int(quad_segs), _cap(cap_style), Qgis.JoinStyle.Round,
+                         5.0)
+        engine = QgsGeometry.createGeometryEngine(buf.constGet())
+        engine.prepareGeometry()
+        out.append((buf, engine))
+    return out
 
 
-def _vertex_lines(xy, feature, part):
-    """LineStrings of the vertex arrays (one per feature part with >= 2 vertices)."""
+def _inside(tested, buffers, step):
+    """Length of the tested lines inside each buffer and their total length, in chunks of
+    :data:`CHUNK` lines (``step(n)`` after each: progress and Cancel)."""
+    total = float(sum(g.length() for g in tested))
+    inside = [0.0] * len(buffers)
+    for k in range(0, max(len(tested), 1), CHUNK):
+        part = tested[k:k + CHUNK]
+        for j, b in enumerate(buffers):
+            if b is None or total <= 0:
+                continue
+            buf, engine = b
+            inside[j] += sum(g.intersection(buf).length() for g in part
+                             if engine.intersects(g.constGet()))
+        step(len(part))
+    return inside, total
+
+
+def _share(inside, total):
+    return None if total <= 0 else min(max(inside / total, 0.0), 1.0)
+
+
+def buffer_shares(tested, reference, widths, quad_segs=32, cap_style="round", feedback=None,
+                  start=0.0, span=100.0):
+    """Share of the tested lines' length inside buffers of the reference lines.
+
+    The QGIS/GEOS twin of :func:`vectoradjust.accuracy.buffer.buffer_test` (same result
+    dictionaries): the reference lines' parts are collected into one multi-line and
+    buffered; each tested geometry is intersected with the buffer. Reports progress per
+    chunk of :data:`CHUNK` tested lines to ``feedback`` (``start`` .. ``start + span``
+    percent) and stops with :class:`vectoradjust.errors.CancelledError` on Cancel.
+    """
+    report = progress_callback(feedback, start, span) if feedback is not None else None
+    if report is not None:
+        feedback.setProgressText("buffering the reference lines")
+    buffers = _buffers(reference, widths, quad_segs, cap_style, feedback)
+    done = [0]
+
+    def step(n):
+        done[0] += n
+        if report is not None:
+            report(done[0] / max(len(tested), 1), "intersecting the tested lines")
+        check_cancelled(feedback)
+
+    inside, total = _inside(tested, buffers, step)
+    return [{"width": float(w), "share": _share(x, total), "length_inside": x,
+             "length_total": total} for w, x in zip(widths, inside)]
+
+
+def _vertex_lines(xy, ranges):
+    """LineStrings of the vertex ranges of :func:`vectoradjust.files.truth.line_ranges`."""
     from qgis.core import QgsLineString
 
-    key = feature * 100000 + part
-    if len(key) == 0:
-        return []
-    brk = np.flatnonzero(np.diff(key)) + 1
     return [QgsGeometry(QgsLineString([float(v) for v in xy[s:e, 0]],
                                       [float(v) for v in xy[s:e, 1]]))
-            for s, e in zip(np.r_[0, brk], np.r_[brk, len(key)]) if e - s >= 2]
+            for s, e in ranges]
 
 
-def truth_buffer(run, truth_path, widths, crs, context, feedback=None):
-    """The QGIS twin of :func:`vectoradjust.files.truth.truth_buffer` (which reads the
-    true centrelines with geopandas): the share of each database's lines inside buffers
-    of the true lines before and after the adjustment.
+def truth_buffer(run, truth_path, widths, crs, context, feedback=None, start=0.0, span=100.0):
+    """:func:`vectoradjust.files.truth.truth_buffer` with QGIS reading and GEOS geometry
+    (QGIS's Python has no geopandas/shapely): the share of each database's lines inside
+    buffers of the true lines before and after the adjustment.
 
-    Only features with at least one adjusted vertex are compared. Writes
-    ``run.summary["databases"][i]["truth"]["buffer"]`` and returns ``{database: entry}``.
+    The core's :func:`~vectoradjust.files.truth.drive_truth_buffer` chooses the lines
+    (features with at least one adjusted vertex), reports progress per database and per
+    chunk of lines to ``feedback`` (``start`` .. ``start + span`` percent), polls Cancel
+    (:class:`vectoradjust.errors.CancelledError`) and writes
+    ``run.summary["databases"][i]["truth"]["buffer"]``; returns ``{database: entry}``.
 
     Parameters
     ----------
@@ -167,6 +206,7 @@ def truth_buffer(run, truth_path, widths, crs, context, feedback=None):
     from qgis.core import QgsVectorLayer
 
     from vectoradjust.errors import LayerError
+    from vectoradjust.files.truth import drive_truth_buffer
 
     if not os.path.exists(truth_path):
         raise LayerError(f"Line layer {truth_path!r} does not exist ([truth] path)",
@@ -175,29 +215,27 @@ def truth_buffer(run, truth_path, widths, crs, context, feedback=None):
     if not layer.isValid():
         raise LayerError(f"{truth_path}: cannot be read as a vector layer ([truth] path)",
                          "Give a shapefile, GeoPackage or GeoJSON of lines", path=str(truth_path))
-    truth = _lines(layer, crs, context, f"true centrelines {truth_path!r} ([truth] path)")
-    out = {}
-    for d, entry in zip(run.databases, run.summary.get("databases", [])):
-        lyr = d.shape.layer
-        measured = np.unique(lyr.vertex_feature[d.vertices["Adjusted"] == 1])
-        keep = np.isin(lyr.vertex_feature, measured)
-        if not keep.any():
-            continue
-        fp = (lyr.vertex_feature[keep], lyr.vertex_part[keep])
-        if feedback is not None:
-            check_cancelled(feedback)
-        before = buffer_shares(_vertex_lines(lyr.coords[keep, :2], *fp), truth, widths)
-        after = buffer_shares(_vertex_lines(d.adjusted_coords[keep, :2], *fp), truth, widths)
-        res = {"widths": list(widths), "before": [r["share"] for r in before],
-               "after": [r["share"] for r in after], "truth_lines": str(truth_path)}
-        out[d.name] = res
-        entry.setdefault("truth", {})["buffer"] = res
-    return out
+    say = progress_callback(feedback, start, span) if feedback is not None else None
+    if say is not None:
+        say(0.0, "buffer test: reading the true centrelines")
+    truth = _lines(layer, crs, context, f"true centrelines {truth_path!r} ([truth] path)",
+                   feedback)
+    if say is not None:
+        say(0.0, "buffer test: buffering the true centrelines")
+    buffers = _buffers(truth, widths, feedback=feedback)
+
+    def shares(xy, ranges, step):
+        inside, total = _inside(_vertex_lines(xy, ranges), buffers, step)
+        return [_share(x, total) for x in inside]
+
+    return drive_truth_buffer(run, list(widths), shares, truth_path, say,
+                              cancel_callback(feedback))
 
 
-def project_truth_buffer(prj, runs, context, feedback):
+def project_truth_buffer(prj, runs, context, feedback, start=80.0, span=5.0):
     """Apply :func:`truth_buffer` to every run when the project has a ``[truth]`` table
-    (true centrelines), as ``vectoradjust adjust`` / ``compare`` do."""
+    (true centrelines), as ``vectoradjust adjust`` / ``compare`` do; progress from
+    ``start`` to ``start + span`` percent, Cancel ends with CancelledError."""
     from vectoradjust.files.truth import project_truth
 
     truth = project_truth(prj.spec)
@@ -205,8 +243,9 @@ def project_truth_buffer(prj, runs, context, feedback):
         return
     path, widths = truth
     feedback.setProgressText(f"buffer test against the true centrelines {path}")
-    for r in runs:
-        truth_buffer(r, path, widths, prj.crs, context, feedback)
+    each = span / max(len(runs), 1)
+    for k, r in enumerate(runs):
+        truth_buffer(r, path, widths, prj.crs, context, feedback, start + k * each, each)
 
 
 class BufferAccuracyTest(VectorAdjustAlgorithm):
@@ -267,13 +306,17 @@ class BufferAccuracyTest(VectorAdjustAlgorithm):
             raise CRSError(f"tested layer {tested.sourceName()!r}: the layer has no coordinate "
                            "reference system", "Set the layer's CRS and run again")
         qgis_io.check_ground_crs(crs, where)
-        t = _lines(tested, crs, context, f"tested layer {tested.sourceName()!r}")
-        r = _lines(reference, crs, context, f"reference layer {reference.sourceName()!r}")
+        feedback.setProgressText("reading the tested and reference lines")
+        t = _lines(tested, crs, context, f"tested layer {tested.sourceName()!r}", feedback)
+        feedback.setProgress(5)
+        r = _lines(reference, crs, context, f"reference layer {reference.sourceName()!r}",
+                   feedback)
+        feedback.setProgress(10)
         check_cancelled(feedback)
         cap = CAP_STYLES[self.parameterAsEnum(parameters, self.CAP_STYLE, context)]
         rows = buffer_shares(t, r, widths,
                              self.parameterAsInt(parameters, self.QUAD_SEGS, context), cap,
-                             feedback)
+                             feedback, 10.0, 85.0)
         fields = qgis_io.fields_for(self.FIELDS, {})
         sink, dest = self.parameterAsSink(parameters, self.OUTPUT, context, fields,
                                           QgsWkbTypes.NoGeometry, crs)
@@ -288,6 +331,6 @@ class BufferAccuracyTest(VectorAdjustAlgorithm):
             feedback.pushInfo(f"width {row['width']:g} m: "
                               + ("no tested length" if share is None else
                                  f"{100.0 * share:.1f} % of {row['length_total']:.1f} m inside"))
-        add_all(sink, feats)
+        add_all(sink, feats, feedback)
         feedback.setProgress(100)
         return {self.OUTPUT: dest}

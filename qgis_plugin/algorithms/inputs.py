@@ -482,7 +482,7 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
     sigma = shape_point_sigma(entry.sigma if entry else (10.0, 10.0, 10.0), sigma_xy, sigma_z)
     where = f"road layer {source.sourceName()!r}"
     line_layer, fields = qgis_io.read_line_source(source, name, id_field, prj.crs, context,
-                                                  where)
+                                                  where, feedback)
     if dem is None and entry is not None and entry.dem:
         dem = raster_from_path(entry.dem, prj.source)
     if dem is not None:
@@ -572,7 +572,7 @@ def read_project_entry(prj, entry, context, feedback, dems=None):
     feedback.setProgressText(f"reading {entry.name} ({entry.path})")
     layer = filtered_entry_layer(open_vector_entry(entry, where), entry, where)
     line_layer, _ = qgis_io.read_line_source(layer, entry.name, entry.id_field, prj.crs,
-                                             context, f"{where} ({entry.path})")
+                                             context, f"{where} ({entry.path})", feedback)
     if entry.dem:
         dems = {} if dems is None else dems
         if entry.dem not in dems:

@@ -15,7 +15,8 @@ import numpy as np
 
 from vectoradjust.errors import LayerError, ProjectError
 
-__all__ = ["parse_widths", "read_lines", "truth_buffer", "project_truth"]
+__all__ = ["parse_widths", "read_lines", "truth_buffer", "drive_truth_buffer", "truth_jobs",
+           "line_ranges", "project_truth"]
 
 
 def parse_widths(text) -> list:
@@ -72,16 +73,26 @@ def read_lines(path, crs=None, layer=None):
     return gdf.geometry.to_numpy(), gdf.crs
 
 
-def _lines(xy: np.ndarray, feature: np.ndarray, part: np.ndarray) -> list:
-    """LineStrings from vertex arrays (one per feature part with >= 2 vertices)."""
-    import shapely
-
-    key = feature * 100000 + part
+def line_ranges(feature: np.ndarray, part: np.ndarray) -> list:
+    """``(start, end)`` vertex ranges of the feature parts with >= 2 vertices (numpy only,
+    so the QGIS plugin builds the same lines with its own geometry engine)."""
+    key = np.asarray(feature, dtype=np.int64) * 100000 + np.asarray(part, dtype=np.int64)
     if len(key) == 0:
         return []
     brk = np.flatnonzero(np.diff(key)) + 1
-    return [shapely.linestrings(xy[s:e]) for s, e in zip(np.r_[0, brk], np.r_[brk, len(key)])
-            if e - s >= 2]
+    return [(int(s), int(e)) for s, e in zip(np.r_[0, brk], np.r_[brk, len(key)]) if e - s >= 2]
+
+
+def _linestrings(xy: np.ndarray, ranges: list) -> list:
+    """shapely LineStrings of the vertex ranges ``xy[s:e]``."""
+    import shapely
+
+    return [shapely.linestrings(xy[s:e]) for s, e in ranges]
+
+
+def _lines(xy: np.ndarray, feature: np.ndarray, part: np.ndarray) -> list:
+    """LineStrings from vertex arrays (one per feature part with >= 2 vertices)."""
+    return _linestrings(xy, line_ranges(feature, part))
 
 
 #: tested lines intersected with a truth buffer per step (progress and cancel between steps)
@@ -138,6 +149,54 @@ def _shares(lines: list, buffers: list, widths, step) -> list:
     return [None if total <= 0 else min(max(x / total, 0.0), 1.0) for x in inside]
 
 
+def truth_jobs(run) -> list:
+    """The lines a buffer test compares: ``(database, summary entry, xy before, xy after,
+    line ranges)`` per database with adjusted vertices (only features with at least one
+    adjusted vertex; the others did not move)."""
+    jobs = []
+    for d, entry in zip(run.databases, run.summary.get("databases", [])):
+        layer = d.shape.layer
+        measured = np.unique(layer.vertex_feature[d.vertices["Adjusted"] == 1])
+        keep = np.isin(layer.vertex_feature, measured)
+        if keep.any():
+            ranges = line_ranges(layer.vertex_feature[keep], layer.vertex_part[keep])
+            jobs.append((d, entry, layer.coords[keep, :2], d.adjusted_coords[keep, :2], ranges))
+    return jobs
+
+
+def drive_truth_buffer(run, widths, shares, truth_path, progress=None,
+                       is_cancelled=None) -> dict:
+    """The buffer test of every database before and after, with any geometry engine.
+
+    ``shares(xy, ranges, step)`` returns the share of the lines ``xy[s:e]`` (one per
+    range) inside each width's buffer and calls ``step(n)`` after each chunk of ``n``
+    lines; here ``step`` reports ``progress(fraction, message)`` and polls
+    ``is_cancelled`` (:class:`vectoradjust.errors.CancelledError`). Writes
+    ``run.summary["databases"][i]["truth"]["buffer"]`` and returns ``{database: entry}``.
+    """
+    say = progress or (lambda fraction, message="": None)
+    jobs = truth_jobs(run)
+    todo = max(sum(2 * len(ranges) for *_, ranges in jobs), 1)
+    done = [0]
+    out = {}
+    for d, entry, xy_before, xy_after, ranges in jobs:
+        def step(n, name=d.name):
+            done[0] += n
+            say(done[0] / todo, f"buffer test: {name}")
+            _check(is_cancelled)
+
+        _check(is_cancelled)
+        say(done[0] / todo, f"buffer test: {d.name}")
+        before = shares(xy_before, ranges, step)
+        after = shares(xy_after, ranges, step)
+        res = {"widths": list(widths), "before": before, "after": after,
+               "truth_lines": str(truth_path)}
+        out[d.name] = res
+        entry.setdefault("truth", {})["buffer"] = res
+    say(1.0, "buffer test: done")
+    return out
+
+
 def truth_buffer(run, truth_path, widths=(1.0, 2.0), progress=None, is_cancelled=None) -> dict:
     """Share of each database's lines inside buffers of the true lines, before and after.
 
@@ -163,34 +222,11 @@ def truth_buffer(run, truth_path, widths=(1.0, 2.0), progress=None, is_cancelled
     truth, _ = read_lines(truth_path, CRS.from_user_input(run.data.crs))
     say(0.0, "buffer test: buffering the true centrelines")
     buffers = _truth_buffers(truth, widths, is_cancelled)
-    jobs = []
-    for d, entry in zip(run.databases, run.summary.get("databases", [])):
-        layer = d.shape.layer
-        measured = np.unique(layer.vertex_feature[d.vertices["Adjusted"] == 1])
-        keep = np.isin(layer.vertex_feature, measured)
-        if keep.any():
-            fp = (layer.vertex_feature[keep], layer.vertex_part[keep])
-            jobs.append((d, entry, _lines(layer.coords[keep, :2], *fp),
-                         _lines(d.adjusted_coords[keep, :2], *fp)))
-    todo = max(sum(len(b) + len(a) for _, _, b, a in jobs), 1)
-    done = [0]
-    out = {}
-    for d, entry, before_lines, after_lines in jobs:
-        def step(n, name=d.name):
-            done[0] += n
-            say(done[0] / todo, f"buffer test: {name}")
-            _check(is_cancelled)
 
-        _check(is_cancelled)
-        say(done[0] / todo, f"buffer test: {d.name}")
-        before = _shares(before_lines, buffers, widths, step)
-        after = _shares(after_lines, buffers, widths, step)
-        res = {"widths": list(widths), "before": before, "after": after,
-               "truth_lines": str(truth_path)}
-        out[d.name] = res
-        entry.setdefault("truth", {})["buffer"] = res
-    say(1.0, "buffer test: done")
-    return out
+    def shares(xy, ranges, step):
+        return _shares(_linestrings(xy, ranges), buffers, widths, step)
+
+    return drive_truth_buffer(run, widths, shares, truth_path, say, is_cancelled)
 
 
 def project_truth(spec) -> Optional[tuple]:
