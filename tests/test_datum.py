@@ -60,7 +60,7 @@ def _set(project: Path, table: str, **keys) -> None:
     if table:
         text = text.replace(f"[{table}]\n", f"[{table}]\n{lines}", 1)
     else:
-        text = re.sub(r'(?m)^crs = "[^"]*"\n', "", text)
+        text = re.sub(r'(?m)^crs = "[^"]*"\n', "", text, count=1)
         text = lines + text
     project.write_text(text, encoding="utf-8")
 
@@ -179,3 +179,39 @@ def test_dem_heights_without_a_grid_are_a_clear_error(sample):
     with pytest.raises(CRSError, match=r"'OSM' dem: the heights cannot be transformed from "
                                        "NGVD29 height"):
         load_project_data(sample / "project.toml")
+
+
+FT_US = 1200.0 / 3937.0  # m
+
+
+@io
+def test_heights_in_another_vertical_crs_are_transformed(sample):
+    """NAVD88 height in US survey feet (EPSG:6360) to the project's NAVD88 metres: a
+    datum change PROJ can make without a grid, for the control points and the DEMs."""
+    from vectoradjust.files.readers import load_project_data
+
+    _project_in_navd88(sample)
+    before = load_project_data(sample / "project.toml")
+    with open(sample / "gcps.csv", newline="") as fh:
+        rows = list(csv.reader(fh))
+    for r in rows[1:]:
+        r[3] = f"{float(r[3]) / FT_US:.9f}"
+    with open(sample / "gcps.csv", "w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    _set(sample / "project.toml", "control", vertical_crs="EPSG:6360")
+    data = load_project_data(sample / "project.toml")
+    np.testing.assert_allclose(data.control.xyz, before.control.xyz, atol=1e-6)
+    np.testing.assert_array_equal(data.control.sigma, before.control.sigma)
+    v = data.control.reading["crs"]["vertical"]
+    assert v == {"source": "NAVD88 height (ftUS)", "target": "NAVD88 height",
+                 "transformed": True}
+    # the DEM (in metres) said to be in feet: its heights are scaled to metres
+    project = sample / "project.toml"
+    project.write_text(project.read_text(encoding="utf-8").replace(
+        '[control]\nvertical_crs = "EPSG:6360"', '[control]\nvertical_crs = "EPSG:5703"'),
+        encoding="utf-8")
+    _project_in_navd88(sample, vertical_crs="EPSG:6360")
+    data = load_project_data(sample / "project.toml")
+    for (_, a), (_, b) in zip(data.vectors, before.vectors):
+        np.testing.assert_allclose(a.coords[:, 2], b.coords[:, 2] * FT_US, rtol=1e-9)
+        assert a.reading["dem"]["heights"]["vertical"]["transformed"] is True
