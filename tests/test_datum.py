@@ -215,3 +215,20 @@ def test_heights_in_another_vertical_crs_are_transformed(sample):
     for (_, a), (_, b) in zip(data.vectors, before.vectors):
         np.testing.assert_allclose(a.coords[:, 2], b.coords[:, 2] * FT_US, rtol=1e-9)
         assert a.reading["dem"]["heights"]["vertical"]["transformed"] is True
+
+
+@io
+def test_heights_of_a_stated_datum_kept_in_a_2d_project_warn(sample):
+    """Ellipsoidal heights (EPSG:4979) into a project crs without a vertical datum: XY
+    transformed, the heights kept as given, and the run says so."""
+    from vectoradjust.files.readers import load_project_data
+
+    before = load_project_data(sample / "project.toml")
+    _gcps_to(sample, "EPSG:4326")
+    _set(sample / "project.toml", "control", crs="EPSG:4979")
+    info = load_project_data(sample / "project.toml").control.reading["crs"]
+    assert info["vertical"]["transformed"] is False
+    assert "the heights stay in ellipsoidal height (untransformed)" in info["warning"]
+    assert "states no vertical datum" in info["warning"]
+    data = load_project_data(sample / "project.toml")
+    np.testing.assert_allclose(data.control.xyz, before.control.xyz, atol=1e-6)

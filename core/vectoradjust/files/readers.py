@@ -410,7 +410,7 @@ def transform_points(xyz: np.ndarray, source, target, what: str):
     """Points from ``source`` to ``target`` (pyproj CRSs; X = easting or longitude).
 
     3D (the heights too) when both CRSs are 3D (compound or ellipsoidal); else XY only
-    and the heights pass unchanged.
+    and the heights pass unchanged (a warning when ``source`` states their datum).
 
     Returns
     -------
@@ -441,6 +441,11 @@ def transform_points(xyz: np.ndarray, source, target, what: str):
     info["vertical"] = {
         "source": sv.name if sv is not None else ("ellipsoidal height" if three_d else None),
         "target": tv.name if tv is not None else None, "transformed": bool(changed)}
+    if _is_3d(source) and not _is_3d(target):
+        kept = (f"the heights stay in {sv.name if sv is not None else 'ellipsoidal height'} "
+                f"(untransformed): {target.name} states no vertical datum (give a compound "
+                "crs or vertical_crs to transform them)")
+        info["warning"] = f"{info['warning']}; {kept}" if info["warning"] else kept
     bad = not np.isfinite(out[ok & np.isfinite(pts[:, 2]), 2]).all()
     if changed and ("ballpark vertical" in info["transformation"].lower() or bad):
         raise CRSError(*_no_geoid_message(source, target, what, info["vertical"], bounds))
@@ -657,6 +662,8 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
         ``camera.principal_point`` is the one the collinearity equations must use with
         them (``(0, 0)`` once reduced), ``camera.calibration`` the
         :class:`~vectoradjust.sensor.camera.CameraCalibration` and ``interior`` the report.
+        The control points are in the project CRS (:func:`control_to_project_crs`), the
+        DEM heights in its vertical datum (:func:`dem_heights`).
     """
     from vectoradjust.files.assemble import project_data
     from vectoradjust.files.tables import read_fiducials
