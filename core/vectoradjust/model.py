@@ -122,6 +122,11 @@ class ControlPoints:
         Full covariance where given; overrides ``sigma``.
     source : str
     rows : numpy.ndarray of int, optional
+    reading : dict, optional
+        How the reader brought the points into the project CRS
+        (:func:`vectoradjust.files.readers.control_to_project_crs`: source CRS, the
+        transformation PROJ chose and its accuracy, the vertical datums, a ``warning``);
+        None when not given.
     """
 
     point_id: np.ndarray
@@ -131,6 +136,7 @@ class ControlPoints:
     cov: Optional[np.ndarray] = None
     source: str = "<control>"
     rows: Optional[np.ndarray] = None
+    reading: Optional[dict] = None
 
     def __post_init__(self) -> None:
         self.point_id = np.asarray(self.point_id, dtype=object).astype(str)

@@ -40,13 +40,13 @@ __all__ = ["PROJECT_SCHEMA", "ProjectSpec", "load_project", "parse_project", "ch
 #: ``[corrections]`` those of :func:`vectoradjust.sensor.interior.parse_corrections`;
 #: ``[qa]`` those of :class:`vectoradjust.qa.tolerances.QASpec`.
 PROJECT_SCHEMA: dict = {
-    "top level": ("name", "description", "crs", "camera", "corrections", "images",
+    "top level": ("name", "description", "crs", "vertical_crs", "camera", "corrections", "images",
                   "measurements", "control", "vectors", "adjustment", "truth", "qa"),
     "[camera]": tuple(_CAMERA_KEYS),
     "[corrections]": tuple(CORRECTION_KEYS),
     "[[images]]": ("id", "position", "attitude", "sigma_position", "sigma_attitude", "date"),
     "[measurements]": ("path", "unit", "sigma", "fiducials"),
-    "[control]": ("path",),
+    "[control]": ("path", "crs", "vertical_crs"),
     "[[vectors]]": ("name", "path", "layer", "where", "id_field", "sigma",
                     "identification_sigma", "offset", "dem", "truth"),
     "[adjustment]": ("max_iterations", "reweight", "alpha", "snooping", "alpha0", "beta0",
@@ -83,12 +83,16 @@ class ProjectSpec:
         ``path`` (resolved), ``unit`` (``"mm"`` or ``"pixel"``), ``sigma`` (in that
         unit) when given, ``fiducials`` (resolved path) when given.
     control : dict or None
-        ``path`` (resolved) and further keys.
+        ``path`` (resolved) and further keys: ``crs`` and ``vertical_crs`` (stripped
+        texts) when given.
     vectors : list of VectorSpec
         Paths resolved.
     settings : AdjustmentSettings
     raw : dict
         The whole parsed TOML.
+    vertical_crs : str or None
+        The top-level ``vertical_crs``: the vertical datum of the control heights (unless
+        ``[control] vertical_crs``) and of the DEMs; None when not given.
     """
 
     path: Optional[Path]
@@ -103,6 +107,7 @@ class ProjectSpec:
     vectors: list
     settings: AdjustmentSettings
     raw: dict = field(default_factory=dict)
+    vertical_crs: Optional[str] = None
 
     def vector(self, name: str) -> VectorSpec:
         """The ``[[vectors]]`` entry called ``name``."""
@@ -223,6 +228,8 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
         path=Path(path) if path else None, base_dir=base_dir, crs=crs.strip(), camera=camera,
         camera_table=dict(cam), corrections=dict(corrections), images=images,
         measurements=meas, control=control, vectors=vectors, settings=settings, raw=raw,
+        vertical_crs=_text(where, "vertical_crs", raw.get("vertical_crs"),
+                           'vertical_crs = "EPSG:5703"'),
     )
 
 
@@ -335,6 +342,10 @@ def _parse_control(control: Any, base_dir: Path, where: str) -> Optional[dict]:
         check_keys(control, PROJECT_SCHEMA["[control]"], where, "[control]")
         control = dict(control)
         control["path"] = _resolve(base_dir, control["path"], where, "[control] path")
+        for key, example in (("crs", 'crs = "EPSG:4326"'),
+                             ("vertical_crs", 'vertical_crs = "EPSG:5703"')):
+            if key in control:
+                control[key] = _text(f"{where} [control]", key, control[key], example)
     return control
 
 

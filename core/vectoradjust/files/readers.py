@@ -19,6 +19,8 @@ from vectoradjust.model import LineLayer, ProjectData
 __all__ = [
     "check_projected_crs",
     "choose_layer",
+    "control_to_project_crs",
+    "transform_points",
     "line_layers",
     "read_line_layer",
     "transformation_info",
@@ -362,6 +364,175 @@ def transformation_info(source_crs, target_crs, bounds=None):
     return t, info
 
 
+def _user_crs(value, where: str):
+    """``value`` (an EPSG code, WKT ...) as a pyproj CRS; a :class:`CRSError` if unknown."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError as _PCRSError
+
+    try:
+        return CRS.from_user_input(value)
+    except _PCRSError as exc:
+        raise CRSError(f"{where}: the CRS {str(value)[:80]!r} is not understood ({exc})",
+                       'Give an EPSG code such as "EPSG:4326" or "EPSG:5703"') from exc
+
+
+def _parts(crs):
+    """(horizontal CRS, vertical CRS or None) of ``crs`` (compound or not)."""
+    if crs.is_compound:
+        subs = crs.sub_crs_list
+        return subs[0], (subs[1] if len(subs) > 1 else None)
+    return crs, None
+
+
+def _with_vertical(crs, vertical, where: str):
+    """The horizontal part of ``crs`` with the heights in ``vertical`` (None: ``crs``)."""
+    if vertical is None:
+        return crs
+    from pyproj.crs import CompoundCRS
+
+    if not vertical.is_vertical or vertical.is_compound:
+        raise CRSError(f"{where}: {vertical.name!r} is not a vertical CRS",
+                       'Give a vertical CRS, e.g. vertical_crs = "EPSG:5703" (NAVD88 height)')
+    horizontal = _parts(crs)[0]
+    if len(horizontal.axis_info) == 3:
+        raise CRSError(f"{where}: {horizontal.name!r} already has ellipsoidal heights; a "
+                       f"vertical_crs ({vertical.name!r}) cannot be added to it",
+                       "Give its 2D CRS (e.g. EPSG:4326 instead of EPSG:4979) with "
+                       "vertical_crs, or leave vertical_crs out")
+    return CompoundCRS(f"{horizontal.name} + {vertical.name}", [horizontal, vertical])
+
+
+def _is_3d(crs) -> bool:
+    return len(crs.axis_info) == 3
+
+
+def transform_points(xyz: np.ndarray, source, target, what: str):
+    """Points from ``source`` to ``target`` (pyproj CRSs; X = easting or longitude).
+
+    3D (the heights too) when both CRSs are 3D (compound or ellipsoidal); else XY only
+    and the heights pass unchanged (a warning when ``source`` states their datum).
+
+    Returns
+    -------
+    xyz : numpy.ndarray (n, 3)
+    info : dict
+        :func:`transformation_info` plus ``vertical``: ``source``, ``target`` (datum
+        names; None when a side has none) and ``transformed`` (whether the heights
+        changed datum).
+
+    Raises
+    ------
+    CRSError
+        The heights change datum but PROJ has only a ballpark vertical transformation
+        (a 0 m geoid: the grid it needs is not installed) or gives no height.
+    """
+    pts = np.array(xyz, float).reshape(-1, 3)
+    ok = np.isfinite(pts[:, :2]).all(axis=1)
+    bounds = np.r_[pts[ok, :2].min(axis=0), pts[ok, :2].max(axis=0)] if ok.any() else None
+    t, info = transformation_info(source, target, bounds)
+    three_d = _is_3d(source) and _is_3d(target)
+    out = pts.copy()
+    if three_d:
+        out[:, 0], out[:, 1], out[:, 2] = t.transform(pts[:, 0], pts[:, 1], pts[:, 2])
+    else:
+        out[:, 0], out[:, 1] = t.transform(pts[:, 0], pts[:, 1])
+    sv, tv = _parts(source)[1], _parts(target)[1]
+    changed = three_d and not (sv is not None and tv is not None and sv.equals(tv))
+    info["vertical"] = {
+        "source": sv.name if sv is not None else ("ellipsoidal height" if three_d else None),
+        "target": tv.name if tv is not None else None, "transformed": bool(changed)}
+    if _is_3d(source) and not _is_3d(target):
+        kept = (f"the heights stay in {sv.name if sv is not None else 'ellipsoidal height'} "
+                f"(untransformed): {target.name} states no vertical datum (give a compound "
+                "crs or vertical_crs to transform them)")
+        info["warning"] = f"{info['warning']}; {kept}" if info["warning"] else kept
+    bad = not np.isfinite(out[ok & np.isfinite(pts[:, 2]), 2]).all()
+    if changed and ("ballpark vertical" in info["transformation"].lower() or bad):
+        raise CRSError(*_no_geoid_message(source, target, what, info["vertical"], bounds))
+    return out, info
+
+
+def _no_geoid_message(source, target, what: str, vertical: dict, bounds=None) -> tuple:
+    """(message, mend) when PROJ cannot change the heights' datum (no geoid grid)."""
+    from pyproj.transformer import TransformerGroup
+
+    try:
+        group = TransformerGroup(source, target, always_xy=True,
+                                 area_of_interest=_area_of_interest(_parts(source)[0], bounds))
+        grids = sorted({g.short_name for op in group.unavailable_operations for g in op.grids
+                        if not g.available})
+    except Exception:  # only for the message
+        grids = []
+    need = f" (missing grids: {', '.join(grids[:4])})" if grids else ""
+    return (f"{what}: the heights cannot be transformed from {vertical['source']} to "
+            f"{vertical['target']}: PROJ has no grid-based transformation here{need}, only a "
+            "ballpark one that would take the geoid as 0 m",
+            "Install the grid (the proj-data package, or projsync --file <grid>; PROJ_NETWORK "
+            f"is off), or give the heights in {vertical['target']}, the project's vertical datum")
+
+
+def control_to_project_crs(control, spec: ProjectSpec, project_crs, where: str):
+    """The control points in the project CRS (``[control] crs`` / ``vertical_crs``).
+
+    The source CRS is ``[control] crs`` (default: the project ``crs``), its heights in
+    ``[control] vertical_crs``, else the top-level ``vertical_crs``, else the CRS's own
+    vertical datum. The target is the project ``crs`` (its vertical datum, else the
+    top-level ``vertical_crs``). The sigmas stay as given.
+
+    Returns
+    -------
+    ControlPoints
+        ``xyz`` transformed; ``reading`` the source CRS and :func:`transform_points`'s
+        info (``crs``; None when nothing was transformed).
+    """
+    table = spec.control or {}
+    w = f"{where} [control]"
+    source = _user_crs(table["crs"], f"{w} crs") if table.get("crs") else project_crs
+    if source.is_vertical and not source.is_compound:
+        raise CRSError(f"{w} crs: {source.name!r} is a vertical CRS",
+                       'Give the horizontal CRS as crs and the heights\' as vertical_crs')
+    vname = table.get("vertical_crs") or spec.vertical_crs
+    if vname:
+        source = _with_vertical(source, _user_crs(vname, f"{w} vertical_crs"), w)
+    target = _project_target(project_crs, spec, where)
+    reading = {"source": control.source, "source_crs": source.name, "crs": None}
+    if not source.equals(target):
+        control.xyz, info = transform_points(control.xyz, source, target,
+                                             f"{w} ({control.source})")
+        if info["warning"]:
+            info["warning"] = info["warning"].replace(
+                " (an offset of the database absorbs a constant shift)", "")
+        reading["crs"] = info
+    control.reading = reading
+    return control
+
+
+def _project_target(project_crs, spec: ProjectSpec, where: str):
+    """The project CRS with its vertical datum: its own, else the top-level vertical_crs."""
+    if _parts(project_crs)[1] is not None or not spec.vertical_crs:
+        return project_crs
+    return _with_vertical(project_crs, _user_crs(spec.vertical_crs, f"{where} vertical_crs"),
+                          where)
+
+
+def dem_heights(z: np.ndarray, xy: np.ndarray, spec: ProjectSpec, project_crs, where: str):
+    """DEM heights (top-level ``vertical_crs``) in the project's vertical datum.
+
+    Returns ``(z, info)``; info is None when no datum change is asked for (no top-level
+    ``vertical_crs``, or the project CRS states no other vertical datum).
+    """
+    target = _project_target(project_crs, spec, where)
+    if not spec.vertical_crs or target is not project_crs:
+        return z, None
+    source = _with_vertical(project_crs, _user_crs(spec.vertical_crs, f"{where} vertical_crs"),
+                            where)
+    if source.equals(target):
+        return z, None
+    pts = np.column_stack([np.asarray(xy, float)[:, :2], z])
+    out, info = transform_points(pts, source, target, where)
+    return out[:, 2], info
+
+
 def _area_of_interest(crs, bounds):
     """The data's extent in degrees (pyproj AreaOfInterest), or None when unknown."""
     if bounds is None or not np.all(np.isfinite(bounds)):
@@ -491,6 +662,8 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
         ``camera.principal_point`` is the one the collinearity equations must use with
         them (``(0, 0)`` once reduced), ``camera.calibration`` the
         :class:`~vectoradjust.sensor.camera.CameraCalibration` and ``interior`` the report.
+        The control points are in the project CRS (:func:`control_to_project_crs`), the
+        DEM heights in its vertical datum (:func:`dem_heights`).
     """
     from vectoradjust.files.assemble import project_data
     from vectoradjust.files.tables import read_fiducials
@@ -502,6 +675,8 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
     raw_meas = read_measurements(spec.measurements["path"], spec.measurements.get("sigma"),
                                  unit=unit)
     control = read_control(spec.control["path"]) if spec.control is not None else None
+    if control is not None:
+        control = control_to_project_crs(control, spec, crs, where)
     fid_path = spec.measurements.get("fiducials")
     fiducials = read_fiducials(fid_path, unit) if fid_path else None
     layers = []
@@ -510,11 +685,14 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
     for v in spec.vectors:
         if v.name not in names:
             continue
-        layer = read_line_layer(v.path, v.name, v.id_field, crs, v.layer, v.where)
+        layer = read_line_layer(v.path, v.name, v.id_field, _parts(crs)[0], v.layer, v.where)
         if v.dem:
             dem_report: dict = {}
-            layer.coords[:, 2] = sample_dem(v.dem, layer.coords[:, :2], crs, dem_report)
-            layer.reading["dem"] = {"source": v.dem, "crs": dem_report.get("crs")}
+            z = sample_dem(v.dem, layer.coords[:, :2], _parts(crs)[0], dem_report)
+            layer.coords[:, 2], heights = dem_heights(z, layer.coords[:, :2], spec, crs,
+                                                      f"{where} [[vectors]] {v.name!r} dem")
+            layer.reading["dem"] = {"source": v.dem, "crs": dem_report.get("crs"),
+                                    "heights": heights}
         layers.append((v, layer))
         if v.truth:
             truth[v.name] = read_truth_points(v.truth)
