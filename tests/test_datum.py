@@ -232,3 +232,20 @@ def test_heights_of_a_stated_datum_kept_in_a_2d_project_warn(sample):
     assert "states no vertical datum" in info["warning"]
     data = load_project_data(sample / "project.toml")
     np.testing.assert_allclose(data.control.xyz, before.control.xyz, atol=1e-6)
+
+
+def test_the_control_transformation_reaches_the_summary(sample):
+    """summary.json ``control_input`` holds the transformation; a ballpark one is one of
+    the run's warnings (console, report, QGIS log)."""
+    from vectoradjust.files.readers import load_project_data
+    from vectoradjust.pipeline import run
+
+    _gcps_to(sample, "EPSG:4267")
+    _set(sample / "project.toml", "control", crs="EPSG:4267")
+    data = load_project_data(sample / "project.toml")
+    if (data.control.reading["crs"]["accuracy_m"] or 99) <= 1.0:
+        pytest.skip("the NAD27 grid is installed here")
+    out = run(data)
+    assert out.summary["control_input"]["crs"]["warning"]
+    assert any(w.startswith("control points: the transformation") and "NAD27" in w
+               for w in out.summary["warnings"])

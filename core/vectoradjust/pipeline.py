@@ -156,6 +156,14 @@ def _inputs(out: AdjustmentRun) -> None:
         for what, crs in (("layer", info.get("crs")), ("DEM", (info.get("dem") or {}).get("crs"))):
             if crs and crs.get("warning"):
                 _warn(out, f"{d.name}: the transformation of its {what} {crs['warning']}")
+    reading = getattr(out.data.control, "reading", None)
+    if reading:  # how the control points were read ([control] crs / vertical_crs)
+        out.summary["control_input"] = reading
+        crs = reading.get("crs") or {}
+        if crs.get("warning"):
+            _warn(out, f"control points: the transformation {crs['warning']}")
+        if reading.get("warning"):
+            _warn(out, f"control points: {reading['warning']}")
 
 
 def distinct_warnings(warnings: list, databases=()) -> list:

@@ -6,6 +6,7 @@ so that importing :mod:`vectoradjust` does not load a second GDAL into QGIS.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Optional
 
@@ -345,13 +346,16 @@ def transformation_info(source_crs, target_crs, bounds=None):
     from pyproj import Transformer
 
     aoi = _area_of_interest(source_crs, bounds)
-    t = Transformer.from_crs(source_crs, target_crs, always_xy=True, area_of_interest=aoi)
+    with warnings.catch_warnings(record=True) as caught:  # pyproj: "missing Grid(...)"
+        warnings.simplefilter("always")
+        t = Transformer.from_crs(source_crs, target_crs, always_xy=True, area_of_interest=aoi)
     desc = str(t.description)
     acc = float(t.accuracy) if t.accuracy is not None else -1.0
     ballpark = "ballpark" in desc.lower()
     info = {"source_crs": source_crs.name, "target_crs": target_crs.name,
             "transformation": desc, "accuracy_m": acc if acc >= 0 else None,
-            "ballpark": ballpark, "warning": None}
+            "ballpark": ballpark, "warning": None,
+            "proj_notes": [str(w.message) for w in caught]}
     if ballpark or acc < 0 or acc > TRANSFORMATION_ACCURACY_LIMIT:
         why = ("a ballpark transformation (datum shift ignored; errors of metres possible)"
                if ballpark else "of unknown accuracy" if acc < 0 else
@@ -457,8 +461,10 @@ def _no_geoid_message(source, target, what: str, vertical: dict, bounds=None) ->
     from pyproj.transformer import TransformerGroup
 
     try:
-        group = TransformerGroup(source, target, always_xy=True,
-                                 area_of_interest=_area_of_interest(_parts(source)[0], bounds))
+        with warnings.catch_warnings():  # the message below names the missing grids
+            warnings.simplefilter("ignore")
+            group = TransformerGroup(source, target, always_xy=True, area_of_interest=(
+                _area_of_interest(_parts(source)[0], bounds)))
         grids = sorted({g.short_name for op in group.unavailable_operations for g in op.grids
                         if not g.available})
     except Exception:  # only for the message
