@@ -324,6 +324,22 @@ def _require_sections(raw, where):
                            "project file with [measurements] path")
 
 
+def _refuse_datums(spec) -> None:
+    """The plugin does not transform control points: a project that states their CRS or a
+    vertical datum is refused rather than read in the wrong datum."""
+    from vectoradjust.errors import ProjectError
+
+    stated = [k for k in ("crs", "vertical_crs") if (spec.control or {}).get(k)]
+    if getattr(spec, "vertical_crs", None):
+        stated.append("vertical_crs (top level)")
+    if stated:
+        raise ProjectError(
+            f"{spec.path}: the project states {', '.join(stated)} for the control points or "
+            "heights; the QGIS plugin does not transform them yet",
+            "Run it with the vectoradjust command line (which applies them), or give the "
+            "control points and heights in the project CRS and remove those keys")
+
+
 def _read_tables(alg, parameters, context, spec, crs) -> tuple:
     """``(measurements, control, fiducials)`` from the parameters or the project's files."""
     from vectoradjust.files.tables import read_control, read_fiducials, read_measurements
@@ -342,6 +358,7 @@ def _read_tables(alg, parameters, context, spec, crs) -> tuple:
         control = qgis_io.read_control_source(parameters.get(CONTROL), src, crs, context,
                                               f"control table {src.sourceName()!r}")
     elif spec.control is not None:
+        _refuse_datums(spec)
         control = read_control(spec.control["path"])
     else:
         control = None  # an empty table (vectoradjust.files.assemble)

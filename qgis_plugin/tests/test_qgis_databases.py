@@ -235,3 +235,18 @@ def test_reweight_vce_parameter(qgis_app, sample, tmp_path):
     ref = reorder(ref, "point_id", mine["point_id"])
     for f in SHAPE:
         assert_same_values(mine[f], ref[f], f)
+
+
+def test_a_project_that_states_a_control_crs_is_refused(qgis_app, sample, tmp_path):
+    """The plugin does not transform control points: [control] crs is a clear error, not
+    control points read in the wrong datum."""
+    from qgis.core import QgsProcessingException
+
+    project = project_copy(sample, tmp_path / "crs.toml")
+    text = project.read_text(encoding="utf-8")
+    project.write_text(text.replace("[control]\n", '[control]\ncrs = "EPSG:4326"\n', 1),
+                       encoding="utf-8")
+    with pytest.raises(QgsProcessingException, match="does not transform them"):
+        run("adjustroadvectors", {"INPUT": str(sample / "osm_roads.shp"),
+                                  "PROJECT": str(project),
+                                  "SHAPE_POINTS": "TEMPORARY_OUTPUT"})
