@@ -17,7 +17,7 @@ from qgis.core import (
 from .. import results
 from ..styles import style_output
 from . import inputs
-from .base import VectorAdjustAlgorithm, check_cancelled
+from .base import VectorAdjustAlgorithm, cancel_callback, check_cancelled, progress_callback
 from .buffer_test import project_truth_buffer
 
 HELP = """
@@ -207,10 +207,12 @@ def write_html_report(alg, parameters, context, feedback, key, run=None, runs=No
             "(Debian/Ubuntu: apt install python3-matplotlib; OSGeo4W: python3-matplotlib) or "
             "leave the report output empty") from exc
     try:
+        hooks = {"progress": progress_callback(feedback, 95.0, 5.0),
+                 "is_cancelled": cancel_callback(feedback)}
         if runs is not None:
-            written = report.write_compare_report(runs, rows, path)
+            written = report.write_compare_report(runs, rows, path, **hooks)
         else:
-            written = report.write_report(run, path, reliability=run.reliability)
+            written = report.write_report(run, path, reliability=run.reliability, **hooks)
     except ImportError as exc:  # matplotlib is imported when the figures are drawn
         from qgis.core import QgsProcessingException
 

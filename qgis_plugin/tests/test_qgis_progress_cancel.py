@@ -179,3 +179,21 @@ def test_cancel_while_compare_writes_the_folder(qgis_app, sample, tmp_path):
     with pytest.raises(QgsProcessingException, match="[Cc]ancelled"):
         run("compareroaddatabases", _compare_params(sample, folder), feedback=fb)
     assert not (folder / "compare.json").exists()
+
+
+def test_report_sections_are_reported_and_cancel_stops_between_them(qgis_app, sample,
+                                                                     tmp_path):
+    """The HTML report reports each finished section, and Cancel pressed while it is
+    built (after its Summary section) stops Adjust without a report file."""
+    from qgis.core import QgsProcessingException
+
+    fb = _feedback()
+    run("adjustroadvectors", adjust_params(sample, REPORT=str(tmp_path / "r.html")),
+        feedback=fb)
+    texts = fb.texts()
+    assert "report: Summary" in texts and "report: Warnings" in texts
+    fb = _feedback(cancel_on="report: Summary")
+    report = tmp_path / "cancelled.html"
+    with pytest.raises(QgsProcessingException, match="[Cc]ancelled"):
+        run("adjustroadvectors", adjust_params(sample, REPORT=str(report)), feedback=fb)
+    assert not report.exists()

@@ -119,7 +119,8 @@ def cmd_adjust(args) -> int:
         cli_buffer.truth_buffer(result, *truth,
                                 progress=ProgressBar("truth", enabled=not args.quiet))
     written = write_outputs(result, args.out, fmt=args.format,
-                            bands=not getattr(args, "no_bands", False))
+                            bands=not getattr(args, "no_bands", False),
+                            progress=ProgressBar("write", enabled=not args.quiet))
     from vectoradjust.files.report import write_report
 
     qa_doc = None
@@ -130,8 +131,9 @@ def cmd_adjust(args) -> int:
         qa_doc = accuracy_control(result, spec_from_table(data.qa, source=data.source)).as_dict()
         written["qa.json"] = str(write_qa_json(qa_doc, args.out,
                                                extra={"project": str(args.project)}))
-    written["report.html"] = str(write_report(result, Path(args.out) / "report.html",
-                                              reliability=result.reliability, qa=qa_doc))
+    written["report.html"] = str(write_report(
+        result, Path(args.out) / "report.html", reliability=result.reliability, qa=qa_doc,
+        progress=ProgressBar("report", enabled=not args.quiet)))
     if not args.quiet:
         print(f"vectoradjust adjust: {args.project}")
         _print_summary(result.summary)
@@ -176,8 +178,10 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
         if truth is not None:
             cli_buffer.truth_buffer(result, *truth, progress=ProgressBar(
                 f"{v.name:>8s} truth", enabled=not quiet))
-        write_outputs(result, out / v.name, fmt=fmt)
-        write_report(result, out / v.name / "report.html", reliability=result.reliability)
+        write_outputs(result, out / v.name, fmt=fmt,
+                      progress=ProgressBar(f"{v.name:>8s} write", enabled=not quiet))
+        write_report(result, out / v.name / "report.html", reliability=result.reliability,
+                     progress=ProgressBar(f"{v.name:>8s} report", enabled=not quiet))
         rows.append(compare_row(result.summary))
         runs.append(result)
     if not runs:
@@ -185,7 +189,8 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
             f"{project}: no road database has a measured shape point",
             "See the messages above: set id_field, or measure the shape points")
     out.mkdir(parents=True, exist_ok=True)
-    write_compare_report(runs, rows, out / "report.html")
+    write_compare_report(runs, rows, out / "report.html",
+                         progress=ProgressBar("  report", enabled=not quiet))
     rows = rows + failed  # the databases that could not be adjusted, with the reason
     with open(out / "compare.csv", "w", newline="", encoding="utf-8") as fh:
         cols = compare_columns(rows)

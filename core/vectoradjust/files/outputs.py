@@ -18,7 +18,7 @@ from typing import Optional
 
 import numpy as np
 
-from vectoradjust.errors import InputFileError
+from vectoradjust.errors import CancelledError, InputFileError
 from vectoradjust.files.jsonfile import clean_json
 from vectoradjust.results import AdjustmentRun
 
@@ -285,8 +285,23 @@ def _write_flagged(rows: list, path: Path) -> None:
             w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in FLAGGED_COLUMNS})
 
 
+class _Steps:
+    """Progress and cancel between the stages of :func:`write_outputs`."""
+
+    def __init__(self, progress, is_cancelled, total: int) -> None:
+        self.progress, self.is_cancelled, self.total, self.n = progress, is_cancelled, total, 0
+
+    def __call__(self, message: str) -> None:
+        if self.is_cancelled is not None and self.is_cancelled():
+            raise CancelledError("Writing the outputs was cancelled", "Run it again when ready")
+        if self.progress is not None:
+            self.progress(min(0.95, self.n / self.total), message)
+        self.n += 1
+
+
 def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
-                  extra_json: Optional[dict] = None, bands: bool = True) -> dict:
+                  extra_json: Optional[dict] = None, bands: bool = True,
+                  progress=None, is_cancelled=None) -> dict:
     """Write ``adjusted.gpkg`` (or three shapefiles) and ``summary.json`` into ``out_dir``.
 
     Parameters
@@ -300,6 +315,11 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
     bands : bool
         Also write the ``uncertainty_bands`` layer (90 % G-band of every measured
         road segment, Shi & Liu 2000).
+    progress : callable, optional
+        ``progress(fraction, message)`` before each table is built and each layer written.
+    is_cancelled : callable, optional
+        Polled at the same points; true raises :class:`CancelledError` and nothing of
+        this call is left in ``out_dir``.
 
     Returns
     -------
@@ -314,14 +334,16 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
     except OSError as exc:
         raise InputFileError(f"Cannot create the output directory {str(out)!r} ({exc})",
                              "Choose a writable directory with --out") from exc
-    frames = {
-        "shape_points": shape_points_frame(run),
-        "features": features_frame(run),
-        "control_points": control_points_frame(run),
-    }
+    step = _Steps(progress, is_cancelled, 8 if bands and run.databases else 7)
+    frames = {}
+    for name, make in (("shape_points", shape_points_frame), ("features", features_frame),
+                       ("control_points", control_points_frame)):
+        step(f"building the {name} table")
+        frames[name] = make(run)
     if bands and run.databases:
         from vectoradjust.files.derived_outputs import uncertainty_bands_frame
 
+        step("building the uncertainty_bands layer")
         frames["uncertainty_bands"] = uncertainty_bands_frame(run)
     tmp = Path(tempfile.mkdtemp(prefix=".vectoradjust-", dir=out))
     written = {}
@@ -329,11 +351,13 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
         notes: list = []
         if fmt == "gpkg":
             for name, gdf in frames.items():
+                step(f"writing the {name} layer")
                 notes += _write_layer(gdf, tmp / "adjusted.gpkg", name, fmt)
             names = ["adjusted.gpkg"]
         else:
             names = []
             for name, gdf in frames.items():
+                step(f"writing {name}.shp")
                 notes += _write_layer(gdf, tmp / f"{name}.shp", None, fmt)
                 names += [p.name for p in tmp.glob(f"{name}.*")]
         if notes:  # into the run's warnings (printed, in summary.json and the report)
@@ -341,6 +365,7 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
         if run.flagged:
             _write_flagged(run.flagged, tmp / "flagged_observations.csv")
             names.append("flagged_observations.csv")
+        step("writing summary.json")
         summary = dict(run.summary)
         summary["renamed_input_fields"] = renamed_input_fields(run_input_fields(run))
         if extra_json:
@@ -351,6 +376,8 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
         for n in names:
             os.replace(tmp / n, out / n)
             written[n] = str(out / n)
+        if progress is not None:
+            progress(1.0, "outputs written")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return written

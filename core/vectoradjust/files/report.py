@@ -31,12 +31,14 @@ import os
 import re
 import tempfile
 from collections.abc import Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
 
-from vectoradjust.errors import InputFileError
+from vectoradjust.errors import CancelledError, InputFileError
 
 __all__ = [
     "write_report",
@@ -892,6 +894,33 @@ def _img(fig, alt: str, caption: str) -> str:
 
 
 # =========================================================================== sections
+#: (progress, is_cancelled, sections done) while a report is written (see _reporting)
+_HOOKS: ContextVar = ContextVar("vectoradjust_report_hooks", default=None)
+_EXPECTED_SECTIONS = 16  # sections of a one-run report, for the progress fraction
+
+
+@contextmanager
+def _reporting(progress, is_cancelled):
+    """Progress per finished section and cancel between sections while a report is built."""
+    token = _HOOKS.set([progress, is_cancelled, 0])
+    try:
+        yield
+    finally:
+        _HOOKS.reset(token)
+
+
+def _section_done(title: str) -> None:
+    hooks = _HOOKS.get()
+    if hooks is None:
+        return
+    progress, is_cancelled, n = hooks
+    hooks[2] = n + 1
+    if is_cancelled is not None and is_cancelled():
+        raise CancelledError("Writing the report was cancelled", "Run it again when ready")
+    if progress is not None:
+        progress(min(0.95, (n + 1) / _EXPECTED_SECTIONS), f"report: {title}")
+
+
 class _Doc:
     """Sections with headings, anchors and a table of contents."""
 
@@ -904,6 +933,7 @@ class _Doc:
             self.toc.append((level, ident, title))
         self.parts.append(f'<section id={_q(ident)}><h{level}>{_e(title)}</h{level}>'
                           f"{body}</section>")
+        _section_done(title)
 
     def raw(self, text: str) -> None:
         self.parts.append(text)
@@ -1600,7 +1630,7 @@ def report_html(run, *, title: Optional[str] = None, accuracy: Optional[dict] = 
 
 def write_report(run, path, *, title: Optional[str] = None, accuracy: Optional[dict] = None,
                  compare_rows: Optional[Sequence[dict]] = None, qa: Any = None,
-                 reliability: Any = None) -> Path:
+                 reliability: Any = None, progress=None, is_cancelled=None) -> Path:
     """Write ``report.html``: one self-contained HTML file of an adjustment.
 
     Parameters
@@ -1622,6 +1652,10 @@ def write_report(run, path, *, title: Optional[str] = None, accuracy: Optional[d
         the w-test histogram, and ``flagged`` (list of dicts), or the list of flagged
         observations itself. Default: ``run.summary["reliability"]["flagged"]`` when
         present, else the report says "not computed".
+    progress : callable, optional
+        ``progress(fraction, message)`` after each section (figures and tables).
+    is_cancelled : callable, optional
+        Polled after each section; true raises :class:`CancelledError`.
 
     Returns
     -------
@@ -1632,10 +1666,15 @@ def write_report(run, path, *, title: Optional[str] = None, accuracy: Optional[d
     ------
     InputFileError
         If the file cannot be written.
+    CancelledError
+        If ``is_cancelled`` says so (nothing is written).
     """
     path = _prepare(Path(path))
-    text = report_html(run, title=title, accuracy=accuracy, compare_rows=compare_rows, qa=qa,
-                       reliability=reliability)
+    with _reporting(progress, is_cancelled):
+        text = report_html(run, title=title, accuracy=accuracy, compare_rows=compare_rows,
+                           qa=qa, reliability=reliability)
+    if progress is not None:
+        progress(1.0, "report written")
     return _write_text(path, text)
 
 
@@ -1671,7 +1710,8 @@ def compare_report_html(runs: Sequence, rows: Sequence[dict], *,
 
 def write_compare_report(runs: Sequence, rows: Sequence[dict], path, *,
                          title: Optional[str] = None,
-                         accuracies: Optional[Sequence[Optional[dict]]] = None) -> Path:
+                         accuracies: Optional[Sequence[Optional[dict]]] = None, progress=None,
+                         is_cancelled=None) -> Path:
     """Write the report of ``vectoradjust compare`` (each database adjusted alone).
 
     Parameters
@@ -1684,6 +1724,8 @@ def write_compare_report(runs: Sequence, rows: Sequence[dict], path, *,
     title : str, optional
     accuracies : list of dict, optional
         Accuracy statements per run (default: computed).
+    progress, is_cancelled : callable, optional
+        As in :func:`write_report`.
 
     Returns
     -------
@@ -1693,9 +1735,14 @@ def write_compare_report(runs: Sequence, rows: Sequence[dict], path, *,
     ------
     InputFileError
         If the file cannot be written.
+    CancelledError
+        If ``is_cancelled`` says so (nothing is written).
     """
     path = _prepare(Path(path))
-    text = compare_report_html(runs, rows, title=title, accuracies=accuracies)
+    with _reporting(progress, is_cancelled):
+        text = compare_report_html(runs, rows, title=title, accuracies=accuracies)
+    if progress is not None:
+        progress(1.0, "report written")
     return _write_text(path, text)
 
 
