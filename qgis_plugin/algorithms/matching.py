@@ -173,9 +173,8 @@ def vertex_renames(prj, entry, id_field, line_layer, context):
         tol = prj.spec.settings.merge_tolerance
         dist, idx = cKDTree(line_layer.coords[:, :2]).query(full.coords[gone, :2],
                                                             distance_upper_bound=tol)
-        for old, d, k in zip(ids[gone].tolist(), dist, idx):
-            if d <= tol:
-                renames[old] = str(kept_ids[k])
+        hit = dist <= tol
+        renames.update(zip(ids[gone][hit].tolist(), kept_ids[idx[hit]].astype(str).tolist()))
     return renames
 
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vectoradjust.adjust.bundle import BundleProblem, BundleResult
+from vectoradjust.adjust.bundle import BundleProblem, BundleResult, _block_sum
 
 __all__ = ["OffsetModel", "OffsetEstimate", "offset_normals", "newton_step",
            "apply_offsets", "shifted_problem", "OFFSET_KINDS"]
@@ -162,12 +162,10 @@ def _q_times(result: BundleResult, b: np.ndarray):
     db = np.einsum("mij,mjq->miq", npp_inv, b)  # D B
     ynep = np.einsum("kij,kjl->kil", result.nep_obs, npp_inv[prob.obs_point])  # (k, 6, 3)
     contrib = np.einsum("kil,klq->kiq", ynep, b[prob.obs_point])  # (k, 6, q)
-    ztb = np.zeros((n, 6, q))
-    np.add.at(ztb, prob.obs_image, contrib)
+    ztb = _block_sum(prob.obs_image, contrib, n)  # (n, 6, q), bincount (not np.add.at)
     s_ztb = result.s_inv @ ztb.reshape(6 * n, q)  # (6n, q)
     back = np.einsum("kil,kiq->klq", ynep, s_ztb.reshape(n, 6, q)[prob.obs_image])  # (k,3,q)
-    zsz = np.zeros((prob.n_points, 3, q))
-    np.add.at(zsz, prob.obs_point, back)
+    zsz = _block_sum(prob.obs_point, back, prob.n_points)
     return db + zsz, s_ztb, ztb.reshape(6 * n, q)
 
 
