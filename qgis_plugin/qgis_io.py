@@ -333,7 +333,7 @@ def _read_block(provider, band, extent, ncol, nrow, where):
     return np.frombuffer(raw, dtype=dtype, count=ncol * nrow).reshape(nrow, ncol).astype(float)
 
 
-def dem_heights(raster, xy, xy_crs, context, where, band=1):
+def dem_heights(raster, xy, xy_crs, context, where, band=1, report=None):
     """Heights of a DEM raster layer at ``xy`` by bilinear interpolation.
 
     Mirrors :func:`vectoradjust.files.readers.sample_dem`: points are transformed to the DEM's
@@ -350,6 +350,9 @@ def dem_heights(raster, xy, xy_crs, context, where, band=1):
         How messages name the DEM.
     band : int
         Band number (1-based).
+    report : dict, optional
+        Receives ``"grid"``, the block read as a :class:`vectoradjust.model.DemGrid`, when
+        the DEM is in ``xy_crs`` (heights at an estimated offset's shifted positions).
 
     Returns
     -------
@@ -415,6 +418,10 @@ def dem_heights(raster, xy, xy_crs, context, where, band=1):
     for rng in provider.userNoDataValues(band):
         grid[(grid >= rng.min()) & (grid <= rng.max())] = np.nan
     transform = (wx0, dx, 0.0, wy0, 0.0, -dy)
+    if report is not None and ct is None:
+        from vectoradjust.model import DemGrid
+
+        report["grid"] = DemGrid(grid, transform, nodata)
     return bilinear(grid, transform, pts, nodata=nodata)
 
 

@@ -16,6 +16,9 @@ from vectoradjust.simulate import make_scenario
 def _small_problem(seed=3, n_images=3):
     sc = make_scenario(seed, n_images=n_images, grid=(2, 2), databases=("OSM",), n_tie=6)
     data = sc.to_project_data()  # the plain bundle: no database offset (test_offsets.py)
+    # covariances scaled by sigma0^2 (the contract's a-posteriori), compared with the dense
+    # inverse; the default "auto" scale is tested in test_offsets.py
+    data = replace(data, settings=replace(data.settings, covariance_scale="a-posteriori"))
     r = run(replace(data, vectors=[(replace(s, offset="none"), lay) for s, lay in data.vectors]))
     return r.problem, r.result, sc
 

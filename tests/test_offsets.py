@@ -29,7 +29,8 @@ def small_shift_run():
     sc = make_scenario(3, n_images=2, grid=(2, 2), databases=(db,), n_tie=6,
                        shape_sigma=(1.0, 1.0, 1.0))
     data = _with(sc.to_project_data(), offset="shift")
-    return run(data)
+    # covariances scaled by sigma0^2, so that they compare with the dense inverse
+    return run(replace(data, settings=replace(data.settings, covariance_scale="a-posteriori")))
 
 
 def test_offsets_equal_the_dense_adjustment_with_explicit_offset_unknowns(small_shift_run):
@@ -143,6 +144,8 @@ def test_roads_that_disagree_with_the_control_are_reported():
     _, out, _ = _biased(1, offset="none", ident=(0.5, 0.1), reweight="none")
     rec = out.summary["roads_and_control"]
     assert rec["harm"] and not rec["eo_test"]["passed"] and rec["check_ratio"] > 1.5
+    # the check points' worsening is far beyond chance (z of the MSE change)
+    assert rec["check_worse"] and rec["check_change_z"] > 3.0
     assert any("DISAGREE" in w for w in out.summary["warnings"])
     _, out, _ = _biased(1, offset="shift", ident=(0.5, 0.1), reweight="none")
     rec = out.summary["roads_and_control"]
@@ -200,7 +203,7 @@ def test_a_priori_covariances_are_the_cofactors():
     db = DatabaseModel("DB", "db_id", "db", 25.0, 0.5, (0.0, 0.0), 0.0, 0.0, 1.0)
     sc = make_scenario(4, databases=(db,), n_shape_points=300, shape_sigma=(3.0, 3.0, 3.0))
     data = sc.to_project_data()
-    post = run(data)
+    post = run(replace(data, settings=replace(data.settings, covariance_scale="a-posteriori")))
     prio = run(replace(data, settings=replace(data.settings, covariance_scale="a-priori")))
     s0 = post.result.sigma0_squared
     assert s0 < 0.9  # the 3 m prior is too large for 1 m noise
@@ -321,3 +324,25 @@ def test_a_rotated_and_scaled_database_is_absorbed_by_a_similarity_offset():
     assert abs(e["values"][j] - s) < 4 * e["sigma"][j] + 1e-5
     assert "rotated" in e["statement"]
     assert ratios["similarity"] <= 1.05
+
+
+def test_auto_scale_leaves_out_a_prior_stated_too_large():
+    """covariance_scale = "auto" (default): a database whose stated sigma is larger than
+    its residuals say does not scale the covariances; the factor is that of the images
+    and the control (v'Pv / r of the other groups), and summary.json says which groups
+    were left out."""
+    db = DatabaseModel("DB", "db_id", "db", 25.0, 0.5, (0.0, 0.0), 0.0, 0.0, 1.0)
+    sc = make_scenario(4, databases=(db,), n_shape_points=300, shape_sigma=(3.0, 3.0, 3.0))
+    data = sc.to_project_data()
+    auto = run(data)
+    post = run(replace(data, settings=replace(data.settings, covariance_scale="a-posteriori")))
+    rec = auto.summary["covariance_scale"]
+    assert rec["scale"] == "groups"
+    assert set(rec["groups_left_out"]) == {"DB:h", "DB:v"}
+    groups = auto.summary["variance_factors"]["groups"]
+    rest = [g for g in groups if not g.startswith("DB:")]
+    factor = (sum(groups[g]["vtpv"] for g in rest) / sum(groups[g]["redundancy"] for g in rest))
+    assert rec["factor"] == pytest.approx(factor, rel=1e-6)
+    assert 0.8 < factor < 1.25 and post.result.sigma0_squared < 0.9
+    s0 = post.result.sigma0_squared
+    assert np.allclose(auto.result.point_cov, post.result.point_cov / s0 * factor)

@@ -294,4 +294,12 @@ def test_vce_estimates_each_databases_accuracy(scenario):
         true_axis = np.sqrt(np.mean((err - np.asarray(offset["values"])) ** 2))
         assert groups[f"{d.name}:h"]["sigma"] == pytest.approx(true_axis, rel=0.1), d.name
         assert d.sigma_used[0] == pytest.approx(groups[f"{d.name}:h"]["sigma"])
-    assert abs(r.summary["sigma0_squared"] - 1) < 0.05
+    # the DEM heights (far better than the stereo heights) cannot be estimated precisely
+    # from 0.1 m priors against ~0.3 m stereo heights: kept at the stated sigma, left out
+    # of the covariances' variance factor, which is then 1 (every estimated group's is)
+    kept = r.summary["covariance_scale"]["groups_left_out"]
+    for d in r.databases:
+        g = groups[f"{d.name}:v"]
+        if f"{d.name}:v" in kept:
+            assert not g["estimable"] and g["not_applied"]["relative_sd"] > 0.25
+    assert abs(r.summary["covariance_scale"]["factor"] - 1) < 0.05

@@ -148,6 +148,24 @@ class ControlPoints:
 
 
 @dataclass
+class DemGrid:
+    """A DEM held in memory, in the project CRS (north-up grid).
+
+    Attributes
+    ----------
+    grid : numpy.ndarray, shape (rows, cols)
+        Heights.
+    transform : tuple of 6 floats
+        GDAL geotransform ``(x_origin, dx, 0, y_origin, 0, -dy)``.
+    nodata : float or None
+    """
+
+    grid: np.ndarray
+    transform: tuple
+    nodata: Optional[float] = None
+
+
+@dataclass
 class LineLayer:
     """A road line layer flattened to vertex arrays, attributes kept verbatim.
 
@@ -180,6 +198,10 @@ class LineLayer:
     reading : dict
         What the reader reports about the layer (filter, counts, CRS transformation,
         ``excluded_feature_ids``); empty when the layer was not read from a file.
+    dem : DemGrid or None
+        The DEM the vertices' Z were interpolated in, when it is in the project CRS: a
+        database found shifted (an estimated offset) takes its heights from the DEM at
+        the shifted position, not where its vertices were.
     """
 
     name: str
@@ -194,6 +216,7 @@ class LineLayer:
     source: str = "<layer>"
     geometry_type: str = "LineString"
     reading: dict = field(default_factory=dict)
+    dem: Optional[DemGrid] = None
 
     def __post_init__(self) -> None:
         self.feature_ids = np.asarray(self.feature_ids, dtype=object).astype(str)
@@ -279,7 +302,7 @@ class AdjustmentSettings:
     alpha0: float = 0.001
     beta0: float = 0.2
     max_removals: Optional[int] = None
-    covariance_scale: str = "a-posteriori"
+    covariance_scale: str = "auto"
 
 
 @dataclass

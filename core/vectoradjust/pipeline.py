@@ -69,6 +69,32 @@ def _derived(out: AdjustmentRun) -> None:
         d.features["LengthSDnc"] = np.asarray(sd_nc, float)
 
 
+_SCALE_MEANING = {
+    "a-posteriori": "covariances are the cofactors times sigma0^2 (a posteriori)",
+    "a-priori": "covariances are the cofactors (a priori: the stated sigmas are trusted)",
+    "groups": ("covariances are the cofactors with the reweighted sigmas, times the variance "
+               "factor of the groups whose sigma is known or was estimated"),
+}
+
+
+def _covariance_scale_record(result, solution) -> dict:
+    """summary.json ``covariance_scale``: which scale, its factor, what it means."""
+    rec = {"scale": result.covariance_scale, "factor": result.variance_factor,
+           "meaning": _SCALE_MEANING[result.covariance_scale]}
+    kept = list(getattr(solution, "kept_groups", []) or [])
+    if result.covariance_scale == "groups":
+        rec["groups_left_out"] = kept
+        reweighted = solution.vce is not None or len(solution.passes) > 1
+        if not reweighted:
+            rec["meaning"] = ("covariances are the cofactors times the variance factor of the "
+                              "groups whose stated sigma is not larger than their residuals say")
+        if kept:
+            why = ("kept at a stated sigma the data could not check" if reweighted else
+                   "stated sigma larger than the residuals say: the images fix these points")
+            rec["meaning"] += f" (left out: {', '.join(kept)}, {why})"
+    return rec
+
+
 def _summarise(out: AdjustmentRun, solution) -> None:
     """summary.json's content, the QA field of the control points, accuracy statements."""
     data = out.data
@@ -81,11 +107,7 @@ def _summarise(out: AdjustmentRun, solution) -> None:
     out.summary = run_summary(out)
     out.summary["reliability"] = reliability_summary(out, data.settings)
     out.summary["variance_factors"] = group_factors(out)
-    out.summary["covariance_scale"] = {
-        "scale": out.result.covariance_scale, "factor": out.result.variance_factor,
-        "meaning": ("covariances are the cofactors times sigma0^2 (a posteriori)"
-                    if out.result.covariance_scale == "a-posteriori" else
-                    "covariances are the cofactors (a priori: the stated sigmas are trusted)")}
+    out.summary["covariance_scale"] = _covariance_scale_record(out.result, solution)
     chi = out.summary["chi_square"]
     if chi.get("passed") is False:
         note = (f"chi-square test failed (sigma0^2 = {out.summary['sigma0_squared']:.3f}): "

@@ -504,8 +504,11 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
         dem = raster_from_path(entry.dem, prj.source)
     if dem is not None:
         feedback.setProgressText(f"{name}: sampling the DEM {dem.name()}")
+        dem_report: dict = {}
         line_layer.coords[:, 2] = qgis_io.dem_heights(
-            dem, line_layer.coords[:, :2], prj.crs, context, f"DEM {dem.name()!r}")
+            dem, line_layer.coords[:, :2], prj.crs, context, f"DEM {dem.name()!r}",
+            report=dem_report)
+        line_layer.dem = dem_report.get("grid")
     if truth is None and entry is not None and entry.truth:
         truth = read_truth_points(entry.truth)
     em = error_model or {}
@@ -595,8 +598,11 @@ def read_project_entry(prj, entry, context, feedback, dems=None):
         if entry.dem not in dems:
             dems[entry.dem] = raster_from_path(entry.dem, where)
         dem = dems[entry.dem]
+        dem_report: dict = {}
         line_layer.coords[:, 2] = qgis_io.dem_heights(
-            dem, line_layer.coords[:, :2], prj.crs, context, f"DEM {dem.name()!r}")
+            dem, line_layer.coords[:, :2], prj.crs, context, f"DEM {dem.name()!r}",
+            report=dem_report)
+        line_layer.dem = dem_report.get("grid")
     truth = read_truth_points(entry.truth) if entry.truth else None
     return entry, line_layer, truth
 

@@ -241,8 +241,10 @@ class BundleResult:
     a_pt: Optional[np.ndarray] = None
     problem: Optional[BundleProblem] = None
 
-    #: "a-posteriori" (cofactors times sigma0^2) or "a-priori" (times 1)
+    #: "a-posteriori" (cofactors times sigma0^2), "a-priori" (times 1) or "groups" (times
+    #: ``group_factor``: the variance factor of the groups whose sigma is known or estimated)
     covariance_scale: str = "a-posteriori"
+    group_factor: float = 1.0
     # database offsets estimated with the adjustment (adjust/offsets.py), None without:
     # their cofactor Q_TT (q, q), Q_xx B per point (m, 3, q), S^-1 Z' B (6n, q) and the
     # offsets' design matrix G per point (m, 3, q)
@@ -273,15 +275,19 @@ class BundleResult:
         """The factor applied to cofactors: sigma0^2 (1 when dof = 0, or a-priori)."""
         if self.covariance_scale == "a-priori":
             return 1.0
+        if self.covariance_scale == "groups":
+            return float(self.group_factor)
         s = self.sigma0_squared
         return float(s) if np.isfinite(s) else 1.0
 
-    def set_covariance_scale(self, scale: str) -> None:
-        """Scale the covariances a posteriori (by sigma0^2) or a priori (by 1), in place."""
-        if scale not in ("a-posteriori", "a-priori"):
+    def set_covariance_scale(self, scale: str, factor: float = 1.0) -> None:
+        """Scale the covariances a posteriori (by sigma0^2), a priori (by 1) or by the
+        groups' variance factor ``factor`` (``scale = "groups"``), in place."""
+        if scale not in ("a-posteriori", "a-priori", "groups"):
             raise ValueError(f"covariance scale {scale!r}: use 'a-posteriori' or 'a-priori'")
         old = self.variance_factor
         self.covariance_scale = scale
+        self.group_factor = float(factor)
         ratio = self.variance_factor / old
         self.eo_cov = self.eo_cov * ratio
         if self.point_cov is not None:

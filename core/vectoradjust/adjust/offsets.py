@@ -83,6 +83,11 @@ class OffsetModel:
         Centroid (X, Y) of each database's points: the origin of rotation and scale.
     g : numpy.ndarray, shape (m, 3, q)
         The design matrix per bundle point (zero for points without offset).
+    dems : list
+        Per database: the :class:`~vectoradjust.model.DemGrid` its heights came from,
+        or None. A database shifted horizontally by ``T`` takes its prior heights from
+        the DEM at ``X_db - T`` (:func:`shifted_problem`): on sloping ground the height
+        at the wrong position is wrong by the slope times the shift.
     """
 
     names: list
@@ -90,9 +95,10 @@ class OffsetModel:
     points: list
     centers: list
     g: np.ndarray
+    dems: list = field(default_factory=list)
 
     @classmethod
-    def build(cls, names, kinds, points, db_xyz: np.ndarray) -> OffsetModel:
+    def build(cls, names, kinds, points, db_xyz: np.ndarray, dems=None) -> OffsetModel:
         """The model of the given databases from the points' database coordinates."""
         q = sum(len(OFFSET_KINDS[k]) for k in kinds)
         g = np.zeros((len(db_xyz), 3, q))
@@ -103,7 +109,8 @@ class OffsetModel:
             g[pts, :, c0:c0 + qk] = _kind_design(kind, db_xyz[pts], center)
             centers.append(center)
             c0 += qk
-        return cls(list(names), list(kinds), list(points), centers, g)
+        return cls(list(names), list(kinds), list(points), centers, g,
+                   list(dems) if dems is not None else [None] * len(names))
 
     @property
     def n_params(self) -> int:
@@ -227,8 +234,22 @@ def shifted_problem(base: BundleProblem, db_xyz: np.ndarray, model: OffsetModel,
     xyz0, eo_start : numpy.ndarray, optional
         Start values of the points and the exterior orientation (a warm start; default:
         the base problem's).
+
+    Notes
+    -----
+    A database whose heights came from a DEM (``model.dems``) gets its prior heights
+    from the DEM at the shifted position ``X_db - T`` (minus a 3D shift's ``dZ``); where
+    the shifted position leaves the DEM the database height is kept.
     """
-    prior = db_xyz - model.displacement(offsets)
+    from vectoradjust.adjust.dem import bilinear
+
+    shift = model.displacement(offsets)
+    prior = db_xyz - shift
+    for pts, dem in zip(model.points, model.dems or []):
+        if dem is None or not len(pts):
+            continue
+        z = bilinear(dem.grid, dem.transform, prior[pts, :2], nodata=dem.nodata)
+        prior[pts, 2] = np.where(np.isfinite(z), z - shift[pts, 2], prior[pts, 2])
     return BundleProblem(base.focal_length, base.principal_point,
                          base.eo0, base.eo_sigma,
                          base.xyz0 if xyz0 is None else xyz0, prior, base.prior_weight,

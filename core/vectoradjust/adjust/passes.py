@@ -50,6 +50,9 @@ class Solution:
     offsets : dict or None
         Per database with an offset: ``{"axes", "values", "cofactor"}`` (m, cofactor of
         the final solution, to be scaled by the variance factor).
+    kept_groups : list of str
+        Groups kept at their stated sigma by two-pass or VCE (not estimable, held at a
+        bound, or too imprecise); left out of the covariances' variance factor.
     """
 
     problem: BundleProblem
@@ -58,6 +61,7 @@ class Solution:
     vce: Optional[dict] = None
     snooping: Optional[dict] = None
     offsets: Optional[dict] = None
+    kept_groups: list = field(default_factory=list)
 
 
 def _pass_record(label, result: BundleResult, iterations: int, dbs: list) -> dict:
@@ -65,50 +69,162 @@ def _pass_record(label, result: BundleResult, iterations: int, dbs: list) -> dic
             "iterations": iterations, "sigma": {d.name: list(d.sigma_used) for d in dbs}}
 
 
-def _reweight_two_pass(setup: BundleSetup, result: BundleResult) -> None:
-    """Each database's sigma per axis <- sqrt(sum v^2 / sum r) of its residuals (in place).
+#: a variance estimated less precisely than this (relative standard deviation of sigma^2)
+#: is not applied: an LE90 that covers the truth 85-95 % of the time needs the sigma
+#: within -12 % / +19 % (see adjust/vce.py)
+MAX_RELATIVE_SD = 0.25
 
-    ``r`` are the redundancy numbers of the shape point priors along that axis: the
-    residuals of a prior that shares its redundancy with the images are smaller than the
-    prior's error, so the plain RMS (``sum v^2 / n``) would underestimate its sigma;
-    ``sum v^2 / sum r`` is the Foerstner estimate (one step of variance component
-    estimation), the same as the RMS when the priors are light (``r ~ 1``).
-    """
-    from vectoradjust.adjust.reliability import reliability
 
-    r_point = reliability(result).r_point
-    weight = setup.problem.prior_weight.copy()
+def _db_labels(setup: BundleSetup) -> np.ndarray:
+    """Per point and axis: "control", "<db>:h" (X, Y), "<db>:v" (Z) or ""."""
+    labels = np.full((setup.problem.n_points, 3), "", dtype=object)
+    labels[setup.point_kind == "control"] = "control"
     for d in setup.databases:
-        m = setup.point_database == d.name
-        v = result.v_point[m]
-        red = r_point[m].sum(axis=0) if len(v) else np.zeros(3)
-        if len(v) and np.all(red > 0.5):
-            new = np.sqrt(np.sum(v**2, axis=0) / red)
-        else:
-            new = np.sqrt(np.mean(v**2, axis=0)) if len(v) else np.asarray(d.sigma_used)
-        new = np.maximum(new, 1e-3)
-        d.sigma_used = tuple(float(s) for s in new)
-        idx = np.flatnonzero(m)
-        weight[idx[:, None], [0, 1, 2], [0, 1, 2]] = 1.0 / new**2
+        sel = (setup.point_kind == "shape") & (setup.point_database == d.name)
+        labels[sel, :2] = f"{d.name}:h"
+        labels[sel, 2] = f"{d.name}:v"
+    return labels.astype(str)
+
+
+def one_step_variance(v: np.ndarray, q: np.ndarray, sigma: np.ndarray):
+    """Variance of point priors from one adjustment's residuals, per axis.
+
+    A prior ``X_db`` with stated sigma ``s`` pulls the adjusted point by the share
+    ``w = q / s^2`` (``q``: the adjusted point's cofactor), so ``v = (1 - w) (X_photo -
+    X_db)`` and ``E[v^2] = (1 - w)^2 (q_photo + sigma^2)`` with ``q_photo = q / (1 - w)``:
+
+        sigma^2 = mean(v^2 / (1 - w)^2 - q / (1 - w)),
+
+    consistent whatever ``s`` was (the plain RMS of ``v`` includes the photogrammetric
+    error ``q_photo``: for heights from a DEM that is better than the stereo heights it is
+    mostly that). Relative standard deviation of the estimate: ``sqrt(2 / n) mean(v^2 /
+    (1 - w)^2) / sigma^2``.
+
+    Parameters
+    ----------
+    v, q, sigma : numpy.ndarray, shape (p, 3)
+        Residuals (adjusted minus prior), cofactor diagonal (sigma0 = 1) and the stated
+        prior sigma of ``p`` points.
+
+    Returns
+    -------
+    variance, relative_sd : numpy.ndarray, shape (3,)
+        ``relative_sd`` is ``inf`` where the estimate is not positive.
+    """
+    w = np.clip(q / sigma**2, 0.0, 0.99)
+    a = v**2 / (1.0 - w) ** 2
+    est = np.mean(a - q / (1.0 - w), axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rsd = np.where(est > 0, np.sqrt(2.0 / len(v)) * np.mean(a, axis=0) / est, np.inf)
+    return est, rsd
+
+
+def _reweight_two_pass(setup: BundleSetup, result: BundleResult, warnings: list) -> list:
+    """Each database's prior sigma per axis from pass 1's residuals (in place).
+
+    :func:`one_step_variance` estimates the total prior variance (database and
+    identification); the database's share is what remains after the stated
+    identification variance. An axis whose estimate is too imprecise
+    (:data:`MAX_RELATIVE_SD`) keeps its pass-1 sigma and a warning says so.
+
+    Returns
+    -------
+    list of str
+        Groups (``"<db>:h"``, ``"<db>:v"``) kept at their stated sigma.
+    """
+    q = (np.einsum("mii->mi", result.point_cov) / result.variance_factor
+         if result.point_cov is not None else np.zeros(result.v_point.shape))
+    weight = setup.problem.prior_weight.copy()
+    sig1 = 1.0 / np.sqrt(np.maximum(np.einsum("mii->mi", weight), 1e-300))
+    kept = []
+    for d in setup.databases:
+        m = np.flatnonzero((setup.point_kind == "shape") & (setup.point_database == d.name))
+        if not len(m):
+            continue
+        est, rsd = one_step_variance(result.v_point[m], q[m], sig1[m])
+        old = np.sqrt(np.mean(sig1[m] ** 2, axis=0))
+        ok = rsd <= MAX_RELATIVE_SD
+        total = np.where(ok, np.sqrt(np.maximum(est, 1e-6)), old)
+        for a, label in ((0, "h"), (1, "h"), (2, "v")):
+            if not ok[a] and f"{d.name}:{label}" not in kept:
+                kept.append(f"{d.name}:{label}")
+                warnings.append(_kept_warning(d.name, a, est[a], rsd[a], old[a]))
+        idv = d.spec.identification_variance
+        d.sigma_used = tuple(float(x) for x in np.sqrt(np.maximum(total**2 - idv, 0.0)))
+        weight[m[:, None], [0, 1, 2], [0, 1, 2]] = 1.0 / total**2
     p = setup.problem
     setup.problem = BundleProblem(p.focal_length, p.principal_point, p.eo0, p.eo_sigma, p.xyz0,
                                   p.prior_xyz, weight, p.obs_point, p.obs_image, p.obs_xy,
                                   p.obs_sigma)
+    return kept
 
 
-def _vce(problem, point_kind, point_db, db_results, adjust_kwargs, warnings):
-    """Variance component estimation: image coordinates, GCPs, each database h / v."""
+def _kept_warning(name: str, axis: int, est: float, rsd: float, old: float) -> str:
+    what = "XYZ"[axis]
+    if not est > 0:
+        found = "its residuals are no larger than the photogrammetric error alone"
+    else:
+        found = (f"estimated {np.sqrt(est):.3g} m +- {100 * rsd:.0f} % in variance, "
+                 f"more than the {100 * MAX_RELATIVE_SD:.0f} % a 90 % figure can bear")
+    return (f"two-pass: {name} {what} prior sigma cannot be estimated from pass 1 ({found}); "
+            f"the stated {old:.3g} m is used. State the accuracy you know in sigma (for "
+            f"heights from a DEM: its vertical accuracy); a large stated sigma leaves {what} "
+            "to the images")
+
+
+def group_variance_factor(result: BundleResult, setup: BundleSetup, excluded=(),
+                          pessimistic_priors: bool = False):
+    """``sum v'Pv / sum r`` over the observation groups, some left out.
+
+    The variance factor of the groups whose sigma is known or was estimated: a group kept
+    at a stated sigma that the data could not check (e.g. a light prior on DEM heights)
+    would otherwise pull the global sigma0^2 down and shrink every covariance.
+
+    Parameters
+    ----------
+    result : BundleResult
+    setup : BundleSetup
+    excluded : iterable of str
+        Groups left out (``"<db>:h"``, ``"<db>:v"``, ``"control"``, ``"image"``).
+    pessimistic_priors : bool
+        Also leave out every database group whose own factor is below 1 (its stated sigma
+        is larger than its residuals say: the images, not the prior, fix those points).
+
+    Returns
+    -------
+    factor : float
+    left_out : list of str
+        The groups left out that have observations.
+    """
+    from vectoradjust.adjust.reliability import reliability
+    from vectoradjust.adjust.vce import group_statistics
+
+    labels = _db_labels(setup)
+    groups = sorted(set(labels.ravel().tolist()) - {""}) + ["image", "eo"]
+    obs = np.full((len(result.problem.obs_point), 2), "image").astype(str)
+    eo = np.full((result.problem.n_images, 6), "eo").astype(str)
+    vtpv, red, cnt = group_statistics(result, reliability(result), obs, labels, eo, groups)
+    out = set(excluded)
+    if pessimistic_priors:
+        out |= {g for g in groups if ":" in g and red[g] > 0 and vtpv[g] < red[g]}
+    use = [g for g in groups if g not in out]
+    r = sum(red[g] for g in use)
+    factor = float(sum(vtpv[g] for g in use) / r) if r > 0 else 1.0
+    return factor, [g for g in groups if g in out and cnt[g] > 0]
+
+
+def _vce(setup: BundleSetup, adjust_kwargs, warnings):
+    """Variance component estimation: image coordinates, GCPs, each database h / v.
+
+    Returns the final problem and result, the record for summary.json and the groups kept
+    at their stated sigma (not estimable, held at a bound, or too imprecise).
+    """
     from vectoradjust.adjust.vce import variance_components
 
-    m = problem.n_points
-    labels = np.full((m, 3), "", dtype=object)
-    labels[point_kind == "control"] = "control"
-    for d in db_results:
-        sel = (point_kind == "shape") & (point_db == d.name)
-        labels[sel, :2] = f"{d.name}:h"
-        labels[sel, 2] = f"{d.name}:v"
-    v = variance_components(problem, "image", labels.astype(str), adjust_kwargs=adjust_kwargs,
-                            bounds=VCE_BOUNDS)
+    db_results = setup.databases
+    v = variance_components(setup.problem, "image", _db_labels(setup),
+                            adjust_kwargs=adjust_kwargs, bounds=VCE_BOUNDS,
+                            max_relative_sd=MAX_RELATIVE_SD, precise_only=lambda g: ":" in g)
     for note in v.notes:
         warnings.append(f"variance components: {note}")
     if not v.converged:
@@ -117,24 +233,29 @@ def _vce(problem, point_kind, point_db, db_results, adjust_kwargs, warnings):
     for d in db_results:
         h = v.sigma.get(f"{d.name}:h")
         z = v.sigma.get(f"{d.name}:v")
-        d.sigma_used = (float(h if h is not None else d.sigma_used[0]),
-                        float(h if h is not None else d.sigma_used[1]),
-                        float(z if z is not None else d.sigma_used[2]))
+        total = np.array([h if h is not None else np.nan] * 2 + [z if z is not None else np.nan])
+        db = np.sqrt(np.maximum(total**2 - d.spec.identification_variance, 0.0))
+        d.sigma_used = tuple(float(b) if np.isfinite(b) else float(o)
+                             for b, o in zip(db, d.sigma_used))
     info = {
         "iterations": int(v.iterations), "converged": bool(v.converged),
         "groups": {g: {"sigma": float_or_none(v.sigma.get(g)),
                        "sigma_initial": float_or_none(v.sigma_initial.get(g)),
                        "redundancy": float_or_none(v.redundancy.get(g)),
+                       "relative_sd": float_or_none(v.relative_sd.get(g)),
                        "count": int(v.count.get(g, 0)),
                        "estimable": bool(v.estimable.get(g, False)),
+                       "not_applied": ({k: float(x) for k, x in v.imprecise[g].items()}
+                                       if g in v.imprecise else None),
                        "unit": "mm" if g == "image" else "m"}
                    for g in v.groups},
         "notes": list(v.notes),
         "findings": [{k: f[k] for k in ("group", "estimated_ratio", "bound", "text")}
                      for f in v.findings],
-        "bounds": dict(VCE_BOUNDS),
+        "bounds": dict(VCE_BOUNDS), "max_relative_sd": MAX_RELATIVE_SD,
     }
-    return v.problem, v.result, info
+    kept = [g for g in v.groups if not v.estimable.get(g, False)]
+    return v.problem, v.result, info, kept
 
 
 def _snooping_record(sn, point_ids, image_ids, meas, obs_rows) -> dict:
@@ -176,10 +297,31 @@ def _snoop(setup: BundleSetup, settings, adjust_kwargs, image_ids, meas, warning
     return sn.result, info
 
 
+def _scale_covariances(sol: Solution, setup: BundleSetup, settings, kept: list) -> None:
+    """Scale the covariances as ``[adjustment] covariance_scale`` says (in place).
+
+    ``"a-posteriori"``: by sigma0^2; ``"a-priori"``: by 1; ``"auto"`` (default): without
+    road databases as ``"a-posteriori"``; with them by the variance factor of the groups
+    (:func:`group_variance_factor`) whose sigma is known or was estimated - after
+    two-pass or VCE without the groups kept at their stated sigma, in a single
+    adjustment without the databases whose stated sigma is larger than their residuals
+    say. ``sol.kept_groups`` names the groups left out.
+    """
+    scale = settings.covariance_scale
+    if scale != "auto" or not setup.databases:
+        sol.kept_groups = []
+        sol.result.set_covariance_scale("a-posteriori" if scale == "auto" else scale)
+        return
+    reweighted = settings.reweight in ("two-pass", "vce")
+    factor, sol.kept_groups = group_variance_factor(sol.result, setup, kept,
+                                                    pessimistic_priors=not reweighted)
+    sol.result.set_covariance_scale("groups", factor)
+
+
 # --------------------------------------------------------------------------- offsets
-def _offset_model(setup: BundleSetup) -> Optional[off.OffsetModel]:
+def _offset_model(setup: BundleSetup, warnings: list) -> Optional[off.OffsetModel]:
     """The databases whose systematic offset is estimated (None: none is)."""
-    names, kinds, points = [], [], []
+    names, kinds, points, dems = [], [], [], []
     for d in setup.databases:
         kind = getattr(d.spec, "offset", "none") or "none"
         pts = np.flatnonzero((setup.point_kind == "shape") & (setup.point_database == d.name))
@@ -187,9 +329,15 @@ def _offset_model(setup: BundleSetup) -> Optional[off.OffsetModel]:
             names.append(d.name)
             kinds.append(kind)
             points.append(pts)
+            dems.append(getattr(d.shape.layer, "dem", None))
+        elif off.OFFSET_KINDS[kind]:
+            warnings.append(
+                f"{d.name}: offset = {kind!r} needs at least {_MIN_OFFSET_POINTS[kind]} "
+                f"measured shape points, the run has {len(pts)}: no offset is estimated "
+                "for it (measure more points, or choose offset = \"shift\")")
     if not names:
         return None
-    return off.OffsetModel.build(names, kinds, points, setup.db_prior)
+    return off.OffsetModel.build(names, kinds, points, setup.db_prior, dems)
 
 
 def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dict):
@@ -277,10 +425,11 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
                      "tolerance_angle": settings.tolerance_angle,
                      "is_cancelled": is_cancelled}
     dbs = setup.databases
-    model = _offset_model(setup)
+    model = _offset_model(setup, warnings)
     state: dict = {}
     n_pass = 2 if settings.reweight == "two-pass" and dbs else 1
     sol: Optional[Solution] = None
+    kept: list = []
     for p in range(n_pass):
         progress(0.1 + 0.6 * p / n_pass, f"adjustment pass {p + 1} of {n_pass}")
 
@@ -295,13 +444,11 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
             sol.problem, sol.result = setup.problem, result
             sol.passes.append(record)
         if p + 1 < n_pass:
-            _reweight_two_pass(setup, result)
+            kept = _reweight_two_pass(setup, result, warnings)
     assert sol is not None
     if settings.reweight == "vce":
         progress(0.55, "variance component estimation")
-        setup.problem, sol.result, sol.vce = _vce(setup.problem, setup.point_kind,
-                                                  setup.point_database, dbs, adjust_kwargs,
-                                                  warnings)
+        setup.problem, sol.result, sol.vce, kept = _vce(setup, adjust_kwargs, warnings)
         sol.passes.append(_pass_record("vce", sol.result, sol.vce["iterations"], dbs))
         if model is not None:  # the offsets again, with the estimated weights
             sol.result = _adjust(setup, model, adjust_kwargs, lambda f, m: None, state)
@@ -309,7 +456,7 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
         progress(0.65, "data snooping")
         sol.result, sol.snooping = _snoop(setup, settings, adjust_kwargs, image_ids, meas,
                                           warnings)
-    sol.result.set_covariance_scale(settings.covariance_scale)
+    _scale_covariances(sol, setup, settings, kept)
     if model is not None:
         sol.offsets = _offset_record(model, state, sol.result)
     sol.problem = setup.problem

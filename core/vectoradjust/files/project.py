@@ -463,9 +463,9 @@ def _parse_adjustment(adj: Any, where: str) -> AdjustmentSettings:
         settings.max_removals = mr
     if "covariance_scale" in adj:
         cs = adj["covariance_scale"]
-        if cs not in ("a-posteriori", "a-priori"):
+        if cs not in ("auto", "a-posteriori", "a-priori"):
             raise _err(where, f"[adjustment] covariance_scale = {cs!r} is not known",
-                       'Use "a-posteriori" (times sigma0^2) or "a-priori"')
+                       'Use "auto" (default), "a-posteriori" (times sigma0^2) or "a-priori"')
         settings.covariance_scale = cs
     for key in ("tolerance_position", "tolerance_angle", "merge_tolerance"):
         if key in adj:

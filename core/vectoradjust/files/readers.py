@@ -625,7 +625,8 @@ def sample_dem(path: str, xy: np.ndarray, project_crs, report: Optional[dict] = 
     """Heights at ``xy`` (project CRS) by bilinear interpolation; NaN where uncovered.
 
     ``report``, when given, receives ``"crs"``: the transformation from the project CRS to
-    the DEM's (:func:`transformation_info`; None when the DEM is in the project CRS).
+    the DEM's (:func:`transformation_info`; None when the DEM is in the project CRS), and
+    then ``"grid"``: the DEM as a :class:`~vectoradjust.model.DemGrid`.
     """
     from pyproj import CRS
 
@@ -646,6 +647,10 @@ def sample_dem(path: str, xy: np.ndarray, project_crs, report: Optional[dict] = 
         pts = np.column_stack([x, y])
     if report is not None:
         report["crs"] = info
+        if info is None:  # in the project CRS: kept for heights at shifted positions
+            from vectoradjust.model import DemGrid
+
+            report["grid"] = DemGrid(grid, tuple(gt), nodata)
     return bilinear(grid, gt, pts, nodata=nodata)
 
 
@@ -699,6 +704,7 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
                                                       f"{where} [[vectors]] {v.name!r} dem")
             layer.reading["dem"] = {"source": v.dem, "crs": dem_report.get("crs"),
                                     "heights": heights}
+            layer.dem = dem_report.get("grid")
         layers.append((v, layer))
         if v.truth:
             truth[v.name] = read_truth_points(v.truth)

@@ -18,6 +18,7 @@ from vectoradjust.model import (
     AdjustmentSettings,
     Camera,
     ControlPoints,
+    DemGrid,
     LineLayer,
     Measurements,
     ProjectData,
@@ -222,7 +223,8 @@ def _layer_with_dem_z(sc: Scenario, name: str) -> LineLayer:
     layer = sc.layers[name]
     coords = layer.coords.copy()
     coords[:, 2] = bilinear(sc.dem_grid, sc.dem_transform, coords[:, :2], nodata=sc.dem_nodata)
-    return replace(layer, coords=coords)
+    dem = DemGrid(np.asarray(sc.dem_grid, float), tuple(sc.dem_transform), sc.dem_nodata)
+    return replace(layer, coords=coords, dem=dem)
 
 
 def _measurements_of(sc: Scenario, names: list) -> Measurements:

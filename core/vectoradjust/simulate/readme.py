@@ -268,4 +268,7 @@ def _regenerate_options(sc: Scenario, reweight: str) -> str:
         text += f" --pointing-sigma {o['pointing_sigma']:g}"
     if reweight != "none":
         text += f" --reweight {reweight}"
+    ss = [float(v) for v in o.get("shape_sigma", (10.0, 10.0, 10.0))]
+    if ss != [10.0, 10.0, 10.0]:
+        text += " --shape-sigma " + " ".join(f"{v:g}" for v in ss)
     return text

@@ -495,13 +495,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "object space); written as identification_sigma (default 0)")
     parser.add_argument("--reweight", choices=("none", "two-pass", "vce"), default="none",
                         help="[adjustment] reweight written to the project (default none)")
+    parser.add_argument("--shape-sigma", type=float, nargs=3, default=(10.0, 10.0, 10.0),
+                        metavar=("SX", "SY", "SZ"),
+                        help="prior sigma of the shape points written to [[vectors]] sigma (m; "
+                        "default 10 10 10; SZ: the DEM's vertical accuracy, e.g. 0.15)")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
     try:
         cal = CameraCalibration.from_file(args.camera) if args.camera else None
         sc = make_scenario(args.seed, n_images=args.images, n_shape_points=args.shape_points,
                            calibration=cal, effects=args.effects, scan=args.scan,
-                           true_roads=args.roads, pointing_sigma=args.pointing_sigma)
+                           true_roads=args.roads, pointing_sigma=args.pointing_sigma,
+                           shape_sigma=tuple(args.shape_sigma))
         path = write_project(sc, args.out_dir, format=args.format, reweight=args.reweight)
     except VectorAdjustError as exc:
         print(f"error: {exc}", file=sys.stderr)
