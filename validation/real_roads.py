@@ -56,13 +56,13 @@ CASES = {"one": ((OSM,), 3000, ("none", "none/3.5", "two-pass", "vce")),
          "four": (FOUR, 8000, ("none", "two-pass", "vce"))}
 
 
-def _project(sc, mode):
+def _project(sc, mode, ident=0.5):
     data = sc.to_project_data()
     vecs = []
     for spec, layer in data.vectors:
         m = sc.databases[spec.name]
         sigma = (m.noise, m.noise, 3.5) if mode == "none" else (3.5, 3.5, 3.5)
-        vecs.append((replace(spec, sigma=sigma, offset="shift", identification_sigma=(0.5, 0.0)),
+        vecs.append((replace(spec, sigma=sigma, offset="shift", identification_sigma=(ident, 0.0)),
                      layer))
     reweight = mode.split("/")[0]
     return replace(data, vectors=vecs, settings=replace(data.settings, reweight=reweight))
@@ -122,6 +122,8 @@ def main() -> None:
     """Run the cases over the seeds and print the table."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    ap.add_argument("--identification", type=float, default=0.5,
+                    help="simulated and stated identification error per horizontal axis (m)")
     args = ap.parse_args()
     roads = read_road_lines(DATA)
     print(f"true roads: {DATA.relative_to(ROOT)} ({len(roads.lines)} lines; OpenStreetMap "
@@ -133,10 +135,11 @@ def main() -> None:
     t0 = time.perf_counter()
     for seed in args.seeds:
         for case, (models, n_pts, modes) in CASES.items():
-            sc = make_scenario(seed, databases=models, n_shape_points=n_pts, pointing_sigma=0.5,
+            sc = make_scenario(seed, databases=models, n_shape_points=n_pts,
+                               pointing_sigma=args.identification,
                                shape_sigma=(3.5, 3.5, 3.5), true_roads=roads)
             for mode in modes:
-                data = _project(sc, mode)
+                data = _project(sc, mode, args.identification)
                 new = _rows(seed, case, mode, data, run(data))
                 for r in new:
                     _print_row(r)
