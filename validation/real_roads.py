@@ -70,6 +70,7 @@ def _project(sc, mode, ident=0.5):
 
 def _rows(seed, case, mode, data, out):
     ratio = out.summary["roads_and_control"]["check_ratio"]
+    harm = bool(out.summary["roads_and_control"]["harm"])
     s0 = out.summary["sigma0_squared"]
     rows = []
     for d, entry in zip(out.databases, out.summary["databases"]):
@@ -83,7 +84,7 @@ def _rows(seed, case, mode, data, out):
         t = d.truth
         rows.append(dict(seed=seed, case=case, mode=mode, db=d.name, n=t["count"], est=est,
                          mean=mean, z=z, off_ok=off_ok, ce=t["share_within_ce90"],
-                         le=t["share_within_le90"], ratio=ratio, s0=s0,
+                         le=t["share_within_le90"], ratio=ratio, harm=harm, s0=s0,
                          impr=t["improvement"]))
     return rows
 
@@ -100,7 +101,8 @@ def _flag(lo, hi, ok_lo, ok_hi):
 
 
 def _summary(rows):
-    print("\nRange over the seeds (! = outside 0.85-0.95, ratio > 1.05, offset > 4 sigma):")
+    print("\nRange over the seeds (! = outside 0.85-0.95, ratio > 1.05, offset > 4 sigma, harm:"
+          " roads_and_control says the roads made the solution worse):")
     print(f"{'case':>4} {'mode':>8} {'db':>5} {'n':>11} {'CE90 cov':>13} {'LE90 cov':>13} "
           f"{'check ratio':>13} {'sigma0^2':>11} {'improvement':>11} offset")
     keys = dict.fromkeys((r["case"], r["mode"], r["db"]) for r in rows)
@@ -108,6 +110,7 @@ def _summary(rows):
         sel = [r for r in rows if (r["case"], r["mode"], r["db"]) == key]
         col = {k: np.array([r[k] for r in sel]) for k in ("n", "ce", "le", "ratio", "s0", "impr")}
         bad_off = sum(not r["off_ok"] for r in sel)
+        harm = sum(r["harm"] for r in sel)
         print(f"{key[0]:>4} {key[1]:>8} {key[2]:>5} {col['n'].min():>5}-{col['n'].max():<5} "
               f"{_flag(col['ce'].min(), col['ce'].max(), 0.85, 0.95):>13} "
               f"{_flag(col['le'].min(), col['le'].max(), 0.85, 0.95):>13} "
@@ -115,7 +118,8 @@ def _summary(rows):
               f"{col['s0'].min():.3f}-{col['s0'].max():.3f} "
               f"{col['impr'].min():.2f}-{col['impr'].max():.2f}  "
               + (f"{bad_off}/{len(sel)} beyond 4 sigma !" if bad_off else
-                 f"within 4 sigma (max {max(r['z'] for r in sel):.1f})"))
+                 f"within 4 sigma (max {max(r['z'] for r in sel):.1f})")
+              + f"  harm {harm}/{len(sel)}" + (" !" if harm else ""))
 
 
 def main() -> None:
