@@ -76,14 +76,22 @@ def read_lines(path, name, id_field):
                      cat(vi), cat(vp), problems, None, str(path))
 
 
-def dem_heights(path, xy):
-    """Bilinear DEM heights (band 1) with GDAL's reader."""
+def dem_grid(path):
+    """The DEM (band 1) read with GDAL's reader, as a DemGrid."""
     from osgeo import gdal
+
+    from vectoradjust.model import DemGrid
 
     ds = gdal.Open(str(path))
     band = ds.GetRasterBand(1)
     grid = band.ReadAsArray().astype(float)
-    return bilinear(grid, ds.GetGeoTransform(), xy, nodata=band.GetNoDataValue())
+    return DemGrid(grid, tuple(ds.GetGeoTransform()), band.GetNoDataValue())
+
+
+def dem_heights(path, xy):
+    """Bilinear DEM heights (band 1) with GDAL's reader."""
+    dem = dem_grid(path)
+    return bilinear(dem.grid, dem.transform, xy, nodata=dem.nodata)
 
 
 def project_data(project_path, names=None):
@@ -99,8 +107,10 @@ def project_data(project_path, names=None):
         if names is not None and v.name not in names:
             continue
         layer = read_lines(v.path, v.name, v.id_field)
-        if v.dem:
-            layer.coords[:, 2] = dem_heights(v.dem, layer.coords[:, :2])
+        if v.dem:  # the DEM is in the project CRS: kept for heights at shifted positions
+            layer.dem = dem_grid(v.dem)
+            layer.coords[:, 2] = bilinear(layer.dem.grid, layer.dem.transform,
+                                          layer.coords[:, :2], nodata=layer.dem.nodata)
         vectors.append((v, layer))
         if v.truth:
             truth[v.name] = read_truth_points(v.truth)

@@ -58,6 +58,7 @@ def test_layer_not_in_the_project_is_one_more_database(qgis_app, sample, headles
         "INPUT": _memory_copy(sample / "osm_roads.shp", "osm in memory"), "ID_FIELD": "osm_id",
         "NAME": "OSM", "DEM": str(sample / "dem.tif"), "PROJECT": str(project),
         "IDENTIFICATION_SIGMA_XY": 0.5,  # as the sample's [[vectors]] OSM entry states
+        "SIGMA_XY": 10.0, "SIGMA_Z": 0.15,  # the entry's sigma (Z: the DEM's accuracy)
         "SHAPE_POINTS": "TEMPORARY_OUTPUT"})
     s = headless_adjust["summary"]
     assert close(out["SIGMA0_SQUARED"], s["sigma0_squared"])
