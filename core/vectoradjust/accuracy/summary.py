@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from vectoradjust.accuracy import stats
+from vectoradjust.accuracy.tables import one_vertex_per_point
 from vectoradjust.formatting import float_or_none
 from vectoradjust.results import AdjustmentRun
 
@@ -99,8 +100,12 @@ def _database_entry(d) -> dict:
         "features": int(d.shape.layer.n_features),
         "unadjustable_features": int(len(d.shape.layer.problems)),
         "sigma_prior": list(map(float, d.sigma_used)),
+        # each object point once (an intersection vertex shared by two features is one
+        # point): "points" of the RMSE, "adjusted_vertices" of the layer
+        "points": int(one_vertex_per_point(d.vertex_point).sum()),
         "residuals": rmse_dict(np.column_stack([d.vertices["Vx"], d.vertices["Vy"],
-                                                d.vertices["Vz"]])[adjm]),
+                                                d.vertices["Vz"]])
+                               [one_vertex_per_point(d.vertex_point)]),
         "mean_ce90": float_or_none(np.mean(d.vertices["CE90"][adjm])) if adjm.any() else None,
         "mean_le90": float_or_none(np.mean(d.vertices["LE90"][adjm])) if adjm.any() else None,
     }
@@ -149,8 +154,9 @@ def run_summary(out: AdjustmentRun) -> dict:
     vv = np.column_stack([cp["Vx"], cp["Vy"], cp["Vz"]])
     chk = (cp["role"] == "check") & (cp["Used"] == 1)
     con = (cp["role"] == "control") & (cp["Used"] == 1)
+    # each object point of a database once (shared intersection vertices are one point)
     shape_rows = [np.column_stack([d.vertices["Vx"], d.vertices["Vy"], d.vertices["Vz"]])
-                  [d.vertices["Adjusted"] == 1] for d in out.databases]
+                  [one_vertex_per_point(d.vertex_point)] for d in out.databases]
     all_v = np.concatenate(shape_rows) if shape_rows else np.zeros((0, 3))
     allce, allle = _adjusted(out, "CE90"), _adjusted(out, "LE90")
     return {
@@ -185,6 +191,7 @@ COMPARE_COLUMNS = [
     ("chi_square_passed", "chi2 ok"), ("check_rmse_horizontal", "check h"),
     ("true_rmse", "true RMSE"), ("recovery", "recovery"), ("adjusted_truth_rmse", "adj-truth"),
     ("improvement", "improve"), ("vce", "VCE"), ("offset", "offset"),
+    ("moved_closer", "closer"),
 ]
 
 
@@ -206,6 +213,7 @@ def compare_row(summary: dict) -> dict:
         "improvement": truth.get("improvement"),
         "vce": _vce_state(summary.get("variance_components")),
         "offset": _offset_short(db.get("offset")),
+        "moved_closer": truth.get("moved_closer"),
         **_buffer_columns(truth.get("buffer")),
     }
 
