@@ -280,6 +280,9 @@ class AdjustmentSettings:
     beta0: float = 0.2
     max_removals: Optional[int] = None
     covariance_scale: str = "a-posteriori"
+    #: a vertex of a database in the run within this distance (m, XY) of a measured vertex
+    #: of a database not in the run reuses that vertex's measurements (None: never)
+    reuse_tolerance: Optional[float] = None
 
 
 @dataclass

@@ -192,6 +192,7 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
             f"{project}: no road database has a measured shape point",
             "See the messages above: set id_field, or measure the shape points")
     out.mkdir(parents=True, exist_ok=True)
+    cli_study.write_common_points(runs, out)  # points used by several databases
     write_compare_report(runs, rows, out / "report.html",
                          progress=ProgressBar("  report", enabled=not quiet))
     rows = rows + failed  # the databases that could not be adjusted, with the reason

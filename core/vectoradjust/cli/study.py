@@ -24,7 +24,7 @@ from vectoradjust.cli.progress import ProgressBar
 from vectoradjust.errors import ProjectError
 
 __all__ = ["add_parser", "cmd_gcp", "cmd_shift", "cmd_identification", "truth_tables",
-           "parse_numbers"]
+           "parse_numbers", "write_common_points"]
 
 
 def parse_numbers(text, what: str, integer: bool = False) -> list:
@@ -78,6 +78,15 @@ def truth_tables(run, spec, out_dir, label: str = "") -> dict:
             written[f"{label}truth_line_points.csv"] = str(
                 write_csv(rows, out / "truth_line_points.csv"))
     return written
+
+
+def write_common_points(runs, out_dir):
+    """``common_points.csv`` of ``compare`` (points measured for more than one database,
+    e.g. through ``[adjustment] reuse_tolerance``); None when there are none."""
+    from vectoradjust.files.study import common_points, write_csv
+
+    rows = common_points(runs)
+    return write_csv(rows, Path(out_dir) / "common_points.csv") if rows else None
 
 
 def _load(project):

@@ -51,7 +51,7 @@ PROJECT_SCHEMA: dict = {
                     "identification_sigma", "offset", "dem", "truth"),
     "[adjustment]": ("max_iterations", "reweight", "alpha", "snooping", "alpha0", "beta0",
                      "max_removals", "covariance_scale", "tolerance_position",
-                     "tolerance_angle", "merge_tolerance"),
+                     "tolerance_angle", "merge_tolerance", "reuse_tolerance"),
     "[truth]": ("path", "widths"),
     "[qa]": tuple(_QA_KEYS),
 }
@@ -467,7 +467,7 @@ def _parse_adjustment(adj: Any, where: str) -> AdjustmentSettings:
             raise _err(where, f"[adjustment] covariance_scale = {cs!r} is not known",
                        'Use "a-posteriori" (times sigma0^2) or "a-priori"')
         settings.covariance_scale = cs
-    for key in ("tolerance_position", "tolerance_angle", "merge_tolerance"):
+    for key in ("tolerance_position", "tolerance_angle", "merge_tolerance", "reuse_tolerance"):
         if key in adj:
             setattr(settings, key, _number(where, f"[adjustment] {key}", adj[key], positive=True))
     return settings

@@ -42,7 +42,7 @@ from vectoradjust.model import ProjectData
 
 __all__ = ["gcp_plan", "with_control", "gcp_study", "gcp_summary", "shift_data",
            "shift_study", "identification_study", "write_csv", "truth_point_rows",
-           "default_numbers"]
+           "default_numbers", "common_points"]
 
 Progress = Optional[Callable[[float, str], None]]
 
@@ -442,3 +442,53 @@ def write_csv(rows: list, path) -> Path:
         for r in rows:
             w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in cols})
     return path
+
+
+def _measured_points(run) -> dict:
+    """Measured id -> (database, vertex id, X, Y, AdjX, AdjY) of a run's shape points."""
+    obs_p = run.problem.obs_point
+    shape = run.point_kind[obs_p] == "shape"
+    ids = run.data.measurements.point_id[run.obs_rows[shape]]
+    pts = obs_p[shape]
+    out = {}
+    for d in run.databases:
+        one = one_vertex_per_point(d.vertex_point)
+        first = np.full(run.problem.n_points, -1, np.int64)
+        first[d.vertex_point[one]] = np.flatnonzero(one)
+        v = first[pts]
+        for mid, i in zip(ids[v >= 0], v[v >= 0]):
+            xyz, adj = d.shape.layer.coords[i], d.adjusted_coords[i]
+            out.setdefault(str(mid), {})[d.name] = (str(d.shape.vertex_ids[i]), *xyz[:2],
+                                                    *adj[:2])
+    return out
+
+
+def common_points(runs: Sequence) -> list:
+    """The common-point comparison of databases adjusted alone (``compare``).
+
+    A measured point is common when the runs of two or more databases used it: a
+    database's own vertex and, with ``[adjustment] reuse_tolerance``, the coinciding
+    vertex of another database that reused its measurements. One row per measured point:
+    per database its vertex id, database XY, residual (Vx, Vy) and adjusted XY, and
+    ``adjusted_spread`` (largest horizontal distance between the databases' adjusted
+    positions: what the exterior orientation of the separate runs changes).
+    """
+    merged: dict = {}
+    for run in runs:
+        for mid, per_db in _measured_points(run).items():
+            merged.setdefault(mid, {}).update(per_db)
+    rows = []
+    for mid, per_db in merged.items():
+        if len(per_db) < 2:
+            continue
+        row = {"measured_id": mid}
+        adj = []
+        for name, (vid, x, y, ax, ay) in per_db.items():
+            row.update({f"{name}_id": vid, f"{name}_X": x, f"{name}_Y": y,
+                        f"{name}_Vx": ax - x, f"{name}_Vy": ay - y, f"{name}_AdjX": ax,
+                        f"{name}_AdjY": ay})
+            adj.append((ax, ay))
+        a = np.asarray(adj)
+        row["adjusted_spread"] = float(np.max(np.hypot(*(a[:, None] - a[None]).T)))
+        rows.append(row)
+    return rows
