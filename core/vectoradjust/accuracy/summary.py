@@ -185,7 +185,8 @@ def run_summary(out: AdjustmentRun) -> dict:
 
 # --------------------------------------------------------------------------- compare table
 COMPARE_COLUMNS = [
-    ("database", "database"), ("adjusted", "adjusted"), ("rmse_x", "RMSE x"),
+    ("database", "database"), ("adjusted", "adjusted"), ("points", "points"),
+    ("rmse_x", "RMSE x"),
     ("rmse_y", "RMSE y"), ("rmse_z", "RMSE z"), ("rmse_horizontal", "RMSE h"),
     ("mean_ce90", "CE90"), ("mean_le90", "LE90"), ("sigma0_squared", "s0^2"),
     ("chi_square_passed", "chi2 ok"), ("check_rmse_horizontal", "check h"),
@@ -202,6 +203,7 @@ def compare_row(summary: dict) -> dict:
     truth = db.get("truth") or {}
     return {
         "database": db.get("name"), "adjusted": db.get("adjusted_vertices"),
+        "points": db.get("points"),  # the object points the RMSE counts (each once)
         "rmse_x": res.get("rmse_x"), "rmse_y": res.get("rmse_y"), "rmse_z": res.get("rmse_z"),
         "rmse_horizontal": res.get("rmse_horizontal"), "mean_ce90": db.get("mean_ce90"),
         "mean_le90": db.get("mean_le90"), "sigma0_squared": summary.get("sigma0_squared"),
