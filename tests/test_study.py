@@ -309,7 +309,8 @@ def test_reused_measurements_give_the_same_adjusted_points(sample):
     data2 = _copy_of_osm(data)
     with pytest.raises(NothingAdjustedError):
         run(data2, vectors=["COPY"])
-    data3 = replace(data2, settings=replace(data2.settings, reuse_tolerance=0.01))
+    data3 = replace(data2, settings=replace(data2.settings, reuse_tolerance=0.01,
+                                            reuse_points="all"))
     a = run(data3, vectors=["OSM"])
     b = run(data3, vectors=["COPY"])
     np.testing.assert_allclose(b.databases[0].adjusted_coords, a.databases[0].adjusted_coords,
@@ -325,9 +326,59 @@ def test_reused_measurements_give_the_same_adjusted_points(sample):
 
 def test_reuse_needs_the_other_database_out_of_the_run(sample):
     _, data = sample
-    data3 = replace(_copy_of_osm(data), settings=replace(data.settings, reuse_tolerance=0.01))
+    data3 = replace(_copy_of_osm(data), settings=replace(data.settings, reuse_tolerance=0.01,
+                                                         reuse_points="all"))
     with pytest.raises(NothingAdjustedError):
         run(data3, vectors=["OSM", "COPY"])
+
+
+def test_reuse_at_intersections_measures_the_true_intersection(sample):
+    """TNM without measurements of its own: its intersections reuse OSM's (default
+    reuse_points = "intersections") and land where the true intersections are."""
+    from vectoradjust.model import Measurements
+
+    _, data = sample
+    m = data.measurements
+    keep = ~np.char.startswith(m.point_id.astype(str), "TNM-")
+    m2 = Measurements(m.point_id[keep], m.image_id[keep], m.xy[keep], m.sigma[keep], m.source,
+                      m.rows[keep])
+    d = replace(data, measurements=m2, settings=replace(data.settings, reuse_tolerance=8.0))
+    res = run(d, vectors=["TNM"])
+    db = res.databases[0]
+    sp = db.shape
+    junction = np.bincount(sp.vertex_object, minlength=sp.n_objects) >= 2
+    used = np.unique(db.vertex_point[db.vertex_point >= 0])
+    assert used.size >= 5
+    objs = np.unique(sp.vertex_object[db.vertex_point >= 0])
+    assert junction[objs].all()  # only intersections reused
+    rows = truth_point_rows(res)
+    d_after = np.array([x["D_after"] for x in rows])
+    # the identification error of the sample is 0.5 m per axis: ~0.7 m horizontally
+    assert np.sqrt(np.mean(d_after ** 2)) < 1.2
+    assert np.sqrt(np.mean([x["D_before"] ** 2 for x in rows])) > 1.5
+
+
+def test_reuse_keys_are_read_from_the_project(tmp_path, sample_dir):
+    from vectoradjust.files.project import load_project
+
+    text = (sample_dir / "project.toml").read_text(encoding="utf-8")
+    text = text.replace("max_iterations = 20", "max_iterations = 20\nreuse_tolerance = 2.5\n"
+                        "reuse_points = \"all\"")
+    p = sample_dir / "project.toml"
+    spec = load_project(_write(tmp_path, p, text))
+    assert spec.settings.reuse_tolerance == 2.5 and spec.settings.reuse_points == "all"
+    with pytest.raises(ProjectError, match="reuse_points"):
+        load_project(_write(tmp_path, p, text.replace('"all"', '"some"')))
+
+
+def _write(tmp_path, project, text):
+    import shutil
+
+    d = tmp_path / "prj"
+    if not d.exists():
+        shutil.copytree(project.parent, d)
+    (d / "project.toml").write_text(text, encoding="utf-8")
+    return d / "project.toml"
 
 
 # --------------------------------------------------------------------------- CLI
