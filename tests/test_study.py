@@ -401,3 +401,24 @@ def test_study_commands_write_tables_figures_and_report(sample_dir, tmp_path):
     assert (tmp_path / "s" / "OSM_shifted" / "truth_points.csv").is_file()
     assert main(["study", "gcp", str(sample_dir / "project.toml"), "--out",
                  str(tmp_path / "x"), "-q", "--numbers", "2"]) == 1
+
+
+def test_study_reports_progress_and_honours_cancel(sample):
+    from vectoradjust.errors import CancelledError
+
+    _, data = sample
+    plan = gcp_plan(data, [24, 3])
+    seen = []
+    gcp_study(data, plan, progress=lambda f, msg="": seen.append((f, msg)))
+    assert seen[-1][0] == 1.0 and any("3 spread" in m for _, m in seen)
+    assert all(0.0 <= f <= 1.0 for f, _ in seen)
+    calls = []
+
+    def cancel_after_first_run():
+        calls.append(1)
+        return len(calls) > 3
+
+    with pytest.raises(CancelledError):
+        gcp_study(data, plan, is_cancelled=cancel_after_first_run)
+    with pytest.raises(CancelledError):
+        shift_study(data, 1.0, 1.0, ["OSM"], is_cancelled=lambda: True)
