@@ -16,7 +16,7 @@ import numpy as np
 from vectoradjust.errors import LayerError, ProjectError
 
 __all__ = ["parse_widths", "read_lines", "truth_buffer", "drive_truth_buffer", "truth_jobs",
-           "line_ranges", "project_truth", "truth_line_distances"]
+           "line_ranges", "project_truth", "truth_line_distances", "drive_truth_lines"]
 
 
 def parse_widths(text) -> list:
@@ -242,9 +242,11 @@ def project_truth(spec) -> Optional[tuple]:
     return str(p), parse_widths(t.get("widths", [1.0, 2.0]))
 
 
-def truth_line_distances(run, truth_path) -> list:
+
+def drive_truth_lines(run, distances, truth_path) -> list:
     """Each adjusted object point's distance to the nearest true centreline, before and
-    after the adjustment (the per-point truth table of surveyed centrelines).
+    after the adjustment, with any geometry engine (``distances(xy) -> (n,)`` array of
+    the distances of the points ``xy`` (n, 2) to the nearest true line).
 
     Writes the share of points moved closer into ``run.summary["databases"][i]["truth"]
     ["lines"]`` (``count``, ``moved_closer``, ``rmse_before``, ``rmse_after``).
@@ -255,24 +257,15 @@ def truth_line_distances(run, truth_path) -> list:
         One row per point: ``database, point_id, X, Y, AdjX, AdjY, D_before, D_after,
         Closer``.
     """
-    import shapely
-    from pyproj import CRS
-
     from vectoradjust.accuracy.tables import one_vertex_per_point
 
-    truth, _ = read_lines(truth_path, CRS.from_user_input(run.data.crs))
-    parts = [p for g in truth if g is not None and not g.is_empty for p in shapely.get_parts(g)]
-    if not parts:
-        return []
-    tree = shapely.STRtree(parts)
     rows = []
     for d, entry in zip(run.databases, run.summary.get("databases", [])):
         m = one_vertex_per_point(d.vertex_point)
         if not m.any():
             continue
         db, adj = d.shape.layer.coords[m, :2], d.adjusted_coords[m, :2]
-        dist = [tree.query_nearest(shapely.points(xy), return_distance=True,
-                                   all_matches=False)[1] for xy in (db, adj)]
+        dist = [np.asarray(distances(xy), float) for xy in (db, adj)]
         closer = dist[1] < dist[0]
         entry.setdefault("truth", {})["lines"] = {
             "truth_lines": str(truth_path), "count": int(m.sum()),
@@ -285,3 +278,22 @@ def truth_line_distances(run, truth_path) -> list:
                      "D_before": float(dist[0][i]), "D_after": float(dist[1][i]),
                      "Closer": int(closer[i])} for i in range(len(ids)))
     return rows
+
+
+def truth_line_distances(run, truth_path) -> list:
+    """:func:`drive_truth_lines` with the true centrelines read by geopandas and the
+    distances of shapely (an STR-tree nearest query); the same rows and summary entry."""
+    import shapely
+    from pyproj import CRS
+
+    truth, _ = read_lines(truth_path, CRS.from_user_input(run.data.crs))
+    parts = [p for g in truth if g is not None and not g.is_empty for p in shapely.get_parts(g)]
+    if not parts:
+        return []
+    tree = shapely.STRtree(parts)
+
+    def distances(xy):
+        return tree.query_nearest(shapely.points(xy), return_distance=True,
+                                  all_matches=False)[1]
+
+    return drive_truth_lines(run, distances, truth_path)
