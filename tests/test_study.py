@@ -401,6 +401,14 @@ def test_study_commands_write_tables_figures_and_report(sample_dir, tmp_path):
     assert (tmp_path / "s" / "OSM_shifted" / "truth_points.csv").is_file()
     assert main(["study", "gcp", str(sample_dir / "project.toml"), "--out",
                  str(tmp_path / "x"), "-q", "--numbers", "2"]) == 1
+    assert main(["study", "identification", "--out", str(tmp_path / "i"), "-q",
+                 "--errors", "0,1", "--databases", "TNM"]) == 0
+    with open(tmp_path / "i" / "identification_study.csv", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [float(r["identification_error"]) for r in rows] == [0.0, 1.0]
+    assert (tmp_path / "i" / "identification.png").stat().st_size > 0
+    assert main(["study", "identification", "--out", str(tmp_path / "j"), "-q",
+                 "--errors", "a,b"]) == 1
 
 
 def test_study_reports_progress_and_honours_cancel(sample):
