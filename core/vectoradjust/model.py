@@ -303,6 +303,12 @@ class AdjustmentSettings:
     beta0: float = 0.2
     max_removals: Optional[int] = None
     covariance_scale: str = "auto"
+    #: a vertex of a database in the run within this distance (m, XY) of a measured vertex
+    #: of a database not in the run reuses that vertex's measurements (None: never)
+    reuse_tolerance: Optional[float] = None
+    #: which vertices reuse: "intersections" (object points where features meet, in both
+    #: databases) or "all"
+    reuse_points: str = "intersections"
 
 
 @dataclass

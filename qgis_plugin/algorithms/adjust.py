@@ -18,7 +18,7 @@ from .. import results
 from ..styles import style_output
 from . import inputs
 from .base import VectorAdjustAlgorithm, cancel_callback, check_cancelled, progress_callback
-from .buffer_test import project_truth_buffer
+from .buffer_test import project_truth_buffer, project_truth_lines
 
 HELP = """
 <p>Adjusts a road line layer (OSM, TIGER, TNM, any centrelines) with a photogrammetric
@@ -127,6 +127,7 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
         out = adj.run
         # true centrelines ([truth]): buffer shares before/after, into the summary
         project_truth_buffer(adj.prj, [out], context, feedback)
+        project_truth_lines(adj.prj, [out], context, feedback)  # as vectoradjust adjust
         outputs = self._write(parameters, context, feedback, out, adj.road.fields,
                               adj.road.wkb, adj.prj.crs)
         report = write_html_report(self, parameters, context, feedback, self.REPORT, out)

@@ -248,6 +248,46 @@ def project_truth_buffer(prj, runs, context, feedback, start=80.0, span=5.0):
         truth_buffer(r, path, widths, prj.crs, context, feedback, start + k * each, each)
 
 
+
+def project_truth_lines(prj, runs, context, feedback):
+    """Each adjusted point's distance to the nearest true centreline before and after
+    (:func:`vectoradjust.files.truth.drive_truth_lines` with GEOS through QGIS) when the
+    project has a ``[truth]`` table, as ``vectoradjust adjust`` does: writes
+    ``databases[].truth.lines`` (share moved closer) into each run's summary."""
+    import os
+
+    from qgis.core import QgsPoint, QgsVectorLayer
+
+    from vectoradjust.files.truth import drive_truth_lines, project_truth
+
+    truth = project_truth(prj.spec)
+    if truth is None or not os.path.exists(truth[0]):
+        return
+    layer = QgsVectorLayer(str(truth[0]), "truth", "ogr")
+    if not layer.isValid():
+        return
+    lines = _lines(layer, prj.crs, context, f"true centrelines {truth[0]!r} ([truth] path)",
+                   feedback)
+    parts = [QgsGeometry(p.clone()) for g in lines for p in g.constParts()]
+    if not parts:
+        return
+    united = QgsGeometry.collectGeometry(parts)  # kept alive: the engine points into it
+    engine = QgsGeometry.createGeometryEngine(united.constGet())
+    engine.prepareGeometry()
+
+    def distance(x, y):
+        d = engine.distance(QgsPoint(float(x), float(y)))  # (distance, error) in PyQGIS
+        return d[0] if isinstance(d, tuple) else d
+
+    def distances(xy):
+        check_cancelled(feedback)
+        return [distance(x, y) for x, y in xy]
+
+    feedback.setProgressText("distances to the true centrelines")
+    for r in runs:
+        drive_truth_lines(r, distances, truth[0])
+
+
 class BufferAccuracyTest(VectorAdjustAlgorithm):
     NAME = "bufferaccuracytest"
     DISPLAY = "Buffer accuracy test"

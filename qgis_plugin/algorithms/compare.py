@@ -67,8 +67,8 @@ compare</code>; needs matplotlib in QGIS's Python).</li>
 </ul>
 """.replace("{project_help}", inputs.PROJECT_HELP).replace("{road_help}", inputs.ROAD_HELP)
 
-_TABLE_TYPES = {"database": "s", "adjusted": "i", "chi_square_passed": "b", "vce": "s",
-                "offset": "s"}
+_TABLE_TYPES = {"database": "s", "adjusted": "i", "points": "i", "chi_square_passed": "b",
+                "vce": "s", "offset": "s"}
 
 
 def _split(text):

@@ -11,7 +11,8 @@ pytest.importorskip("qgis.core")
 pytestmark = pytest.mark.qgis
 
 ALGORITHMS = ("extractshapepoints", "adjustroadvectors", "compareroaddatabases",
-              "bufferaccuracytest", "accuracycontrol", "uncertaintybands", "equalerrormap")
+              "bufferaccuracytest", "accuracycontrol", "uncertaintybands", "equalerrormap",
+              "gcpstudy")
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +60,7 @@ def user_choices(alg_id, sample, layers):
                             "CONTOUR_INTERVAL": 1.0},
         "uncertaintybands": {"INPUT": osm, "PROJECT": project},
         "equalerrormap": {"PROJECT": project},
+        "gcpstudy": {"PROJECT": project},
     }[alg_id]
 
 

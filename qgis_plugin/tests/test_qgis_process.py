@@ -34,6 +34,7 @@ ALGORITHM_LINES = [
     "vectoradjust:compareroaddatabases\tCompare road databases",
     "vectoradjust:equalerrormap\tEqual-error map",
     "vectoradjust:extractshapepoints\tExtract shape points",
+    "vectoradjust:gcpstudy\tGCP study (number and location of control points)",
     "vectoradjust:uncertaintybands\tUncertainty bands",
 ]
 

@@ -194,8 +194,11 @@ def _statement_block(errors: np.ndarray, ref_sigma: Optional[np.ndarray], *,
 
 
 def _database_block(run, d, truth_xyz: Optional[np.ndarray]) -> dict[str, Any]:
+    from vectoradjust.accuracy.tables import one_vertex_per_point
+
     v = d.vertices
-    adj = np.asarray(v["Adjusted"]) == 1
+    # each object point once (a shared intersection vertex is one point), as the summary
+    adj = one_vertex_per_point(d.vertex_point)
     vv = np.column_stack([v["Vx"], v["Vy"], v["Vz"]])[adj].astype(float)
     sig = np.column_stack([v["SigmaX"], v["SigmaY"], v["SigmaZ"]])[adj].astype(float)
     block = _statement_block(-vv, sig, what="database - adjusted (= -V)",

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from vectoradjust.accuracy import stats
+from vectoradjust.accuracy.tables import one_vertex_per_point
 from vectoradjust.formatting import float_or_none
 from vectoradjust.results import AdjustmentRun
 
@@ -99,8 +100,12 @@ def _database_entry(d) -> dict:
         "features": int(d.shape.layer.n_features),
         "unadjustable_features": int(len(d.shape.layer.problems)),
         "sigma_prior": list(map(float, d.sigma_used)),
+        # each object point once (an intersection vertex shared by two features is one
+        # point): "points" of the RMSE, "adjusted_vertices" of the layer
+        "points": int(one_vertex_per_point(d.vertex_point).sum()),
         "residuals": rmse_dict(np.column_stack([d.vertices["Vx"], d.vertices["Vy"],
-                                                d.vertices["Vz"]])[adjm]),
+                                                d.vertices["Vz"]])
+                               [one_vertex_per_point(d.vertex_point)]),
         "mean_ce90": float_or_none(np.mean(d.vertices["CE90"][adjm])) if adjm.any() else None,
         "mean_le90": float_or_none(np.mean(d.vertices["LE90"][adjm])) if adjm.any() else None,
     }
@@ -149,8 +154,9 @@ def run_summary(out: AdjustmentRun) -> dict:
     vv = np.column_stack([cp["Vx"], cp["Vy"], cp["Vz"]])
     chk = (cp["role"] == "check") & (cp["Used"] == 1)
     con = (cp["role"] == "control") & (cp["Used"] == 1)
+    # each object point of a database once (shared intersection vertices are one point)
     shape_rows = [np.column_stack([d.vertices["Vx"], d.vertices["Vy"], d.vertices["Vz"]])
-                  [d.vertices["Adjusted"] == 1] for d in out.databases]
+                  [one_vertex_per_point(d.vertex_point)] for d in out.databases]
     all_v = np.concatenate(shape_rows) if shape_rows else np.zeros((0, 3))
     allce, allle = _adjusted(out, "CE90"), _adjusted(out, "LE90")
     return {
@@ -179,12 +185,14 @@ def run_summary(out: AdjustmentRun) -> dict:
 
 # --------------------------------------------------------------------------- compare table
 COMPARE_COLUMNS = [
-    ("database", "database"), ("adjusted", "adjusted"), ("rmse_x", "RMSE x"),
+    ("database", "database"), ("adjusted", "adjusted"), ("points", "points"),
+    ("rmse_x", "RMSE x"),
     ("rmse_y", "RMSE y"), ("rmse_z", "RMSE z"), ("rmse_horizontal", "RMSE h"),
     ("mean_ce90", "CE90"), ("mean_le90", "LE90"), ("sigma0_squared", "s0^2"),
     ("chi_square_passed", "chi2 ok"), ("check_rmse_horizontal", "check h"),
     ("true_rmse", "true RMSE"), ("recovery", "recovery"), ("adjusted_truth_rmse", "adj-truth"),
     ("improvement", "improve"), ("vce", "VCE"), ("offset", "offset"),
+    ("moved_closer", "closer"),
 ]
 
 
@@ -195,6 +203,7 @@ def compare_row(summary: dict) -> dict:
     truth = db.get("truth") or {}
     return {
         "database": db.get("name"), "adjusted": db.get("adjusted_vertices"),
+        "points": db.get("points"),  # the object points the RMSE counts (each once)
         "rmse_x": res.get("rmse_x"), "rmse_y": res.get("rmse_y"), "rmse_z": res.get("rmse_z"),
         "rmse_horizontal": res.get("rmse_horizontal"), "mean_ce90": db.get("mean_ce90"),
         "mean_le90": db.get("mean_le90"), "sigma0_squared": summary.get("sigma0_squared"),
@@ -206,6 +215,7 @@ def compare_row(summary: dict) -> dict:
         "improvement": truth.get("improvement"),
         "vce": _vce_state(summary.get("variance_components")),
         "offset": _offset_short(db.get("offset")),
+        "moved_closer": truth.get("moved_closer"),
         **_buffer_columns(truth.get("buffer")),
     }
 

@@ -329,6 +329,79 @@ def _control_used(ctrl, ctrl_of_obs: np.ndarray, is_ctrl: np.ndarray, warnings: 
     return ctrl_used
 
 
+def _junctions(sp: ShapePoints) -> np.ndarray:
+    """Object points where two or more vertices (features) meet: the intersections."""
+    return np.bincount(sp.vertex_object, minlength=sp.n_objects) >= 2
+
+
+def _reuse_source(shapes: list, db_vertex_of_obs: list, selected: set, k: int,
+                  junctions_only: bool):
+    """XY and object key of every measurement of a vertex of a database not in the run
+    (of an intersection vertex only, with ``junctions_only``)."""
+    src_xy = np.full((k, 2), np.nan)
+    src_key = np.full(k, -1, np.int64)
+    for a, ((spec, sp), vi) in enumerate(zip(shapes, db_vertex_of_obs)):
+        if spec.name in selected:
+            continue
+        r = np.flatnonzero(vi >= 0)
+        if junctions_only:
+            r = r[_junctions(sp)[sp.vertex_object[vi[r]]]]
+        src_xy[r] = sp.layer.coords[vi[r], :2]
+        src_key[r] = a * (1 << 40) + sp.vertex_object[vi[r]]
+    return src_xy, src_key
+
+
+def _reuse_measurements(data: ProjectData, selected: set, shapes: list, db_vertex_of_obs: list,
+                        has_c: np.ndarray, warnings: list) -> list:
+    """Measurements of a vertex of a database NOT in the run reused for the coinciding
+    vertex of a database in the run (``[adjustment] reuse_tolerance``, XY distance).
+
+    A database object point that is measured itself keeps its own measurements; of
+    several measured vertices near one object point the nearest is reused. With
+    ``reuse_points = "intersections"`` (default) only intersections (object points where
+    features meet) of both databases reuse: elsewhere two databases' vertices near each
+    other are rarely the same point of the road. Returns the
+    per-database vertex of each measurement with the reused ones filled in.
+    """
+    tol = data.settings.reuse_tolerance
+    if not tol or len(selected) == len(shapes):
+        return db_vertex_of_obs
+    from scipy.spatial import cKDTree
+
+    k = len(data.measurements.point_id)
+    junctions_only = data.settings.reuse_points != "all"
+    src_xy, src_key = _reuse_source(shapes, db_vertex_of_obs, selected, k, junctions_only)
+    out = []
+    for (spec, sp), vi in zip(shapes, db_vertex_of_obs):
+        rows = np.flatnonzero((src_key >= 0) & (vi < 0) & ~has_c)
+        if spec.name not in selected or not rows.size or not sp.n_objects:
+            out.append(vi)
+            continue
+        cand = np.flatnonzero(_junctions(sp)) if junctions_only else np.arange(sp.n_objects)
+        if not cand.size:
+            out.append(vi)
+            continue
+        dist, j = cKDTree(sp.object_xyz[cand, :2]).query(src_xy[rows], distance_upper_bound=tol)
+        obj = np.append(cand, sp.n_objects)[j]  # j == len(cand): nothing within tol
+        own = np.zeros(sp.n_objects + 1, bool)  # + 1: the "nothing found" index
+        own[sp.vertex_object[vi[vi >= 0]]] = True
+        ok = np.isfinite(dist) & ~own[obj]
+        rows, dist, obj = rows[ok], dist[ok], obj[ok]
+        order = np.lexsort((dist, obj))
+        uo, first = np.unique(obj[order], return_index=True)
+        winner = np.full(sp.n_objects, -1, np.int64)
+        winner[uo] = src_key[rows[order[first]]]
+        keep = src_key[rows] == winner[obj]
+        vi = vi.copy()
+        vi[rows[keep]] = sp.object_vertex[obj[keep]]
+        if keep.any():
+            warnings.append(f"{spec.name}: {len(uo)} shape point(s) reuse the measurements of "
+                            f"a vertex of another database within reuse_tolerance = {tol:g} m "
+                            f"({int(keep.sum())} image measurements)")
+        out.append(vi)
+    return out
+
+
 def classify_measurements(data: ProjectData, selected: set, warnings: list) -> Classification:
     """Classify every measurement of ``data`` as control, check, shape or tie point.
 
@@ -363,6 +436,8 @@ def classify_measurements(data: ProjectData, selected: set, warnings: list) -> C
     has_c = ctrl_of_obs >= 0
     is_check[has_c] = ctrl.role[ctrl_of_obs[has_c]] == "check"
     is_ctrl[has_c] = ~is_check[has_c]
+    db_vertex_of_obs = _reuse_measurements(data, selected, shapes, db_vertex_of_obs, has_c,
+                                           warnings)
     is_shape = np.zeros(k, bool)
     use_shape = np.zeros(k, bool)
     for (spec, _), vi in zip(shapes, db_vertex_of_obs):

@@ -20,6 +20,7 @@ from vectoradjust.accuracy.summary import compare_columns, compare_row
 from vectoradjust.cli import buffer as cli_buffer
 from vectoradjust.cli import propagate as cli_propagate
 from vectoradjust.cli import qa as cli_qa
+from vectoradjust.cli import study as cli_study
 from vectoradjust.cli.progress import ProgressBar
 from vectoradjust.cli.tools import run_command
 from vectoradjust.errors import NothingAdjustedError, VectorAdjustError
@@ -118,9 +119,11 @@ def cmd_adjust(args) -> int:
     if truth is not None:  # true centrelines: buffer test before/after the adjustment
         cli_buffer.truth_buffer(result, *truth,
                                 progress=ProgressBar("truth", enabled=not args.quiet))
+    truth_csv = cli_study.truth_tables(result, spec, args.out)  # per-point truth tables
     written = write_outputs(result, args.out, fmt=args.format,
                             bands=not getattr(args, "no_bands", False),
                             progress=ProgressBar("write", enabled=not args.quiet))
+    written.update(truth_csv)
     from vectoradjust.files.report import write_report
 
     qa_doc = None
@@ -189,6 +192,7 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
             f"{project}: no road database has a measured shape point",
             "See the messages above: set id_field, or measure the shape points")
     out.mkdir(parents=True, exist_ok=True)
+    cli_study.write_common_points(runs, out)  # points used by several databases
     write_compare_report(runs, rows, out / "report.html",
                          progress=ProgressBar("  report", enabled=not quiet))
     rows = rows + failed  # the databases that could not be adjusted, with the reason
@@ -273,6 +277,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_qa.add_parser(sub)
     cli_propagate.add_parsers(sub)
     cli_buffer.add_parser(sub)
+    cli_study.add_parser(sub)
     return p
 
 

@@ -51,7 +51,8 @@ PROJECT_SCHEMA: dict = {
                     "identification_sigma", "offset", "dem", "truth"),
     "[adjustment]": ("max_iterations", "reweight", "alpha", "snooping", "alpha0", "beta0",
                      "max_removals", "covariance_scale", "tolerance_position",
-                     "tolerance_angle", "merge_tolerance"),
+                     "tolerance_angle", "merge_tolerance", "reuse_tolerance",
+                     "reuse_points"),
     "[truth]": ("path", "widths"),
     "[qa]": tuple(_QA_KEYS),
 }
@@ -467,7 +468,12 @@ def _parse_adjustment(adj: Any, where: str) -> AdjustmentSettings:
             raise _err(where, f"[adjustment] covariance_scale = {cs!r} is not known",
                        'Use "auto" (default), "a-posteriori" (times sigma0^2) or "a-priori"')
         settings.covariance_scale = cs
-    for key in ("tolerance_position", "tolerance_angle", "merge_tolerance"):
+    if "reuse_points" in adj:
+        if adj["reuse_points"] not in ("intersections", "all"):
+            raise _err(where, f"[adjustment] reuse_points = {adj['reuse_points']!r} is not known",
+                       'Use "intersections" (where features meet) or "all"')
+        settings.reuse_points = adj["reuse_points"]
+    for key in ("tolerance_position", "tolerance_angle", "merge_tolerance", "reuse_tolerance"):
         if key in adj:
             setattr(settings, key, _number(where, f"[adjustment] {key}", adj[key], positive=True))
     return settings

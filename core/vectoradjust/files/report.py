@@ -1084,15 +1084,18 @@ def _databases_body(run, prefix: str, colors: dict, *, with_bars: bool = True) -
         r = e.get("residuals") or {}
         sig = e.get("sigma_prior") or [None] * 3
         rows.append([e.get("name", ""), _fmt(e.get("vertices")),
-                     _fmt(e.get("adjusted_vertices")), _fmt(e.get("features")),
+                     _fmt(e.get("adjusted_vertices")), _fmt(e.get("points")),
+                     _fmt(e.get("features")),
                      _fmt(e.get("unadjustable_features")),
                      ", ".join(_fmt(x, 2) for x in sig),
                      _fmt(r.get("rmse_x")), _fmt(r.get("rmse_y")), _fmt(r.get("rmse_z")),
                      _fmt(r.get("rmse_horizontal")), _fmt(e.get("mean_ce90")),
                      _fmt(e.get("mean_le90"))])
     out = [_note("Residuals V = adjusted \u2212 database at the measured (adjusted) vertices: "
-                 "the RMSE of V estimates the database's positional accuracy."),
-           _table(["database", "vertices", "adjusted", "features", "unadjustable",
+                 "the RMSE of V estimates the database's positional accuracy. It counts "
+                 "each object point once (points: an intersection shared by features is "
+                 "one point)."),
+           _table(["database", "vertices", "adjusted", "points", "features", "unadjustable",
                    "prior \u03c3 X, Y, Z (m)", "RMSE Vx (m)", "RMSE Vy (m)", "RMSE Vz (m)",
                    "RMSE V horiz. (m)", "mean CE90 (m)", "mean LE90 (m)"], rows,
                   ident=f"{prefix}databases-table")]
