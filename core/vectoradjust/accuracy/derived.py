@@ -421,7 +421,7 @@ def _tangent_normal(tl: np.ndarray, ql: np.ndarray, k: float, centre: float,
 
 
 def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
-                 n_directions: int = 24) -> list:
+                 n_directions: int = 24, progress=None) -> list:
     """G-bands (Shi & Liu 2000) of many line segments at once.
 
     The band of a segment is the union over ``t`` in ``[0, 1]`` of the error ellipses
@@ -458,6 +458,9 @@ def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
         Number of ``t`` intervals (``n_pairs + 1`` sampled ellipses).
     n_directions : int
         Uniform directions of the circumscribed polygons (a multiple of 4, >= 8).
+    progress : callable, optional
+        ``progress(fraction)`` after every chunk of 1024 segments (it may raise to
+        cancel, e.g. :class:`vectoradjust.errors.CancelledError`).
 
     Returns
     -------
@@ -482,6 +485,8 @@ def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
         for i in range(0, m, chunk):
             out += g_band_batch(a[i:i + chunk], b[i:i + chunk], c4[i:i + chunk], confidence,
                                 n_pairs, n_directions)
+            if progress is not None:
+                progress(min(i + chunk, m) / m)
         return out
     k = prop.confidence_scale(confidence, 2)
     delta = b - a
@@ -584,7 +589,7 @@ def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.
     confidence : float
         Probability of the error ellipses (0.9 = 90 %).
     **kwargs
-        ``n_pairs``, ``n_directions`` of :func:`g_band_batch`.
+        ``n_pairs``, ``n_directions``, ``progress`` of :func:`g_band_batch`.
 
     Returns
     -------

@@ -54,6 +54,8 @@ __all__ = [
     "MAX_ELLIPSES",
     "MAX_FULL_SHAPE_ROWS",
     "LARGEST_SHAPE_ROWS",
+    "LARGEST_FEATURE_ROWS",
+    "MAX_SEGMENTS",
 ]
 
 #: Arrows per database panel of the residual figure (random subsample above).
@@ -68,7 +70,12 @@ MAX_FULL_SHAPE_ROWS = 1000
 #: Otherwise it lists the vertices with the largest horizontal residuals.
 LARGEST_SHAPE_ROWS = 200
 #: Features tables longer than this show the features with the largest RMSE only.
-MAX_FEATURE_ROWS = 20000
+MAX_FEATURE_ROWS = 1000
+#: ... that many of them (the others are in the features layer).
+LARGEST_FEATURE_ROWS = 200
+#: Line segments drawn per database in a figure; above, whole features are sampled
+#: (the report's size and time stay bounded whatever the run).
+MAX_SEGMENTS = 20000
 
 _DPI = 100
 _PALETTE = ["#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2",
@@ -326,6 +333,11 @@ def _segments(xyz: np.ndarray, feature: np.ndarray, part: np.ndarray,
         return np.zeros((0, 2, 2))
     same = (feature[1:] == feature[:-1]) & (part[1:] == part[:-1])
     same &= np.isfinite(xy[1:]).all(axis=1) & np.isfinite(xy[:-1]).all(axis=1)
+    if same.sum() > MAX_SEGMENTS:  # a sample of whole features, the same for every call
+        nf = int(feature.max()) + 1
+        pick = np.zeros(nf, bool)
+        pick[_subsample(nf, max(1, int(nf * MAX_SEGMENTS / same.sum())))] = True
+        same &= pick[feature[:-1]]
     return np.stack([xy[:-1][same], xy[1:][same]], axis=1)
 
 
@@ -1257,9 +1269,11 @@ def _features_body(run, acc: Optional[dict], prefix: str) -> str:
         note = ""
         if nf > MAX_FEATURE_ROWS:
             rm = np.nan_to_num(np.asarray(f["RMSE"], float), nan=-1.0)
-            order = np.argsort(-rm, kind="stable")[:2000]
-            note = _note(f"{nf} features: the 2000 with the largest RMSE are listed; all are in "
-                         "the features layer of adjusted.gpkg.")
+            order = np.argsort(-rm, kind="stable")[:LARGEST_FEATURE_ROWS]
+            note = _note(f"{nf} features: the {LARGEST_FEATURE_ROWS} with the largest RMSE are "
+                         f"listed ({nf - LARGEST_FEATURE_ROWS} left out); all are in the "
+                         "features layer of adjusted.gpkg and their accuracy statements in "
+                         "feature_accuracy.csv.")
         cols = [layer.feature_ids[order].tolist()]
         heads = ["feature"]
         for k in names:
