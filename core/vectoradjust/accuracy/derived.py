@@ -420,6 +420,17 @@ def _tangent_normal(tl: np.ndarray, ql: np.ndarray, k: float, centre: float,
     return np.where(ok & ~near, root, centre + 0.5 * du)
 
 
+def _g_band_chunks(a, b, c4, chunk: int, progress, *args) -> list:
+    """:func:`g_band_batch` in chunks of ``chunk`` segments, ``progress`` after each."""
+    out: list = []
+    m = len(a)
+    for i in range(0, m, chunk):
+        out += g_band_batch(a[i:i + chunk], b[i:i + chunk], c4[i:i + chunk], *args)
+        if progress is not None:
+            progress(min(i + chunk, m) / m)
+    return out
+
+
 def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
                  n_directions: int = 24, progress=None) -> list:
     """G-bands (Shi & Liu 2000) of many line segments at once.
@@ -481,13 +492,7 @@ def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
         return []
     chunk = 1024
     if m > chunk:  # bounded temporaries: (chunk, n_pairs, n_pairs * n_directions / 2)
-        out: list = []
-        for i in range(0, m, chunk):
-            out += g_band_batch(a[i:i + chunk], b[i:i + chunk], c4[i:i + chunk], confidence,
-                                n_pairs, n_directions)
-            if progress is not None:
-                progress(min(i + chunk, m) / m)
-        return out
+        return _g_band_chunks(a, b, c4, chunk, progress, confidence, n_pairs, n_directions)
     k = prop.confidence_scale(confidence, 2)
     delta = b - a
     length = np.hypot(delta[:, 0], delta[:, 1])
