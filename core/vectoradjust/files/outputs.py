@@ -253,12 +253,22 @@ def _writer_warning(message: str, where: str) -> Optional[str]:
     return f"{where}: {msg}"
 
 
+def _arrow_writing() -> dict:
+    """``{"use_arrow": True}`` where pyogrio can write through Arrow (pyarrow installed:
+    columns go to GDAL in bulk, not feature by feature), else ``{}``."""
+    try:
+        import pyarrow  # noqa: F401
+    except ImportError:
+        return {}
+    return {"use_arrow": True}
+
+
 def _write_layer(gdf, path: Path, layer: Optional[str], fmt: str) -> list:
     """Write one layer; returns GDAL's warnings as run warnings instead of printing them."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if fmt == "gpkg":
-            gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio")
+            gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio", **_arrow_writing())
         else:
             gdf.to_file(path, driver="ESRI Shapefile", engine="pyogrio", encoding="UTF-8")
     where = f"{path.name} layer {layer}" if layer else path.name
