@@ -73,6 +73,8 @@ LARGEST_SHAPE_ROWS = 200
 MAX_FEATURE_ROWS = 1000
 #: ... that many of them (the others are in the features layer).
 LARGEST_FEATURE_ROWS = 200
+#: Flagged observations listed in the report (largest |w| first; all in the CSV).
+LARGEST_FLAGGED_ROWS = 200
 #: Line segments drawn per database in a figure; above, whole features are sampled
 #: (the report's size and time stay bounded whatever the run).
 MAX_SEGMENTS = 200_000
@@ -1459,9 +1461,14 @@ def _flagged_body(run, reliability, prefix: str = "") -> str:
         return _note("Reliability analysis (w-tests, flagged observations): not computed.")
     if not flagged:
         return _note("No observation is flagged by the w-test.")
-    return (_note(f"{len(flagged)} observation(s) flagged by the w-test, largest |w| first.")
-            + '<div class="scroll">' + _records_table(flagged, ident=f"{prefix}flagged-table")
-            + "</div>")
+    text = f"{len(flagged)} observation(s) flagged by the w-test, largest |w| first."
+    if len(flagged) > LARGEST_FLAGGED_ROWS:  # bounded: all of them are in the CSV
+        left = len(flagged) - LARGEST_FLAGGED_ROWS
+        text += (f" The first {LARGEST_FLAGGED_ROWS} are listed ({left} left out); all are in "
+                 "flagged_observations.csv.")
+        flagged = flagged[:LARGEST_FLAGGED_ROWS]
+    return (_note(text) + '<div class="scroll">'
+            + _records_table(flagged, ident=f"{prefix}flagged-table") + "</div>")
 
 
 def _qa_body(qa: Any) -> str:
