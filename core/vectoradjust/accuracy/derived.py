@@ -308,25 +308,21 @@ def _batched_interp(cu: np.ndarray, cw: np.ndarray, q: np.ndarray) -> np.ndarray
     Returns (m, P, Q); ``-inf`` where ``q`` is outside a chain's range.
     """
     m, p, k = cu.shape
-    nq = q.shape[1]
-    base = float(min(cu.min(), q.min()))
-    span = float(max(cu.max(), q.max()) - base) + 1.0
-    off = (np.arange(m * p, dtype=float) * (2.0 * span)).reshape(m, p, 1)
-    xp = ((cu - base) + off).ravel()
-    qq = ((q[:, None, :] - base) + off).ravel()
-    pos = np.searchsorted(xp, qq, side="right") - 1
-    row = np.repeat(np.arange(m * p), nq)
-    local = np.clip(pos - row * k, 0, k - 2)
-    cu2 = cu.reshape(m * p, k)
-    cw2 = cw.reshape(m * p, k)
-    x0, x1 = cu2[row, local], cu2[row, local + 1]
-    f0, f1 = cw2[row, local], cw2[row, local + 1]
-    qr = np.broadcast_to(q[:, None, :], (m, p, nq)).ravel()
+    qb = q[:, None, :]
+    # the piece of each chain holding q: how many inner vertices lie at or left of q
+    # (k is small: k - 2 broadcast comparisons beat a search over all chains)
+    local = np.zeros((m, p, q.shape[1]), dtype=np.intp)
+    for j in range(1, k - 1):
+        local += qb >= cu[:, :, j:j + 1]
+    x0 = np.take_along_axis(cu, local, axis=2)
+    x1 = np.take_along_axis(cu, local + 1, axis=2)
+    f0 = np.take_along_axis(cw, local, axis=2)
+    f1 = np.take_along_axis(cw, local + 1, axis=2)
     with np.errstate(invalid="ignore", divide="ignore"):
-        t = np.where(x1 > x0, (qr - x0) / (x1 - x0), 1.0)
-    t = np.clip(t, 0.0, 1.0)
-    val = (f0 + t * (f1 - f0)).reshape(m, p, nq)
-    inside = (q[:, None, :] >= cu[:, :, :1]) & (q[:, None, :] <= cu[:, :, -1:])
+        t = np.where(x1 > x0, (qb - x0) / (x1 - x0), 1.0)
+    np.clip(t, 0.0, 1.0, out=t)
+    val = f0 + t * (f1 - f0)
+    inside = (qb >= cu[:, :, :1]) & (qb <= cu[:, :, -1:])
     return np.where(inside, val, -np.inf)
 
 
