@@ -90,3 +90,10 @@ def test_truth_points_fast_and_careful_agree(tmp_path):
     _write(p, "".join(lines))
     with pytest.raises(CSVError, match="line 9"):
         tables.read_truth_points(str(p))
+
+
+def test_unicode_blanks_are_stripped_as_by_the_careful_reader(tmp_path):
+    p = _write(tmp_path / "m.csv", "point_id,image_id,x,y\n\u00a0a\u2003,L,1,2\nb,R\u00a0,3,4\n")
+    fast = tables.read_measurements(str(p), default_sigma=0.01)
+    assert fast.point_id.tolist() == ["a", "b"] and fast.image_id.tolist() == ["L", "R"]
+    assert fast.point_id.tolist() == _careful(p, 0.01).point_id.tolist()

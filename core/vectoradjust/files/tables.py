@@ -106,6 +106,8 @@ def _fast_columns(path: str, required: Sequence[str], optional: Sequence[str] = 
     if len(frame) != len(ends) - 1:
         return None
     out: dict = {"_line": np.arange(2, len(frame) + 2)}
+    # no blank, control or non-ASCII byte but the newlines: no cell needs str.strip()
+    padded = bool(np.any(((raw <= 32) & (raw != ord("\n"))) | (raw >= 128)))
     for col in (*required, *optional):
         if col.lower() not in lookup:
             continue
@@ -115,7 +117,9 @@ def _fast_columns(path: str, required: Sequence[str], optional: Sequence[str] = 
             if not np.all(np.isfinite(arr)):
                 return None
         else:
-            arr = series.str.strip().to_numpy(dtype=object)
+            arr = series.to_numpy(dtype=object)
+            if padded:  # the careful reader strips every cell
+                arr = series.str.strip().to_numpy(dtype=object)
             if col in required and np.any(arr == ""):
                 return None
         out[col] = arr
