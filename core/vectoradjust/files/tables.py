@@ -77,7 +77,7 @@ def _fast_columns(path: str, required: Sequence[str], optional: Sequence[str] = 
         return None
     if data.startswith(b"\xef\xbb\xbf"):
         data = data[3:]
-    if b'"' in data or not data.strip():
+    if b'"' in data or not data or data.isspace():
         return None
     raw = np.frombuffer(data, dtype=np.uint8)
     ends = np.flatnonzero(raw == ord("\n"))
@@ -315,6 +315,17 @@ def measurements_from_rows(header: Sequence[str], rows: Sequence[Sequence[str]],
     return _measurements(cols, path, default_sigma, unit, line_word)
 
 
+def _may_repeat(pid: np.ndarray, iid: np.ndarray) -> bool:
+    """False when no (point, image) pair repeats, by hashing (pandas, linear time);
+    True when one does or pandas is missing (then the sorting check decides and names
+    the lines)."""
+    try:
+        import pandas as pd
+    except ImportError:
+        return True
+    return bool(pd.DataFrame({"p": pid, "i": iid}, copy=False).duplicated().any())
+
+
 def _measurements(cols: dict, path: str, default_sigma: Optional[float], unit: str,
                   line_word: str) -> Measurements:
     """The checks of :func:`measurements_from_rows` after :func:`parse_table`."""
@@ -344,6 +355,9 @@ def _measurements(cols: dict, path: str, default_sigma: Optional[float], unit: s
                        path=path, details={line_word: n})
     pid = cols["point_id"].astype(str)
     iid = cols["image_id"].astype(str)
+    if not _may_repeat(cols["point_id"], cols["image_id"]):
+        return Measurements(pid, iid, np.column_stack([cols["x"], cols["y"]]), sigma,
+                            source=str(path), rows=cols["_line"])
     key = np.char.add(np.char.add(pid.astype(str), "\x1f"), iid.astype(str))
     _, first, counts = np.unique(key, return_index=True, return_counts=True)
     if np.any(counts > 1):
