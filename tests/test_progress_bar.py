@@ -31,3 +31,19 @@ def test_log_lines_per_stage_and_throttled_within_a_stage(monkeypatch):
         "building the shape_points table", "uncertainty bands: OSM 0 %",
         "uncertainty bands: OSM 100 %", "uncertainty bands: TNM 0 %",
         "writing the features layer", "outputs written"]
+
+
+def test_reading_a_project_reports_each_file(sample_dir):
+    import pytest
+
+    pytest.importorskip("geopandas")
+    from vectoradjust.files.readers import load_project_data
+
+    calls = []
+    load_project_data(sample_dir / "project.toml", progress=lambda f, m: calls.append((f, m)))
+    fractions = [f for f, _ in calls]
+    assert fractions == sorted(fractions) and 0.0 <= fractions[0] and fractions[-1] <= 1.0
+    messages = [m for _, m in calls]
+    assert messages[0] == "reading the image measurements"
+    assert "reading the road layer TIGER" in messages and "reading the truth of OSM" in messages
+    assert messages[-1] == "refining the image coordinates"

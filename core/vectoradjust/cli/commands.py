@@ -113,7 +113,7 @@ def cmd_adjust(args) -> int:
     # --vectors are recognised as their shape points and left out (as in compare),
     # not turned into tie points
     spec = load_project(args.project)
-    data = load_project_data(spec)
+    data = load_project_data(spec, progress=lambda f, m: bar(0.02 * f, m))
     result = run(data, vectors=args.vectors, progress=bar)
     truth = cli_buffer.project_truth(spec)
     if truth is not None:  # true centrelines: buffer test before/after the adjustment
