@@ -177,3 +177,17 @@ def test_exact_method_rejects_flat_caps():
     assert buffer_test([], LineString([(0, 0), (1, 0)]), [1.0], method="exact")[0]["share"] is None
     assert buffer_test(LineString([(0, 0), (1, 0)]), [], [1.0],
                        method="exact")[0]["share"] == 0.0
+
+
+def test_exact_method_in_chunks_equals_one_pass():
+    from vectoradjust.accuracy.buffer import SegmentBuffer, line_segments
+
+    rng = np.random.default_rng(11)
+    xs = np.linspace(0, 300, 80)
+    ref = line_segments([LineString(np.column_stack([xs, rng.normal(0, 2, xs.size)]))])
+    tst = line_segments([LineString(np.column_stack([xs, rng.normal(0, 3, xs.size)]))])
+    whole = SegmentBuffer(ref).inside(tst, [1.0, 3.0])
+    small = SegmentBuffer(ref)
+    small.chunk = 7
+    assert np.allclose(small.inside(tst, [1.0, 3.0]), whole, rtol=1e-13, atol=0)
+    assert 0 < whole[0] < whole[1] < np.hypot(*(tst[:, 1] - tst[:, 0]).T).sum()

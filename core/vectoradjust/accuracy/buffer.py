@@ -196,7 +196,8 @@ def line_segments(geoms: Any) -> np.ndarray:
         return np.zeros((0, 2, 2))
     same = idx[1:] == idx[:-1]
     seg = np.stack([xy[:-1][same], xy[1:][same]], axis=1)
-    return seg[np.any(seg[:, 0] != seg[:, 1], axis=1)]
+    keep = np.any(seg[:, 0] != seg[:, 1], axis=1) & np.isfinite(seg).all(axis=(1, 2))
+    return seg[keep]
 
 
 def _slab(p0: np.ndarray, q: np.ndarray, lo, hi) -> tuple:
@@ -307,6 +308,8 @@ class SegmentBuffer:
         self.origin = ref[0, 0].copy() if len(ref) else np.zeros(2)
         self.ref = ref - self.origin
         self.tree = None
+        #: tested segments per STRtree query (the pairs of one query are held at once)
+        self.chunk = 50_000
         if len(ref):
             geoms = shapely.linestrings(self.ref.reshape(-1, 2),
                                         indices=np.repeat(np.arange(len(ref)), 2))
@@ -320,6 +323,10 @@ class SegmentBuffer:
         out = np.zeros(len(widths))
         seg = np.asarray(tested, float).reshape(-1, 2, 2) - self.origin
         if self.tree is None or not len(seg) or not np.any(widths > 0):
+            return out
+        if len(seg) > self.chunk:  # bounded memory: the pairs of one chunk at a time
+            for k in range(0, len(seg), self.chunk):
+                out += self.inside(seg[k:k + self.chunk] + self.origin, widths)
             return out
         length = np.hypot(*(seg[:, 1] - seg[:, 0]).T)
         geoms = shapely.linestrings(seg.reshape(-1, 2), indices=np.repeat(np.arange(len(seg)), 2))

@@ -129,7 +129,8 @@ def _range_segments(xy: np.ndarray, ranges: list) -> np.ndarray:
     first = np.repeat(r[:, 0], nseg)
     offset = np.arange(int(nseg.sum())) - np.repeat(np.cumsum(nseg) - nseg, nseg)
     i = first + offset
-    return np.stack([xy[i, :2], xy[i + 1, :2]], axis=1)
+    seg = np.stack([xy[i, :2], xy[i + 1, :2]], axis=1)
+    return seg[np.isfinite(seg).all(axis=(1, 2))]  # a vertex without coordinates: no segment
 
 
 def _shares(xy: np.ndarray, ranges: list, buffers, widths, step) -> list:
