@@ -111,3 +111,83 @@ def test_degenerate_and_bad_inputs():
         buffer_test(Point(0, 0), ref, 1.0)
     with pytest.raises(LayerError):
         buffer_test(ref, Point(0, 0).buffer(1.0), 1.0)
+
+
+# --------------------------------------------------------------------------- exact method
+def test_exact_method_on_hand_computed_cases():
+    """The exact round buffer gives the closed-form lengths without chord error."""
+    ref = LineString([(0, 0), (100, 0)])
+    tst = LineString([(0, 2.5), (100, 2.5)])
+    res = buffer_test(tst, ref, [0.5, 2.4, 2.5, 2.6], method="exact")
+    assert _shares(res) == [0.0, 0.0, 1.0, 1.0]  # boundary included
+    half = buffer_test(LineString([(0, 1), (100, 1)]), LineString([(0, 0), (50, 0)]), [2.0],
+                       method="exact")[0]
+    assert half["length_inside"] == pytest.approx(50.0 + math.sqrt(2.0**2 - 1.0), abs=1e-9)
+    a = math.radians(30)
+    cross = LineString([(-100 * math.cos(a), -100 * math.sin(a)),
+                        (100 * math.cos(a), 100 * math.sin(a))])
+    r = buffer_test(cross, LineString([(-1000, 0), (1000, 0)]), [5.0], method="exact")[0]
+    assert r["length_inside"] == pytest.approx(10.0 / math.sin(a), rel=1e-12)
+
+
+def test_exact_method_overlaps_count_once_and_joins_are_round():
+    refs = [LineString([(0, 0), (10, 0)]), LineString([(0, 1), (10, 1)])]
+    res = buffer_test(LineString([(0, 0.5), (10, 0.5)]), refs, [1.0], method="exact")[0]
+    assert res["length_inside"] == pytest.approx(10.0, abs=1e-12)
+    # a right-angle corner at the origin: points beyond it within x of the corner only
+    ref = LineString([(-50, 0), (0, 0), (0, 50)])
+    tst = LineString([(1, -10), (1, 10)])  # 1 m right of the vertical leg, below the corner
+    got = buffer_test(tst, ref, [2.0], method="exact")[0]["length_inside"]
+    # inside: y from -sqrt(4 - 1) (round join around the corner) up to 10
+    assert got == pytest.approx(10.0 + math.sqrt(3.0), abs=1e-12)
+
+
+def test_exact_equals_the_union_polygon_buffer_in_the_limit():
+    """The old union-of-all-lines polygon method converges to the exact one.
+
+    The polygon buffer is inscribed in the round one (chords of ``quad_segs`` per quarter
+    circle), so it lies below by at most the chord error and the gap shrinks like
+    ``1 / quad_segs^2``.
+    """
+    rng = np.random.default_rng(7)
+    xs = np.linspace(0, 400, 40)
+    refs = [LineString(np.column_stack([xs + rng.normal(0, 4, xs.size),
+                                        rng.normal(0, 4, xs.size) + 6 * k]))
+            for k in range(4)]
+    tst = [LineString(np.column_stack([xs, rng.normal(0, 5, xs.size) + 6 * k]))
+           for k in range(3)] + [MultiLineString([[(0, 0), (50, 30)], [(60, 0), (90, 5)]])]
+    widths = [0.5, 1.0, 2.0, 5.0]
+    exact = buffer_test(tst, refs, widths, method="exact")
+    gaps = []
+    for quad in (8, 32, 128):
+        poly = buffer_test(tst, refs, widths, quad_segs=quad)
+        gap = np.array([e["length_inside"] - p["length_inside"] for e, p in zip(exact, poly)])
+        assert np.all(gap >= -1e-9)  # the polygon is inside the round buffer
+        assert [e["length_total"] for e in exact] == [p["length_total"] for p in poly]
+        gaps.append(gap.max())
+    assert gaps[0] > 0 and gaps[2] < gaps[0] / 50  # ~1/16^2 of the gap at 8 chords
+    shares32 = _shares(buffer_test(tst, refs, widths))
+    assert _shares(exact) == pytest.approx(shares32, abs=1e-4)
+
+
+def test_exact_method_rejects_flat_caps():
+    with pytest.raises(ValueError, match="round"):
+        buffer_test(LineString([(0, 0), (1, 0)]), LineString([(0, 0), (1, 0)]), [1.0],
+                    cap_style="flat", method="exact")
+    assert buffer_test([], LineString([(0, 0), (1, 0)]), [1.0], method="exact")[0]["share"] is None
+    assert buffer_test(LineString([(0, 0), (1, 0)]), [], [1.0],
+                       method="exact")[0]["share"] == 0.0
+
+
+def test_exact_method_in_chunks_equals_one_pass():
+    from vectoradjust.accuracy.buffer import SegmentBuffer, line_segments
+
+    rng = np.random.default_rng(11)
+    xs = np.linspace(0, 300, 80)
+    ref = line_segments([LineString(np.column_stack([xs, rng.normal(0, 2, xs.size)]))])
+    tst = line_segments([LineString(np.column_stack([xs, rng.normal(0, 3, xs.size)]))])
+    whole = SegmentBuffer(ref).inside(tst, [1.0, 3.0])
+    small = SegmentBuffer(ref)
+    small.chunk = 7
+    assert np.allclose(small.inside(tst, [1.0, 3.0]), whole, rtol=1e-13, atol=0)
+    assert 0 < whole[0] < whole[1] < np.hypot(*(tst[:, 1] - tst[:, 0]).T).sum()

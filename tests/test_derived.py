@@ -622,3 +622,25 @@ def test_cli_propagate_equal_error_two_step(written_project, tmp_path, capsys):
     assert main(["propagate", proj, "--out", str(tmp_path), "-q", "--distance", "nope",
                  ids[0]]) == 1
     assert "not a point of the adjustment" in capsys.readouterr().err
+
+
+def test_uncertainty_bands_equal_the_per_feature_union(adj_run):
+    """The vectorised union (make_valid "structure") is the union of each feature's
+    segment bands, as a loop of shapely.union_all over the features computes it."""
+    pytest.importorskip("geopandas")
+    import shapely
+
+    from vectoradjust.files.derived_outputs import uncertainty_bands_frame
+
+    frame = uncertainty_bands_frame(adj_run)
+    for d in adj_run.databases:
+        sb = derived.segment_bands(adj_run, d)
+        polys = shapely.make_valid(shapely.polygons([shapely.linearrings(r) for r in sb.rings]))
+        mine = frame[frame["database"] == d.name]
+        fids = d.shape.layer.feature_ids
+        assert list(mine["feature_id"]) == [str(fids[f]) for f in np.unique(sb.feature)]
+        for f, geom, nseg in zip(np.unique(sb.feature), mine.geometry, mine["NSeg"]):
+            ref = shapely.union_all(polys[sb.feature == f])
+            assert nseg == np.sum(sb.feature == f)
+            assert geom.geom_type == "MultiPolygon" and geom.is_valid
+            assert shapely.symmetric_difference(geom, ref).area <= 1e-9 * ref.area

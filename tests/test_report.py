@@ -390,3 +390,39 @@ def test_with_the_reliability_module(adj_run, tmp_path, no_figures):
         assert "No observation is flagged" in text
     fig = report.residual_histogram_figure(adj_run, rel)
     assert len(fig.axes) == 2
+
+
+# --------------------------------------------------------------------------- bounded size
+def test_report_tables_are_bounded_with_the_count_left_out(adj_run, tmp_path, no_figures,
+                                                            monkeypatch):
+    monkeypatch.setattr(report, "LARGEST_FLAGGED_ROWS", 2)
+    monkeypatch.setattr(report, "MAX_FEATURE_ROWS", 4)
+    monkeypatch.setattr(report, "LARGEST_FEATURE_ROWS", 3)
+    flagged = [{"kind": "image", "image": "L", "point": f"P{i}", "w": 9.0 - i}
+               for i in range(5)]
+    p = _parse(report.write_report(adj_run, tmp_path / "b.html", reliability=flagged))
+    _, rows, _ = p.table("flagged-table")
+    assert [r[2] for r in rows] == ["P0", "P1"]  # the largest |w| first
+    text = " ".join(p.text)
+    assert "5 observation(s) flagged" in text and "(3 left out)" in text
+    for d in adj_run.databases:
+        nf = d.shape.layer.n_features
+        _, rows, _ = p.table(f"features-{d.name}")
+        assert len(rows) == 3 and f"({nf - 3} left out)" in text
+        rm = np.nan_to_num(np.asarray(d.features["RMSE"], float), nan=-1.0)
+        assert rows[0][0] == str(d.shape.layer.feature_ids[int(np.argmax(rm))])
+
+
+def test_figure_lines_sample_whole_features_above_the_limit(adj_run, monkeypatch):
+    d = adj_run.databases[0]
+    lay = d.shape.layer
+    full = report._segments(lay.coords, lay.vertex_feature, lay.vertex_part, (0.0, 0.0))
+    monkeypatch.setattr(report, "MAX_SEGMENTS", len(full) // 3)
+    few = report._segments(lay.coords, lay.vertex_feature, lay.vertex_part, (0.0, 0.0))
+    assert 0 < len(few) < len(full) // 2
+    again = report._segments(d.adjusted_coords, lay.vertex_feature, lay.vertex_part,
+                             (0.0, 0.0))
+    assert len(again) == len(few)  # the same features in the database and adjusted lines
+    # every kept segment is a segment of the full set (whole features, nothing invented)
+    keys = {tuple(np.round(s.ravel(), 6)) for s in full}
+    assert all(tuple(np.round(s.ravel(), 6)) in keys for s in few)

@@ -308,25 +308,21 @@ def _batched_interp(cu: np.ndarray, cw: np.ndarray, q: np.ndarray) -> np.ndarray
     Returns (m, P, Q); ``-inf`` where ``q`` is outside a chain's range.
     """
     m, p, k = cu.shape
-    nq = q.shape[1]
-    base = float(min(cu.min(), q.min()))
-    span = float(max(cu.max(), q.max()) - base) + 1.0
-    off = (np.arange(m * p, dtype=float) * (2.0 * span)).reshape(m, p, 1)
-    xp = ((cu - base) + off).ravel()
-    qq = ((q[:, None, :] - base) + off).ravel()
-    pos = np.searchsorted(xp, qq, side="right") - 1
-    row = np.repeat(np.arange(m * p), nq)
-    local = np.clip(pos - row * k, 0, k - 2)
-    cu2 = cu.reshape(m * p, k)
-    cw2 = cw.reshape(m * p, k)
-    x0, x1 = cu2[row, local], cu2[row, local + 1]
-    f0, f1 = cw2[row, local], cw2[row, local + 1]
-    qr = np.broadcast_to(q[:, None, :], (m, p, nq)).ravel()
+    qb = q[:, None, :]
+    # the piece of each chain holding q: how many inner vertices lie at or left of q
+    # (k is small: k - 2 broadcast comparisons beat a search over all chains)
+    local = np.zeros((m, p, q.shape[1]), dtype=np.intp)
+    for j in range(1, k - 1):
+        local += qb >= cu[:, :, j:j + 1]
+    x0 = np.take_along_axis(cu, local, axis=2)
+    x1 = np.take_along_axis(cu, local + 1, axis=2)
+    f0 = np.take_along_axis(cw, local, axis=2)
+    f1 = np.take_along_axis(cw, local + 1, axis=2)
     with np.errstate(invalid="ignore", divide="ignore"):
-        t = np.where(x1 > x0, (qr - x0) / (x1 - x0), 1.0)
-    t = np.clip(t, 0.0, 1.0)
-    val = (f0 + t * (f1 - f0)).reshape(m, p, nq)
-    inside = (q[:, None, :] >= cu[:, :, :1]) & (q[:, None, :] <= cu[:, :, -1:])
+        t = np.where(x1 > x0, (qb - x0) / (x1 - x0), 1.0)
+    np.clip(t, 0.0, 1.0, out=t)
+    val = f0 + t * (f1 - f0)
+    inside = (qb >= cu[:, :, :1]) & (qb <= cu[:, :, -1:])
     return np.where(inside, val, -np.inf)
 
 
@@ -420,8 +416,19 @@ def _tangent_normal(tl: np.ndarray, ql: np.ndarray, k: float, centre: float,
     return np.where(ok & ~near, root, centre + 0.5 * du)
 
 
+def _g_band_chunks(a, b, c4, chunk: int, progress, *args) -> list:
+    """:func:`g_band_batch` in chunks of ``chunk`` segments, ``progress`` after each."""
+    out: list = []
+    m = len(a)
+    for i in range(0, m, chunk):
+        out += g_band_batch(a[i:i + chunk], b[i:i + chunk], c4[i:i + chunk], *args)
+        if progress is not None:
+            progress(min(i + chunk, m) / m)
+    return out
+
+
 def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
-                 n_directions: int = 24) -> list:
+                 n_directions: int = 24, progress=None) -> list:
     """G-bands (Shi & Liu 2000) of many line segments at once.
 
     The band of a segment is the union over ``t`` in ``[0, 1]`` of the error ellipses
@@ -458,6 +465,9 @@ def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
         Number of ``t`` intervals (``n_pairs + 1`` sampled ellipses).
     n_directions : int
         Uniform directions of the circumscribed polygons (a multiple of 4, >= 8).
+    progress : callable, optional
+        ``progress(fraction)`` after every chunk of 1024 segments (it may raise to
+        cancel, e.g. :class:`vectoradjust.errors.CancelledError`).
 
     Returns
     -------
@@ -478,11 +488,7 @@ def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
         return []
     chunk = 1024
     if m > chunk:  # bounded temporaries: (chunk, n_pairs, n_pairs * n_directions / 2)
-        out: list = []
-        for i in range(0, m, chunk):
-            out += g_band_batch(a[i:i + chunk], b[i:i + chunk], c4[i:i + chunk], confidence,
-                                n_pairs, n_directions)
-        return out
+        return _g_band_chunks(a, b, c4, chunk, progress, confidence, n_pairs, n_directions)
     k = prop.confidence_scale(confidence, 2)
     delta = b - a
     length = np.hypot(delta[:, 0], delta[:, 1])
@@ -584,7 +590,7 @@ def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.
     confidence : float
         Probability of the error ellipses (0.9 = 90 %).
     **kwargs
-        ``n_pairs``, ``n_directions`` of :func:`g_band_batch`.
+        ``n_pairs``, ``n_directions``, ``progress`` of :func:`g_band_batch`.
 
     Returns
     -------

@@ -4,7 +4,8 @@
 tested lines' length inside buffers of the reference lines. With a ``[truth]`` table
 (true centrelines) in the project, ``adjust`` and ``compare`` add the share of each
 database's lines inside 1 m and 2 m (or ``widths``) of the truth before and after the
-adjustment to ``summary.json`` (``databases[].truth.buffer``).
+adjustment to ``summary.json`` (``databases[].truth.buffer``), measured with the exact
+round buffers (``buffer-test --exact``), linear in the size of the data.
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ def cmd_buffer_test(args) -> int:
     widths = parse_widths(args.widths)
     tested, crs = read_lines(args.tested, layer=args.tested_layer)
     reference, _ = read_lines(args.reference, crs, layer=args.reference_layer)
-    rows = buffer_test(tested, reference, widths)
+    rows = buffer_test(tested, reference, widths,
+                       method="exact" if getattr(args, "exact", False) else "polygon")
     print(f"vectoradjust buffer-test: {args.tested} inside buffers of {args.reference}")
     print("   width m   share %   inside m    total m")
     for r in rows:
@@ -53,4 +55,8 @@ def add_parser(sub, common=None) -> None:
     b.add_argument("--tested-layer", help="layer of a multi-layer source (e.g. features)")
     b.add_argument("--reference-layer", help="layer of a multi-layer reference source")
     b.add_argument("--out", help="write the table to this CSV file")
+    b.add_argument("--exact", action="store_true",
+                   help="exact round buffers by segments (linear time, for large layers; "
+                        "the default polygon buffers are up to 0.03 %% of the width narrower "
+                        "on round caps and joins)")
     b.set_defaults(func=cmd_buffer_test)

@@ -18,6 +18,7 @@ from typing import Optional
 from vectoradjust import __version__
 from vectoradjust.accuracy.summary import compare_columns, compare_row
 from vectoradjust.cli import buffer as cli_buffer
+from vectoradjust.cli import many as cli_many
 from vectoradjust.cli import propagate as cli_propagate
 from vectoradjust.cli import qa as cli_qa
 from vectoradjust.cli import study as cli_study
@@ -113,7 +114,7 @@ def cmd_adjust(args) -> int:
     # --vectors are recognised as their shape points and left out (as in compare),
     # not turned into tie points
     spec = load_project(args.project)
-    data = load_project_data(spec)
+    data = load_project_data(spec, progress=lambda f, m: bar(0.02 * f, m))
     result = run(data, vectors=args.vectors, progress=bar)
     truth = cli_buffer.project_truth(spec)
     if truth is not None:  # true centrelines: buffer test before/after the adjustment
@@ -278,6 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_propagate.add_parsers(sub)
     cli_buffer.add_parser(sub)
     cli_study.add_parser(sub)
+    cli_many.add_parser(sub)
     return p
 
 

@@ -19,6 +19,9 @@ class ProgressBar:
         self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
         self._last_msg = None
         self.t0 = time.perf_counter()
+        self._last_line = -1e9
+        #: seconds between two lines of the same stage when stderr is not a terminal
+        self.every = 2.0
 
     def __call__(self, fraction: float, message: str = "") -> None:
         if not self.enabled:
@@ -32,7 +35,18 @@ class ProgressBar:
             self.stream.write("\r" + line[:120].ljust(120))
             if fraction >= 1.0:
                 self.stream.write("\n")
-        elif message != self._last_msg:
+        elif message != self._last_msg and (
+                _stage(message) != _stage(self._last_msg) or fraction >= 1.0
+                or time.perf_counter() - self._last_line >= self.every):
+            # a log gets a line per stage, and within a stage (messages that differ only
+            # in their numbers: "uncertainty bands: OSM 12 %") one every `every` seconds
             self.stream.write(line + "\n")
+            self._last_line = time.perf_counter()
         self._last_msg = message
         self.stream.flush()
+
+
+def _stage(message) -> str:
+    """A message without its numbers (``"iteration 3: v'Pv = 12.5"`` -> ``"iteration :
+    v'Pv = ."``): messages of one stage compare equal."""
+    return "".join(c for c in str(message) if not c.isdigit())

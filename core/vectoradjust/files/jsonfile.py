@@ -10,7 +10,7 @@ import numpy as np
 
 from vectoradjust.errors import InputFileError
 
-__all__ = ["clean_json", "write_json"]
+__all__ = ["clean_json", "write_json", "move_feature_statements", "FEATURE_ACCURACY_CSV"]
 
 
 def clean_json(obj):
@@ -47,3 +47,62 @@ def write_json(out_dir, name: str, payload: dict) -> Path:
         raise InputFileError(f"Cannot write {name} in {str(out)!r} ({exc})",
                              "Choose a writable directory with --out") from exc
     return path
+
+
+#: the per-feature accuracy statements, beside summary.json (one row per feature)
+FEATURE_ACCURACY_CSV = "feature_accuracy.csv"
+
+
+def _flat(row: dict, prefix: str = "") -> dict:
+    """``{"rmse": {"x": 1}}`` -> ``{"rmse_x": 1}`` (nested dictionaries to columns)."""
+    out: dict = {}
+    for k, v in row.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}_"))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def move_feature_statements(summary: dict, out_dir) -> tuple:
+    """Move ``accuracy.features`` (one statement per road feature) out of summary.json.
+
+    summary.json stays bounded whatever the number of features: the per-feature rows go
+    to ``out_dir/feature_accuracy.csv`` (columns ``database, feature_id, count,
+    mean_error_x, ..., asprs2023_rmse_3d``: the nested keys joined with ``_``) and
+    ``accuracy.features`` becomes ``{"file", "count": {database: rows}, "columns"}``.
+
+    Returns
+    -------
+    summary : dict
+        A shallow copy with the pointer in place of the rows (the input is not changed).
+    path : pathlib.Path or None
+        The CSV written (None when there were no per-feature statements).
+    """
+    import csv
+
+    acc = summary.get("accuracy")
+    feats = acc.get("features") if isinstance(acc, dict) else None
+    if not isinstance(feats, dict) or not any(isinstance(v, list) for v in feats.values()):
+        return summary, None
+    rows = [{"database": db, **_flat(r)} for db, lst in feats.items()
+            if isinstance(lst, list) for r in lst]
+    columns: list = []
+    for r in rows[:1000]:  # every row has the same keys; a few suffice for the header
+        columns += [k for k in r if k not in columns]
+    path = Path(out_dir) / FEATURE_ACCURACY_CSV
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if v is None else v) for k, v in clean_json(r).items()})
+    out = dict(summary)
+    out["accuracy"] = dict(acc)
+    out["accuracy"]["features"] = {
+        "file": FEATURE_ACCURACY_CSV,
+        "count": {db: len(lst) for db, lst in feats.items() if isinstance(lst, list)},
+        "columns": columns,
+        "note": "one row per feature in the CSV beside summary.json (kept out of "
+                "summary.json so that its size does not grow with the data)",
+    }
+    return out, path

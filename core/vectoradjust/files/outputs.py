@@ -19,7 +19,7 @@ from typing import Optional
 import numpy as np
 
 from vectoradjust.errors import CancelledError, InputFileError
-from vectoradjust.files.jsonfile import clean_json
+from vectoradjust.files.jsonfile import clean_json, move_feature_statements
 from vectoradjust.results import AdjustmentRun
 
 __all__ = ["write_outputs", "shape_points_frame", "features_frame", "control_points_frame",
@@ -253,12 +253,22 @@ def _writer_warning(message: str, where: str) -> Optional[str]:
     return f"{where}: {msg}"
 
 
+def _arrow_writing() -> dict:
+    """``{"use_arrow": True}`` where pyogrio can write through Arrow (pyarrow installed:
+    columns go to GDAL in bulk, not feature by feature), else ``{}``."""
+    try:
+        import pyarrow  # noqa: F401
+    except ImportError:
+        return {}
+    return {"use_arrow": True}
+
+
 def _write_layer(gdf, path: Path, layer: Optional[str], fmt: str) -> list:
     """Write one layer; returns GDAL's warnings as run warnings instead of printing them."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if fmt == "gpkg":
-            gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio")
+            gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio", **_arrow_writing())
         else:
             gdf.to_file(path, driver="ESRI Shapefile", engine="pyogrio", encoding="UTF-8")
     where = f"{path.name} layer {layer}" if layer else path.name
@@ -297,6 +307,11 @@ class _Steps:
         if self.progress is not None:
             self.progress(min(0.95, self.n / self.total), message)
         self.n += 1
+
+    def within(self, fraction: float, message: str) -> None:
+        """Progress inside the current step (``fraction`` of it done)."""
+        if self.progress is not None:
+            self.progress(min(0.95, (self.n - 1 + fraction) / self.total), message)
 
 
 def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
@@ -344,7 +359,8 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
         from vectoradjust.files.derived_outputs import uncertainty_bands_frame
 
         step("building the uncertainty_bands layer")
-        frames["uncertainty_bands"] = uncertainty_bands_frame(run)
+        frames["uncertainty_bands"] = uncertainty_bands_frame(
+            run, progress=step.within, is_cancelled=is_cancelled)
     tmp = Path(tempfile.mkdtemp(prefix=".vectoradjust-", dir=out))
     written = {}
     try:
@@ -370,6 +386,9 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
         summary["renamed_input_fields"] = renamed_input_fields(run_input_fields(run))
         if extra_json:
             summary.update(extra_json)
+        summary, feature_csv = move_feature_statements(summary, tmp)  # summary.json bounded
+        if feature_csv is not None:
+            names.append(feature_csv.name)
         with open(tmp / "summary.json", "w", encoding="utf-8") as fh:
             json.dump(clean_json(summary), fh, indent=2, default=json_default)
         names.append("summary.json")

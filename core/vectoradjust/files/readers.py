@@ -654,7 +654,8 @@ def sample_dem(path: str, xy: np.ndarray, project_crs, report: Optional[dict] = 
     return bilinear(grid, gt, pts, nodata=nodata)
 
 
-def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
+def load_project_data(project, vectors: Optional[list] = None,
+                      progress=None) -> ProjectData:
     """Read every file a project refers to.
 
     Parameters
@@ -662,6 +663,8 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
     project : str, os.PathLike or ProjectSpec
     vectors : list of str, optional
         Only these ``[[vectors]]`` entries are read (default: all).
+    progress : callable, optional
+        ``progress(fraction, message)`` before each file is read.
 
     Returns
     -------
@@ -683,8 +686,18 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
     where = str(spec.path) if spec.path else "<project>"
     crs = check_projected_crs(spec.crs, f"{where}: crs")
     unit = spec.measurements.get("unit", "mm")
+    steps = 3 + 3 * len(spec.vectors)
+    done = [0]
+
+    def say(message: str) -> None:
+        if progress is not None:
+            progress(min(done[0] / steps, 1.0), message)
+        done[0] += 1
+
+    say("reading the image measurements")
     raw_meas = read_measurements(spec.measurements["path"], spec.measurements.get("sigma"),
                                  unit=unit)
+    say("reading the control points")
     control = read_control(spec.control["path"]) if spec.control is not None else None
     if control is not None:
         control = control_to_project_crs(control, spec, crs, where)
@@ -696,7 +709,9 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
     for v in spec.vectors:
         if v.name not in names:
             continue
+        say(f"reading the road layer {v.name}")
         layer = read_line_layer(v.path, v.name, v.id_field, _parts(crs)[0], v.layer, v.where)
+        say(f"heights of {v.name} from the DEM")
         if v.dem:
             dem_report: dict = {}
             z = sample_dem(v.dem, layer.coords[:, :2], _parts(crs)[0], dem_report)
@@ -706,10 +721,12 @@ def load_project_data(project, vectors: Optional[list] = None) -> ProjectData:
                                     "heights": heights}
             layer.dem = dem_report.get("grid")
         layers.append((v, layer))
+        say(f"reading the truth of {v.name}")
         if v.truth:
             truth[v.name] = read_truth_points(v.truth)
     for n in names:
         spec.vector(n)  # raises a clear error for an unknown name
+    say("refining the image coordinates")
     # refinement (DESIGN 5), camera, [qa], truth: vectoradjust.files.assemble, shared with QGIS;
     # the project CRS is projected (checked above): earth curvature applies when asked
     return project_data(spec, raw_meas, control, layers, crs=crs.to_string(), truth=truth,

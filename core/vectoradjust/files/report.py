@@ -54,6 +54,8 @@ __all__ = [
     "MAX_ELLIPSES",
     "MAX_FULL_SHAPE_ROWS",
     "LARGEST_SHAPE_ROWS",
+    "LARGEST_FEATURE_ROWS",
+    "MAX_SEGMENTS",
 ]
 
 #: Arrows per database panel of the residual figure (random subsample above).
@@ -68,7 +70,14 @@ MAX_FULL_SHAPE_ROWS = 1000
 #: Otherwise it lists the vertices with the largest horizontal residuals.
 LARGEST_SHAPE_ROWS = 200
 #: Features tables longer than this show the features with the largest RMSE only.
-MAX_FEATURE_ROWS = 20000
+MAX_FEATURE_ROWS = 1000
+#: ... that many of them (the others are in the features layer).
+LARGEST_FEATURE_ROWS = 200
+#: Flagged observations listed in the report (largest |w| first; all in the CSV).
+LARGEST_FLAGGED_ROWS = 200
+#: Line segments drawn per database in a figure; above, whole features are sampled
+#: (the report's size and time stay bounded whatever the run).
+MAX_SEGMENTS = 200_000
 
 _DPI = 100
 _PALETTE = ["#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2",
@@ -326,6 +335,11 @@ def _segments(xyz: np.ndarray, feature: np.ndarray, part: np.ndarray,
         return np.zeros((0, 2, 2))
     same = (feature[1:] == feature[:-1]) & (part[1:] == part[:-1])
     same &= np.isfinite(xy[1:]).all(axis=1) & np.isfinite(xy[:-1]).all(axis=1)
+    if same.sum() > MAX_SEGMENTS:  # a sample of whole features, the same for every call
+        nf = int(feature.max()) + 1
+        pick = np.zeros(nf, bool)
+        pick[_subsample(nf, max(1, int(nf * MAX_SEGMENTS / same.sum())))] = True
+        same &= pick[feature[:-1]]
     return np.stack([xy[:-1][same], xy[1:][same]], axis=1)
 
 
@@ -385,18 +399,23 @@ def _arrow_scale(arrows: list, extent: float, max_arrows: int,
 
 def _database_lines(ax, d, col: str, origin: tuple) -> None:
     """Database lines (grey) and adjusted lines (the database's colour) of one panel."""
-    from matplotlib.collections import LineCollection
-
     layer = d.shape.layer
     seg_db = _segments(layer.coords, layer.vertex_feature, layer.vertex_part, origin)
     seg_adj = _segments(d.adjusted_coords, layer.vertex_feature, layer.vertex_part, origin)
     dense = len(seg_db) > DENSE_SEGMENTS
-    ax.add_collection(LineCollection(seg_db, colors="#9a9a9a",
-                                     linewidths=0.35 if dense else 0.9,
-                                     antialiaseds=not dense, zorder=1))
-    ax.add_collection(LineCollection(seg_adj, colors=col,
-                                     linewidths=0.5 if dense else 1.3,
-                                     antialiaseds=not dense, zorder=2))
+    _draw_segments(ax, seg_db, color="#9a9a9a", linewidth=0.35 if dense else 0.9,
+                   antialiased=not dense, zorder=1)
+    _draw_segments(ax, seg_adj, color=col, linewidth=0.5 if dense else 1.3,
+                   antialiased=not dense, zorder=2)
+
+
+def _draw_segments(ax, seg: np.ndarray, **style) -> None:
+    """Draw ``(s, 2, 2)`` segments as ONE path, NaN-separated (a LineCollection makes a
+    Path object per segment: seconds for 10^5 segments)."""
+    if not len(seg):
+        return
+    xy = np.concatenate([seg, np.full((len(seg), 1, 2), np.nan)], axis=1).reshape(-1, 2)
+    ax.plot(xy[:, 0], xy[:, 1], scalex=False, scaley=False, solid_capstyle="butt", **style)
 
 
 def _control_markers(ax, ctl: dict, origin: tuple) -> None:
@@ -615,17 +634,14 @@ def _ellipse_share(prepared: list, max_ellipses: int) -> tuple:
 
 def _adjusted_lines(ax, run, origin: tuple) -> None:
     """The adjusted road lines in light grey, under the ellipses."""
-    from matplotlib.collections import LineCollection
-
     for d in run.databases:
         if d.adjusted_coords is None:
             continue
         lay = d.shape.layer
         seg = _segments(d.adjusted_coords, lay.vertex_feature, lay.vertex_part, origin)
         dense = len(seg) > DENSE_SEGMENTS
-        ax.add_collection(LineCollection(seg, colors="#d0d0d0",
-                                         linewidths=0.3 if dense else 0.8,
-                                         antialiaseds=not dense, zorder=1))
+        _draw_segments(ax, seg, color="#d0d0d0", linewidth=0.3 if dense else 0.8,
+                       antialiased=not dense, zorder=1)
 
 
 def _draw_ellipses(ax, prepared: list, keep_share: float, origin: tuple, k: float) -> tuple:
@@ -1260,9 +1276,11 @@ def _features_body(run, acc: Optional[dict], prefix: str) -> str:
         note = ""
         if nf > MAX_FEATURE_ROWS:
             rm = np.nan_to_num(np.asarray(f["RMSE"], float), nan=-1.0)
-            order = np.argsort(-rm, kind="stable")[:2000]
-            note = _note(f"{nf} features: the 2000 with the largest RMSE are listed; all are in "
-                         "the features layer of adjusted.gpkg.")
+            order = np.argsort(-rm, kind="stable")[:LARGEST_FEATURE_ROWS]
+            note = _note(f"{nf} features: the {LARGEST_FEATURE_ROWS} with the largest RMSE are "
+                         f"listed ({nf - LARGEST_FEATURE_ROWS} left out); all are in the "
+                         "features layer of adjusted.gpkg and their accuracy statements in "
+                         "feature_accuracy.csv.")
         cols = [layer.feature_ids[order].tolist()]
         heads = ["feature"]
         for k in names:
@@ -1446,9 +1464,14 @@ def _flagged_body(run, reliability, prefix: str = "") -> str:
         return _note("Reliability analysis (w-tests, flagged observations): not computed.")
     if not flagged:
         return _note("No observation is flagged by the w-test.")
-    return (_note(f"{len(flagged)} observation(s) flagged by the w-test, largest |w| first.")
-            + '<div class="scroll">' + _records_table(flagged, ident=f"{prefix}flagged-table")
-            + "</div>")
+    text = f"{len(flagged)} observation(s) flagged by the w-test, largest |w| first."
+    if len(flagged) > LARGEST_FLAGGED_ROWS:  # bounded: all of them are in the CSV
+        left = len(flagged) - LARGEST_FLAGGED_ROWS
+        text += (f" The first {LARGEST_FLAGGED_ROWS} are listed ({left} left out); all are in "
+                 "flagged_observations.csv.")
+        flagged = flagged[:LARGEST_FLAGGED_ROWS]
+    return (_note(text) + '<div class="scroll">'
+            + _records_table(flagged, ident=f"{prefix}flagged-table") + "</div>")
 
 
 def _qa_body(qa: Any) -> str:

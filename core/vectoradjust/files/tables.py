@@ -10,6 +10,7 @@ feature of a layer) instead of a file's lines.
 from __future__ import annotations
 
 import csv
+import io
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
@@ -53,6 +54,76 @@ def _read_rows(path: str) -> tuple[list[str], list[list[str]], list[int]]:
         raise CSVError(f"{p}: the file is empty", "Add a header line and data rows", path=str(p))
     header = [h.strip() for h in rows[0]]
     return header, rows[1:], numbers[1:]
+
+
+def _fast_columns(path: str, required: Sequence[str], optional: Sequence[str] = (),
+                  numeric: Sequence[str] = ()) -> Optional[dict]:
+    """The columns of a plain CSV file read with pandas' C parser, or None.
+
+    The fast path of the CSV readers (the same result as :func:`_read_rows` +
+    :func:`parse_table`): taken only for a well-formed file - UTF-8, no quotes, no
+    blank or ragged lines (so row ``i`` is line ``i + 2``), the header as
+    :func:`parse_table` wants it, every number finite and every required text filled.
+    Anything else returns None and the careful reader reads the file again, naming the
+    line of the first problem. None too where pandas is not installed (QGIS's Python).
+    """
+    try:
+        import pandas as pd
+    except ImportError:
+        return None
+    try:
+        data = Path(path).read_bytes()
+    except OSError:
+        return None
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    if b'"' in data or not data or data.isspace():
+        return None
+    raw = np.frombuffer(data, dtype=np.uint8)
+    ends = np.flatnonzero(raw == ord("\n"))
+    if not len(ends) or ends[-1] != len(raw) - 1:
+        ends = np.append(ends, len(raw))
+    before = np.searchsorted(np.flatnonzero(raw == ord(",")), ends)  # commas before each end
+    per_line = np.diff(np.concatenate([[0], before]))
+    try:
+        header = [h.strip() for h in data[:ends[0]].decode("utf-8").rstrip("\r").split(",")]
+    except UnicodeDecodeError:
+        return None
+    lookup = {h.lower(): h for h in header}
+    known = {c.lower() for c in (*required, *optional)}
+    if (len(lookup) != len(header) or any(c.lower() not in lookup for c in required)
+            or any(h.lower() not in known for h in header)
+            or np.any(per_line != len(header) - 1)):
+        return None
+    num = {lookup[c.lower()] for c in numeric if c.lower() in lookup}
+    kw = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+    try:
+        frame = pd.read_csv(io.BytesIO(data), header=0, names=header, engine="c",
+                            dtype={h: ("float64" if h in num else str) for h in header},
+                            na_filter=False, skip_blank_lines=False, **kw)
+    except (ValueError, UnicodeDecodeError, pd.errors.ParserError):
+        return None
+    if len(frame) != len(ends) - 1:
+        return None
+    out: dict = {"_line": np.arange(2, len(frame) + 2)}
+    # no blank, control or non-ASCII byte but the newlines: no cell needs str.strip()
+    padded = bool(np.any(((raw <= 32) & (raw != ord("\n"))) | (raw >= 128)))
+    for col in (*required, *optional):
+        if col.lower() not in lookup:
+            continue
+        series = frame[lookup[col.lower()]]
+        if col in numeric:
+            arr = series.to_numpy(dtype=float)
+            if not np.all(np.isfinite(arr)):
+                return None
+        else:
+            arr = series.to_numpy(dtype=object)
+            if padded:  # the careful reader strips every cell
+                arr = series.str.strip().to_numpy(dtype=object)
+            if col in required and np.any(arr == ""):
+                return None
+        out[col] = arr
+    return out
 
 
 def parse_table(
@@ -191,6 +262,10 @@ def read_measurements(path: str, default_sigma: Optional[float] = None,
         Missing/extra columns, bad numbers, non-positive sigmas, duplicate
         (point, image) pairs; the line is named.
     """
+    cols = _fast_columns(path, MEASUREMENT_COLUMNS, MEASUREMENT_OPTIONAL,
+                         numeric=("x", "y", "sigma_x", "sigma_y"))
+    if cols is not None:
+        return _measurements(cols, str(path), default_sigma, unit, "line")
     header, rows, lines = _read_rows(path)
     return measurements_from_rows(header, rows, str(path), default_sigma, unit, lines=lines)
 
@@ -237,6 +312,23 @@ def measurements_from_rows(header: Sequence[str], rows: Sequence[Sequence[str]],
     cols = parse_table(path, header, rows, MEASUREMENT_COLUMNS, MEASUREMENT_OPTIONAL,
                        numeric=("x", "y", "sigma_x", "sigma_y"), lines=lines,
                        line_word=line_word)
+    return _measurements(cols, path, default_sigma, unit, line_word)
+
+
+def _may_repeat(pid: np.ndarray, iid: np.ndarray) -> bool:
+    """False when no (point, image) pair repeats, by hashing (pandas, linear time);
+    True when one does or pandas is missing (then the sorting check decides and names
+    the lines)."""
+    try:
+        import pandas as pd
+    except ImportError:
+        return True
+    return bool(pd.DataFrame({"p": pid, "i": iid}, copy=False).duplicated().any())
+
+
+def _measurements(cols: dict, path: str, default_sigma: Optional[float], unit: str,
+                  line_word: str) -> Measurements:
+    """The checks of :func:`measurements_from_rows` after :func:`parse_table`."""
     k = len(cols["_line"])
     has = ("sigma_x" in cols, "sigma_y" in cols)
     if has[0] != has[1]:
@@ -263,6 +355,9 @@ def measurements_from_rows(header: Sequence[str], rows: Sequence[Sequence[str]],
                        path=path, details={line_word: n})
     pid = cols["point_id"].astype(str)
     iid = cols["image_id"].astype(str)
+    if not _may_repeat(cols["point_id"], cols["image_id"]):
+        return Measurements(pid, iid, np.column_stack([cols["x"], cols["y"]]), sigma,
+                            source=str(path), rows=cols["_line"])
     key = np.char.add(np.char.add(pid.astype(str), "\x1f"), iid.astype(str))
     _, first, counts = np.unique(key, return_index=True, return_counts=True)
     if np.any(counts > 1):
@@ -366,6 +461,9 @@ def read_truth_points(path: str) -> tuple[np.ndarray, np.ndarray]:
     ids : numpy.ndarray of str
     xyz : numpy.ndarray, shape (n, 3)
     """
+    cols = _fast_columns(path, ("point_id", "X", "Y", "Z"), numeric=("X", "Y", "Z"))
+    if cols is not None:
+        return cols["point_id"].astype(str), np.column_stack([cols["X"], cols["Y"], cols["Z"]])
     header, rows, lines = _read_rows(path)
     return truth_from_rows(header, rows, str(path), lines=lines)
 

@@ -95,8 +95,8 @@ def _lines(xy: np.ndarray, feature: np.ndarray, part: np.ndarray) -> list:
     return _linestrings(xy, line_ranges(feature, part))
 
 
-#: tested lines intersected with a truth buffer per step (progress and cancel between steps)
-TRUTH_CHUNK = 2000
+#: tested lines measured against the truth buffers per step (progress and cancel between steps)
+TRUTH_CHUNK = 20000
 
 
 def _check(is_cancelled) -> None:
@@ -107,44 +107,42 @@ def _check(is_cancelled) -> None:
                              "Run again to completion, or remove [truth] from the project")
 
 
-def _truth_buffers(truth, widths, is_cancelled=None) -> list:
-    """The united true lines buffered by each width (None: an empty buffer), prepared.
+def _truth_buffers(truth, is_cancelled=None):
+    """The true lines' segments in an STRtree, for the exact round buffers of every width.
 
-    The same buffers as :func:`vectoradjust.accuracy.buffer.buffer_test` (round caps, 32
-    chords per quarter circle), built once for every database, before and after.
+    :class:`vectoradjust.accuracy.buffer.SegmentBuffer`: built once for every database,
+    before and after; linear in the number of segments (no union of all lines).
     """
-    import shapely
+    from vectoradjust.accuracy.buffer import SegmentBuffer, line_segments
 
-    parts = [p for g in truth if g is not None and not g.is_empty
-             for p in shapely.get_parts(g)]
-    lines = shapely.multilinestrings(parts) if parts else None
-    out = []
-    for w in widths:
-        _check(is_cancelled)
-        if lines is None or w <= 0:
-            out.append(None)
-            continue
-        buf = shapely.buffer(lines, float(w), quad_segs=32, cap_style="round")
-        shapely.prepare(buf)
-        out.append(buf)
-    return out
+    _check(is_cancelled)
+    geoms = [g for g in truth if g is not None and not g.is_empty]
+    return SegmentBuffer(line_segments(geoms))
 
 
-def _shares(lines: list, buffers: list, widths, step) -> list:
-    """Share of the lines' length inside each buffer, in chunks (``step()`` after each)."""
-    import shapely
+def _range_segments(xy: np.ndarray, ranges: list) -> np.ndarray:
+    """The segments ``(n, 2, 2)`` of the lines ``xy[s:e]`` (one line per range)."""
+    if not ranges:
+        return np.zeros((0, 2, 2))
+    r = np.asarray(ranges, dtype=np.int64).reshape(-1, 2)
+    nseg = r[:, 1] - r[:, 0] - 1
+    first = np.repeat(r[:, 0], nseg)
+    offset = np.arange(int(nseg.sum())) - np.repeat(np.cumsum(nseg) - nseg, nseg)
+    i = first + offset
+    seg = np.stack([xy[i, :2], xy[i + 1, :2]], axis=1)
+    return seg[np.isfinite(seg).all(axis=(1, 2))]  # a vertex without coordinates: no segment
 
-    tst = np.asarray([g for g in lines if not g.is_empty], dtype=object)
-    total = float(np.sum(shapely.length(tst))) if tst.size else 0.0
+
+def _shares(xy: np.ndarray, ranges: list, buffers, widths, step) -> list:
+    """Share of the lines' length inside each width's buffer, in chunks of
+    :data:`TRUTH_CHUNK` lines (``step(n)`` after each)."""
+    seg_all = _range_segments(xy, ranges)
+    total = float(np.sum(np.hypot(*(seg_all[:, 1] - seg_all[:, 0]).T))) if len(seg_all) else 0.0
     inside = np.zeros(len(widths))
-    for k in range(0, max(len(tst), 1), TRUTH_CHUNK):
-        part = tst[k:k + TRUTH_CHUNK]
-        for j, buf in enumerate(buffers):
-            if buf is None or total <= 0 or not part.size:
-                continue
-            hit = shapely.intersects(buf, part)
-            if np.any(hit):
-                inside[j] += float(np.sum(shapely.length(shapely.intersection(part[hit], buf))))
+    for k in range(0, max(len(ranges), 1), TRUTH_CHUNK):
+        part = ranges[k:k + TRUTH_CHUNK]
+        if total > 0 and part:
+            inside += buffers.inside(_range_segments(xy, part), widths)
         step(len(part))
     return [None if total <= 0 else min(max(x / total, 0.0), 1.0) for x in inside]
 
@@ -203,7 +201,9 @@ def truth_buffer(run, truth_path, widths=(1.0, 2.0), progress=None, is_cancelled
     Only features with at least one adjusted vertex are compared (the others did not
     move). Returns ``{database: {"widths", "before", "after"}}`` and writes the same into
     ``run.summary["databases"][i]["truth"]["buffer"]``. The shares are those of
-    :func:`vectoradjust.accuracy.buffer.buffer_test`.
+    :func:`vectoradjust.accuracy.buffer.buffer_test` with ``method="exact"`` (the exact
+    round buffer, linear time; the polygon method is narrower on round caps and joins
+    by at most 0.03 % of the width).
 
     Parameters
     ----------
@@ -220,11 +220,11 @@ def truth_buffer(run, truth_path, widths=(1.0, 2.0), progress=None, is_cancelled
     say = progress or (lambda fraction, message="": None)
     say(0.0, "buffer test: reading the true centrelines")
     truth, _ = read_lines(truth_path, CRS.from_user_input(run.data.crs))
-    say(0.0, "buffer test: buffering the true centrelines")
-    buffers = _truth_buffers(truth, widths, is_cancelled)
+    say(0.0, "buffer test: indexing the true centrelines")
+    buffers = _truth_buffers(truth, is_cancelled)
 
     def shares(xy, ranges, step):
-        return _shares(_linestrings(xy, ranges), buffers, widths, step)
+        return _shares(xy, ranges, buffers, widths, step)
 
     return drive_truth_buffer(run, widths, shares, truth_path, say, is_cancelled)
 

@@ -1,0 +1,60 @@
+"""``vectoradjust adjust-many``: many independent projects on Dask.
+
+``vectoradjust adjust-many P1.toml P2.toml ... --out DIR [--scheduler ADDRESS]
+[--workers N]`` adjusts every project as ``adjust`` does, each into ``DIR/<project
+name>/``, on the local multi-process Dask scheduler (or the distributed scheduler at
+ADDRESS), and writes ``DIR/many_summary.csv`` and ``DIR/many_summary.json``. A project
+that fails is listed with its error; the others go on. The exit status is 0 when every
+project was adjusted, 1 when one or more failed. Python API:
+:func:`vectoradjust.files.many.adjust_many`.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from vectoradjust.cli.progress import ProgressBar
+
+__all__ = ["add_parser", "cmd_adjust_many"]
+
+
+def cmd_adjust_many(args) -> int:
+    """Run ``vectoradjust adjust-many`` (see :func:`add_parser`)."""
+    from vectoradjust.files.many import adjust_many
+
+    bar = ProgressBar("adjust-many", enabled=not args.quiet)
+    bar(0.0, f"{len(args.projects)} projects on "
+        f"{args.scheduler or 'the local process scheduler'}")
+    rows = adjust_many(args.projects, args.out, scheduler=args.scheduler, workers=args.workers,
+                       fmt=args.format, bands=not args.no_bands, report=not args.no_report,
+                       progress=bar)
+    failed = [r for r in rows if r.get("status") != "ok"]
+    if not args.quiet:
+        print(f"vectoradjust adjust-many: {len(rows) - len(failed)} of {len(rows)} projects "
+              f"adjusted into {args.out}")
+        for r in rows:
+            s0 = r.get("sigma0_squared")
+            what = (f"sigma0^2 {s0:.4f}, check RMSE h {r.get('check_rmse_horizontal')}"
+                    if r.get("status") == "ok" and s0 is not None else r.get("error"))
+            print(f"  {r['name']:24s} {r['status']:6s} {what}")
+        print(f"  wrote {args.out}/many_summary.csv and many_summary.json")
+    return 1 if failed else 0
+
+
+def add_parser(sub) -> argparse.ArgumentParser:
+    """Register ``vectoradjust adjust-many``."""
+    m = sub.add_parser("adjust-many", help="adjust many independent projects on Dask (local "
+                       "processes or a distributed scheduler) with one combined summary")
+    m.add_argument("projects", nargs="+", help="project files (TOML)")
+    m.add_argument("--out", required=True, help="output directory: DIR/<project name>/ each, "
+                   "and many_summary.csv/.json")
+    m.add_argument("--scheduler", metavar="ADDRESS",
+                   help="address of a dask.distributed scheduler (tcp://host:8786); default: "
+                        "the local multi-process scheduler")
+    m.add_argument("--workers", type=int, help="processes of the local scheduler")
+    m.add_argument("--format", choices=("gpkg", "shp"), default="gpkg")
+    m.add_argument("--no-bands", action="store_true", help="no uncertainty_bands layer")
+    m.add_argument("--no-report", action="store_true", help="no report.html per project")
+    m.add_argument("-q", "--quiet", action="store_true", help="no progress or table")
+    m.set_defaults(func=cmd_adjust_many)
+    return m

@@ -1,0 +1,58 @@
+"""summary.json stays bounded: the per-feature accuracy statements go to
+feature_accuracy.csv beside it, with the same numbers, and summary.json says where."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+
+pytest.importorskip("geopandas")
+
+from vectoradjust.files.jsonfile import FEATURE_ACCURACY_CSV, move_feature_statements  # noqa: E402
+from vectoradjust.files.outputs import write_outputs  # noqa: E402
+from vectoradjust.files.readers import load_project_data  # noqa: E402
+from vectoradjust.pipeline import run  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def sample_run(sample_dir):
+    return run(load_project_data(sample_dir / "project.toml"))
+
+
+def test_feature_statements_move_to_a_csv(sample_run, tmp_path):
+    feats = sample_run.summary["accuracy"]["features"]
+    n = sum(len(v) for v in feats.values())
+    assert n > 0
+    written = write_outputs(sample_run, tmp_path, bands=False)
+    assert FEATURE_ACCURACY_CSV in written
+    doc = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))
+    pointer = doc["accuracy"]["features"]
+    assert pointer["file"] == FEATURE_ACCURACY_CSV
+    assert pointer["count"] == {k: len(v) for k, v in feats.items()}
+    # the contract's keys (DESIGN section 9) are all still there
+    for key in ("sigma0_squared", "degrees_of_freedom", "iterations", "converged",
+                "chi_square", "shape_points", "check_points", "images"):
+        assert key in doc
+    assert doc["accuracy"]["databases"] and "definitions" in doc["accuracy"]
+    with open(tmp_path / FEATURE_ACCURACY_CSV, newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == n and list(rows[0])[:3] == ["database", "feature_id", "count"]
+    assert list(rows[0]) == pointer["columns"]
+    first_db = next(k for k, v in feats.items() if v)
+    ref = feats[first_db][0]
+    got = next(r for r in rows if r["database"] == first_db
+               and r["feature_id"] == ref["feature_id"])
+    assert int(got["count"]) == ref["count"]
+    assert float(got["rmse_horizontal"]) == pytest.approx(ref["rmse"]["horizontal"], rel=1e-15)
+    assert float(got["ager_ce90_exact"]) == pytest.approx(ref["ager"]["ce90_exact"], rel=1e-15)
+    # the run in memory keeps its rows (the report lists them)
+    assert sample_run.summary["accuracy"]["features"] is feats
+
+
+def test_nothing_moves_without_feature_statements(tmp_path):
+    s = {"sigma0_squared": 1.0, "accuracy": {"features": {}}}
+    assert move_feature_statements(s, tmp_path) == (s, None)
+    assert move_feature_statements({"a": 1}, tmp_path) == ({"a": 1}, None)
+    assert not (tmp_path / FEATURE_ACCURACY_CSV).exists()
