@@ -18,6 +18,7 @@ from typing import Optional
 from vectoradjust import __version__
 from vectoradjust.accuracy.summary import compare_columns, compare_row
 from vectoradjust.cli import buffer as cli_buffer
+from vectoradjust.cli import measure as cli_measure
 from vectoradjust.cli import propagate as cli_propagate
 from vectoradjust.cli import qa as cli_qa
 from vectoradjust.cli.progress import ProgressBar
@@ -273,6 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_qa.add_parser(sub)
     cli_propagate.add_parsers(sub)
     cli_buffer.add_parser(sub)
+    cli_measure.add_parser(sub)
     return p
 
 

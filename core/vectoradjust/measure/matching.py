@@ -1,0 +1,342 @@
+"""Area-based matching: normalised cross-correlation and least-squares matching.
+
+Everything is batched over points: ``n`` templates of the same size are matched in ``n``
+search chips of the same size at once (no Python loop over points).
+
+* :func:`ncc_search` - the normalised cross-correlation coefficient of a template at
+  every position of a search chip, by FFT (the local sums of the chip by summed-area
+  tables), the best position inside an allowed region with a sub-pixel parabola fit.
+* :func:`lsm` - least-squares matching (Gruen 1985, "Adaptive least squares correlation"):
+  ``g1(u, v) + e = r0 + r1 g2(t + A (u, v))`` with an affine geometric transformation
+  ``(A, t)`` and a linear radiometric one ``(r0, r1)``, solved by Gauss-Newton; the
+  precision of the shift from ``sigma0^2 N^-1`` and the correlation coefficient of the
+  matched patches.
+
+Coordinates are pixel (column, row) of the chip arrays ``chip[row, column]``; a chip's
+pixel ``(c, r)`` holds the value at its centre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import fft as sfft
+from scipy.ndimage import map_coordinates
+
+__all__ = [
+    "NCCResult",
+    "LSMResult",
+    "ncc_surface",
+    "ncc_search",
+    "sample",
+    "lsm",
+    "FLAGS",
+]
+
+#: Failure flags of a match (bits of ``flags``): a match with any flag is not accepted.
+FLAGS = {
+    "low_correlation": 1,      # correlation coefficient below the threshold
+    "not_converged": 2,        # LSM did not converge in its iterations
+    "outside_window": 4,       # the match lies outside the search window
+    "poor_precision": 8,       # LSM sigma of the shift above the limit
+    "edge": 16,                # template or search window leaves the image
+    "no_texture": 32,          # template without contrast (NCC undefined)
+    "ambiguous": 64,           # second NCC peak nearly as high as the first
+}
+
+
+def flag_names(flags: int) -> str:
+    """The names of the bits set in ``flags``, joined by ``|`` (``""`` for none)."""
+    return "|".join(k for k, b in FLAGS.items() if int(flags) & b)
+
+
+@dataclass
+class NCCResult:
+    """Best NCC position of each template in its chip.
+
+    Attributes
+    ----------
+    pos : numpy.ndarray, shape (n, 2)
+        Sub-pixel (column, row) of the template centre in the search chip.
+    ncc : numpy.ndarray, shape (n,)
+        Correlation coefficient at the integer peak.
+    second : numpy.ndarray, shape (n,)
+        Highest coefficient more than 5 pixels from the peak.
+    """
+
+    pos: np.ndarray
+    ncc: np.ndarray
+    second: np.ndarray
+
+
+def ncc_surface(templates: np.ndarray, chips: np.ndarray) -> np.ndarray:
+    """Correlation coefficient of each template at every position of its chip.
+
+    Parameters
+    ----------
+    templates : numpy.ndarray, shape (n, th, tw)
+    chips : numpy.ndarray, shape (n, H, W)
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, H - th + 1, W - tw + 1)
+        Entry ``[i, r, c]``: template ``i`` over chip ``i``'s window with top-left
+        ``(r, c)``. NaN where the window or the template has no contrast.
+    """
+    t = np.asarray(templates, float)
+    s = np.asarray(chips, float)
+    n, th, tw = t.shape
+    _, hh, ww = s.shape
+    m = th * tw
+    tz = t - t.mean(axis=(1, 2), keepdims=True)
+    tnorm = np.sqrt(np.sum(tz * tz, axis=(1, 2)))
+    shape = (hh + th - 1, ww + tw - 1)
+    fshape = [sfft.next_fast_len(v, real=True) for v in shape]
+    fs = sfft.rfft2(s, fshape, axes=(1, 2))
+    ft = sfft.rfft2(tz[:, ::-1, ::-1], fshape, axes=(1, 2))
+    full = sfft.irfft2(fs * ft, fshape, axes=(1, 2))
+    num = full[:, th - 1:hh, tw - 1:ww]
+    s1 = _box_sums(s, th, tw)
+    s2 = _box_sums(s * s, th, tw)
+    var = np.clip(s2 - s1 * s1 / m, 0.0, None)
+    den = np.sqrt(var) * tnorm[:, None, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = num / den
+    tiny = 1e-9 * (np.abs(s).max(axis=(1, 2)) + 1.0)[:, None, None] ** 2 * m
+    out[den <= tiny] = np.nan
+    return out
+
+
+def _box_sums(a: np.ndarray, th: int, tw: int) -> np.ndarray:
+    """Sums of ``a`` over every ``th x tw`` window (summed-area table), batched."""
+    c = np.zeros((a.shape[0], a.shape[1] + 1, a.shape[2] + 1))
+    c[:, 1:, 1:] = a.cumsum(axis=1).cumsum(axis=2)
+    return c[:, th:, tw:] - c[:, :-th, tw:] - c[:, th:, :-tw] + c[:, :-th, :-tw]
+
+
+def ncc_search(templates: np.ndarray, chips: np.ndarray,
+               allowed: np.ndarray | None = None) -> NCCResult:
+    """Best NCC position of each template in its chip, sub-pixel.
+
+    Parameters
+    ----------
+    templates : numpy.ndarray, shape (n, th, tw)
+        Odd sizes; the template centre is its middle pixel.
+    chips : numpy.ndarray, shape (n, H, W)
+    allowed : numpy.ndarray of bool, shape (n, H - th + 1, W - tw + 1), optional
+        Positions (top-left) the peak may take (the search window).
+
+    Returns
+    -------
+    NCCResult
+        ``pos`` is the chip (column, row) of the template centre; a parabola through
+        the peak and its neighbours gives the sub-pixel part. ``ncc`` is -1 where no
+        position is defined.
+    """
+    t = np.asarray(templates, float)
+    n, th, tw = t.shape
+    rho = ncc_surface(t, chips)
+    r = np.where(np.isfinite(rho), rho, -np.inf)
+    if allowed is not None:
+        r = np.where(allowed, r, -np.inf)
+    h, w = r.shape[1:]
+    flat = r.reshape(n, -1)
+    k = np.argmax(flat, axis=1)
+    best = flat[np.arange(n), k]
+    rr, cc = np.divmod(k, w)
+    sub = np.zeros((n, 2))
+    for axis, (i0, lim) in enumerate(((cc, w), (rr, h))):
+        lo = np.clip(i0 - 1, 0, lim - 1)
+        hi = np.clip(i0 + 1, 0, lim - 1)
+        if axis == 0:
+            f0, fm, fp = best, r[np.arange(n), rr, lo], r[np.arange(n), rr, hi]
+        else:
+            f0, fm, fp = best, r[np.arange(n), lo, cc], r[np.arange(n), hi, cc]
+        den = fm - 2 * f0 + fp
+        ok = np.isfinite(den) & (den < 0) & (lo != i0) & (hi != i0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = np.where(ok, 0.5 * (fm - fp) / np.where(ok, den, 1.0), 0.0)
+        sub[:, axis] = np.clip(d, -0.5, 0.5)
+    yy, xx = np.mgrid[0:h, 0:w]
+    near = ((yy[None] - rr[:, None, None]) ** 2 + (xx[None] - cc[:, None, None]) ** 2) <= 25
+    second = np.where(near, -np.inf, r).reshape(n, -1).max(axis=1)
+    pos = np.column_stack([cc + sub[:, 0] + (tw - 1) / 2.0, rr + sub[:, 1] + (th - 1) / 2.0])
+    best = np.where(np.isfinite(best), best, -1.0)
+    second = np.where(np.isfinite(second), second, -1.0)
+    return NCCResult(pos, best, second)
+
+
+def sample(chips: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Bilinear values of chip ``i`` at ``(cols[i], rows[i])`` (any trailing shape).
+
+    Outside a chip the value is NaN.
+    """
+    chips = np.asarray(chips, float)
+    n = chips.shape[0]
+    shape = cols.shape
+    idx = np.broadcast_to(np.arange(n).reshape((n,) + (1,) * (len(shape) - 1)), shape)
+    coords = np.stack([idx.ravel().astype(float), rows.ravel(), cols.ravel()])
+    out = map_coordinates(chips, coords, order=1, mode="constant", cval=np.nan)
+    return out.reshape(shape)
+
+
+@dataclass
+class LSMResult:
+    """Least-squares matching of each template in its chip.
+
+    Attributes
+    ----------
+    pos : numpy.ndarray, shape (n, 2)
+        Chip (column, row) of the template centre (the shift ``t``).
+    affine : numpy.ndarray, shape (n, 2, 2)
+        ``A``: chip offsets per template pixel.
+    radiometry : numpy.ndarray, shape (n, 2)
+        ``r0, r1``.
+    sigma : numpy.ndarray, shape (n, 2)
+        Standard deviations of ``pos`` (chip pixels) from ``sigma0^2 N^-1``.
+    rho : numpy.ndarray, shape (n,)
+        Correlation coefficient of the template and the matched patch.
+    sigma0 : numpy.ndarray, shape (n,)
+        Root mean square grey-value residual.
+    converged : numpy.ndarray of bool, shape (n,)
+    iterations : numpy.ndarray of int, shape (n,)
+    """
+
+    pos: np.ndarray
+    affine: np.ndarray
+    radiometry: np.ndarray
+    sigma: np.ndarray
+    rho: np.ndarray
+    sigma0: np.ndarray
+    converged: np.ndarray
+    iterations: np.ndarray
+
+
+def _lsm_design(chips, grads, p, u, v):
+    """Residuals ``(n, m)`` and design matrix ``(n, m, 8)`` at parameters ``p``."""
+    cols = p[:, 4, None] + p[:, 0, None] * u + p[:, 1, None] * v
+    rows = p[:, 5, None] + p[:, 2, None] * u + p[:, 3, None] * v
+    g2 = sample(chips, cols, rows)
+    gx = sample(grads[1], cols, rows)
+    gy = sample(grads[0], cols, rows)
+    r1 = p[:, 7, None]
+    a = np.stack([r1 * gx * u, r1 * gx * v, r1 * gy * u, r1 * gy * v, r1 * gx, r1 * gy,
+                  np.ones_like(g2), g2], axis=-1)
+    return g2, a
+
+
+def lsm(templates: np.ndarray, chips: np.ndarray, start: np.ndarray,
+        affine0: np.ndarray | None = None, max_iterations: int = 40,
+        tol: float = 0.005) -> LSMResult:
+    """Least-squares matching with an affine patch and linear radiometry (Gruen 1985).
+
+    Parameters
+    ----------
+    templates : numpy.ndarray, shape (n, th, tw)
+        Reference patches; ``(u, v)`` are pixel offsets from the middle pixel.
+    chips : numpy.ndarray, shape (n, H, W)
+        Search chips.
+    start : numpy.ndarray, shape (n, 2)
+        Approximate chip (column, row) of the template centre (e.g. from NCC).
+    affine0 : numpy.ndarray, shape (n, 2, 2), optional
+        Approximate ``A`` (default the identity), e.g. from the image geometry.
+    max_iterations : int
+    tol : float
+        Convergence: the largest change of a patch corner's position below ``tol`` px.
+
+    Returns
+    -------
+    LSMResult
+        Points whose patch leaves the chip, whose normal matrix is singular or that
+        have not converged in ``max_iterations`` have ``converged = False``.
+    """
+    t = np.asarray(templates, float)
+    s = np.asarray(chips, float)
+    n, th, tw = t.shape
+    vv, uu = np.mgrid[0:th, 0:tw]
+    u = (uu - (tw - 1) / 2.0).ravel()[None, :].repeat(n, 0)
+    v = (vv - (th - 1) / 2.0).ravel()[None, :].repeat(n, 0)
+    g1 = t.reshape(n, -1)
+    grads = np.gradient(s, axis=(1, 2))
+    p = np.zeros((n, 8))
+    a0 = np.broadcast_to(np.eye(2), (n, 2, 2)) if affine0 is None else np.asarray(affine0, float)
+    p[:, :4] = a0.reshape(n, 4)
+    p[:, 4:6] = np.asarray(start, float)
+    g2, _ = _lsm_design(s, grads, p, u, v)
+    p[:, 7], p[:, 6] = _linear_fit(g2, g1)
+    active = np.ones(n, bool)
+    done = np.zeros(n, bool)
+    its = np.zeros(n, int)
+    corner = np.array([(tw - 1) / 2.0, (th - 1) / 2.0])
+    for _ in range(max_iterations):
+        g2, a = _lsm_design(s, grads, p, u, v)
+        bad = ~np.all(np.isfinite(a), axis=(1, 2)) | ~np.all(np.isfinite(g2), axis=1)
+        active &= ~bad
+        if not active.any():
+            break
+        l = g1 - (p[:, 6, None] + p[:, 7, None] * g2)
+        dp = _solve(a, np.where(np.isfinite(l), l, 0.0), active)
+        p = np.where(active[:, None], p + dp, p)
+        its += active
+        move = np.abs(dp[:, 4:6]).max(axis=1) + np.abs(dp[:, :4]).max(axis=1) * corner.max()
+        fin = active & (move < tol)
+        done |= fin
+        active &= ~fin & np.isfinite(move)
+    return _lsm_result(s, grads, p, u, v, g1, done, its)
+
+
+def _linear_fit(x: np.ndarray, y: np.ndarray):
+    """Gain and offset of ``y ~ r0 + r1 x`` per row (NaN-safe)."""
+    x = np.where(np.isfinite(x), x, 0.0)
+    xm = x.mean(axis=1, keepdims=True)
+    ym = y.mean(axis=1, keepdims=True)
+    sxx = np.sum((x - xm) ** 2, axis=1)
+    r1 = np.where(sxx > 0, np.sum((x - xm) * (y - ym), axis=1) / np.where(sxx > 0, sxx, 1), 1.0)
+    return r1, ym[:, 0] - r1 * xm[:, 0]
+
+
+def _solve(a: np.ndarray, l: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """Gauss-Newton steps of the active rows (zero elsewhere, and where N is singular)."""
+    n = len(a)
+    out = np.zeros((n, 8))
+    idx = np.flatnonzero(active)
+    if idx.size == 0:
+        return out
+    nn = np.einsum("nmi,nmj->nij", a[idx], a[idx])
+    b = np.einsum("nmi,nm->ni", a[idx], l[idx])
+    cond = np.linalg.cond(nn)
+    ok = np.isfinite(cond) & (cond < 1e13)
+    sol = np.zeros((idx.size, 8))
+    if ok.any():
+        sol[ok] = np.linalg.solve(nn[ok], b[ok][..., None])[..., 0]
+    sol[~ok] = np.nan
+    out[idx] = sol
+    return out
+
+
+def _lsm_result(s, grads, p, u, v, g1, done, its) -> LSMResult:
+    """Precision and correlation coefficient at the final parameters."""
+    n = len(p)
+    g2, a = _lsm_design(s, grads, p, u, v)
+    finite = np.all(np.isfinite(a), axis=(1, 2)) & np.all(np.isfinite(g2), axis=1)
+    a = np.where(finite[:, None, None], a, 0.0)
+    g2 = np.where(finite[:, None], g2, 0.0)
+    res = g1 - (p[:, 6, None] + p[:, 7, None] * g2)
+    m = g1.shape[1]
+    s0sq = np.sum(res * res, axis=1) / max(m - 8, 1)
+    nn = np.einsum("nmi,nmj->nij", a, a) + np.eye(8) * 1e-12
+    q = np.linalg.pinv(nn)
+    sig = np.sqrt(np.clip(s0sq[:, None] * np.stack([q[:, 4, 4], q[:, 5, 5]], axis=1), 0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = np.array([np.nan] * n) if n == 0 else _rowcorr(g1, g2)
+    conv = done & finite
+    sig = np.where(conv[:, None], sig, np.nan)
+    return LSMResult(p[:, 4:6].copy(), p[:, :4].reshape(n, 2, 2), p[:, 6:8].copy(), sig,
+                     np.where(finite, rho, np.nan), np.sqrt(s0sq), conv, its)
+
+
+def _rowcorr(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    xz = x - x.mean(axis=1, keepdims=True)
+    yz = y - y.mean(axis=1, keepdims=True)
+    return np.sum(xz * yz, axis=1) / np.sqrt(np.sum(xz * xz, axis=1) * np.sum(yz * yz, axis=1))
