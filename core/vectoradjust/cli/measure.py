@@ -11,8 +11,10 @@ and, with ``--roads``, the junction and corner shape points located automaticall
 DIR/automatic_points.csv]`` finds every point measured on one image (``FILE``:
 ``point_id,image_id,col,row`` in pixels, e.g. the filled-in template) on the other
 images, writes every attempt with its quality to ``DIR/transfer.csv`` and the accepted
-measurements to ``DIR/image_points.csv`` in the contract format (photo mm) with their
-source - ready for ``vectoradjust adjust``.
+measurements to ``DIR/image_points.csv`` in the contract format (photo mm) - ready for
+``vectoradjust adjust`` - and, row for row, with their source (manual, transferred,
+automatic), correlation coefficient, LSM sigma and pixel position to
+``DIR/image_points_quality.csv`` (the contract reader refuses extra columns).
 
 Images are named by ``path`` in each ``[[images]]`` entry or by ``--image ID=FILE``.
 """
@@ -27,7 +29,11 @@ import numpy as np
 
 from vectoradjust.errors import ProjectError
 
-__all__ = ["add_parser", "cmd_predict", "cmd_transfer"]
+__all__ = ["add_parser", "cmd_predict", "cmd_transfer", "CONTRACT_COLUMNS"]
+
+#: the columns of image_points.csv that ``adjust`` reads (DESIGN section 9); the quality
+#: columns (source, ncc, lsm_sigma, col, row) go to image_points_quality.csv
+CONTRACT_COLUMNS = ("point_id", "image_id", "x", "y", "sigma_x", "sigma_y")
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -52,7 +58,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="CSV point_id,image_id,col,row of points measured (pixels)")
     t.add_argument("--automatic", help="automatic_points.csv of predict --roads to include")
     t.add_argument("--min-ncc", type=float, default=0.8, help="correlation threshold")
-    t.add_argument("--max-sigma", type=float, default=0.15, help="largest LSM sigma (px)")
+    t.add_argument("--max-sigma", type=float, default=0.07, help="largest LSM sigma (px)")
     t.add_argument("--max-radius", type=float, default=40.0, help="largest search radius (px)")
     t.add_argument("--sigma-height", type=float, default=2.0,
                    help="uncertainty of the terrain height (m) for the search window")
@@ -206,7 +212,8 @@ def cmd_transfer(args) -> int:
     write_table(out / "transfer.csv", res)
     auto = _read_automatic(args.automatic) if args.automatic else None
     ip = image_points(geoms, measured, res, auto)
-    path = write_table(out / "image_points.csv", ip)
+    path = write_table(out / "image_points.csv", ip, list(CONTRACT_COLUMNS))
+    write_table(out / "image_points_quality.csv", ip)
     acc = int(res["accepted"].sum())
     print(f"vectoradjust measure transfer: {acc} of {len(res['accepted'])} transfers "
           f"accepted ({len(res['accepted']) - acc} flagged, see {out / 'transfer.csv'})")

@@ -387,7 +387,7 @@ def image_points(geoms: Mapping[str, ImageGeometry], manual: Optional[Mapping] =
         t = {k: np.asarray(v)[ok] for k, v in tab.items()}
         lsm_s = (np.fmax(t["sigma_col"], t["sigma_row"]) if "sigma_col" in t
                  else np.asarray(t["rms"], float))
-        parts.append((t, np.full(ok.sum(), name), np.asarray(t.get("ncc", t["rms"]), float)
+        parts.append((t, np.full(ok.sum(), name), np.asarray(t["ncc"], float)
                       if "ncc" in t else np.full(ok.sum(), np.nan),
                       np.hypot(np.nan_to_num(lsm_s), sigma_floor_px), lsm_s))
     cols: dict = {k: [] for k in ("point_id", "image_id", "x", "y", "sigma_x", "sigma_y",

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import fft as sfft
-from scipy.ndimage import map_coordinates
+from scipy.ndimage import map_coordinates, maximum_filter
 
 __all__ = [
     "NCCResult",
@@ -62,7 +62,7 @@ class NCCResult:
     ncc : numpy.ndarray, shape (n,)
         Correlation coefficient at the integer peak.
     second : numpy.ndarray, shape (n,)
-        Highest coefficient more than 5 pixels from the peak.
+        Highest other local maximum (3 x 3) more than 3 pixels from the peak.
     """
 
     pos: np.ndarray
@@ -153,14 +153,16 @@ def ncc_search(templates: np.ndarray, chips: np.ndarray,
             f0, fm, fp = best, r[np.arange(n), rr, lo], r[np.arange(n), rr, hi]
         else:
             f0, fm, fp = best, r[np.arange(n), lo, cc], r[np.arange(n), hi, cc]
-        den = fm - 2 * f0 + fp
+        with np.errstate(invalid="ignore"):
+            den = fm - 2 * f0 + fp
         ok = np.isfinite(den) & (den < 0) & (lo != i0) & (hi != i0)
         with np.errstate(invalid="ignore", divide="ignore"):
             d = np.where(ok, 0.5 * (fm - fp) / np.where(ok, den, 1.0), 0.0)
         sub[:, axis] = np.clip(d, -0.5, 0.5)
     yy, xx = np.mgrid[0:h, 0:w]
-    near = ((yy[None] - rr[:, None, None]) ** 2 + (xx[None] - cc[:, None, None]) ** 2) <= 25
-    second = np.where(near, -np.inf, r).reshape(n, -1).max(axis=1)
+    near = ((yy[None] - rr[:, None, None]) ** 2 + (xx[None] - cc[:, None, None]) ** 2) <= 9
+    peaks = (r == maximum_filter(r, size=(1, 3, 3), mode="nearest")) & np.isfinite(r)
+    second = np.where(near | ~peaks, -np.inf, r).reshape(n, -1).max(axis=1)
     pos = np.column_stack([cc + sub[:, 0] + (tw - 1) / 2.0, rr + sub[:, 1] + (th - 1) / 2.0])
     best = np.where(np.isfinite(best), best, -1.0)
     second = np.where(np.isfinite(second), second, -1.0)

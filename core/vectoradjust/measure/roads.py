@@ -260,7 +260,8 @@ def _matched_filter(prof, o, w, step, search):
 
 def _profile_peaks(resp, ok, o, step):
     """Offset of the strongest response (sign chosen per arm) per station, sub-sample."""
-    mean = np.nanmean(np.where(ok, resp, np.nan), axis=2)               # (n, K, no)
+    cnt = ok.sum(axis=2)
+    mean = np.where(cnt > 0, np.where(ok, resp, 0.0).sum(axis=2) / np.maximum(cnt, 1), np.nan)
     with np.errstate(invalid="ignore"):
         hi = np.nanmax(np.nan_to_num(mean, nan=-np.inf), axis=-1)
         lo = np.nanmin(np.nan_to_num(mean, nan=np.inf), axis=-1)

@@ -47,10 +47,10 @@ class MatchSettings:
         Scale of the search ellipse.
     """
 
-    half_template: int = 12
+    half_template: int = 15
     max_radius: float = 40.0
     min_ncc: float = 0.8
-    max_sigma: float = 0.15
+    max_sigma: float = 0.07
     max_lsm_move: float = 1.5
     ambiguity: float = 0.02
     k: float = WINDOW_K

@@ -48,8 +48,13 @@ class StereoPair:
 
 def stereo_pair(size: int = 1000, seed: int = 1, texture: str = "hopper",
                 sigma_position: float = 0.3, sigma_attitude: float = 0.01,
-                supersample: int = 1, distortion: bool = True) -> StereoPair:
-    """Render a stereo pair (60 % overlap) over a road grid; errors with the given sigmas."""
+                supersample: int = 2, distortion: bool = True) -> StereoPair:
+    """Render a stereo pair (60 % overlap) over a road grid; errors with the given sigmas.
+
+    ``supersample = 2`` averages 2 x 2 rays per pixel (a pixel integrates light over its
+    area); with 1 ray per pixel the aliasing of fine texture and road edges differs
+    between the two images and costs matching accuracy (a few matches off by 0.5 px).
+    """
     cam = camera(size, pixel_size=0.06 * 1000 / size, focal_length=50.0, distortion=distortion)
     origin = np.array([500000.0, 4400000.0])
     c = origin + [250.0, -250.0]

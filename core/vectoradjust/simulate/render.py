@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 import numpy as np
-from scipy.ndimage import gaussian_filter, map_coordinates
+from scipy.ndimage import gaussian_filter, map_coordinates, zoom
 
 from vectoradjust.measure.geometry import ImageGeometry
 from vectoradjust.sensor.camera import CameraCalibration
@@ -42,10 +42,14 @@ def hopper_texture() -> Optional[np.ndarray]:
     p = hopper_path()
     if p is None:
         return None
+    import warnings
+
     import rasterio
 
-    with rasterio.open(p) as ds:
-        a = ds.read().astype(float)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a JPEG has no georeferencing
+        with rasterio.open(p) as ds:
+            a = ds.read().astype(float)
     return a.mean(axis=0) / 255.0
 
 
@@ -54,8 +58,12 @@ def fractal_noise(shape: tuple[int, int], seed: int, octaves: int = 6) -> np.nda
     rng = np.random.default_rng(seed)
     out = np.zeros(shape)
     for o in range(octaves):
-        sigma = 2.0 ** o * 0.7
-        out += gaussian_filter(rng.normal(size=shape), sigma, mode="wrap") * 2.0 ** (0.6 * o)
+        f = 2 ** max(o - 1, 0)  # coarse octaves are drawn on a coarser grid and zoomed
+        small = (-(-shape[0] // f), -(-shape[1] // f))
+        layer = gaussian_filter(rng.normal(size=small), 2.0 ** o * 0.7 / f, mode="wrap")
+        if f > 1:
+            layer = zoom(layer, f, order=1, mode="grid-wrap", grid_mode=True)[:shape[0], :shape[1]]
+        out += layer / max(layer.std(), 1e-12) * 2.0 ** (-0.4 * o)
     out -= out.min()
     return out / max(out.max(), 1e-12)
 
@@ -91,6 +99,8 @@ class Scene:
         Painted width (m).
     z0, relief : float
         Terrain ``z0 + relief * (sin + cos undulation)``.
+    edge : float
+        Width (m) of the linear ramp at a road's edge (anti-aliasing).
     """
 
     origin: np.ndarray
@@ -100,6 +110,7 @@ class Scene:
     road_width: float = 6.0
     z0: float = 200.0
     relief: float = 8.0
+    edge: float = 0.15
 
     def height(self, xy: np.ndarray) -> np.ndarray:
         """Terrain height (m) at ``xy (n, 2)``."""
@@ -116,7 +127,7 @@ class Scene:
         v = map_coordinates(self.albedo, [row, col], order=1, mode="mirror")
         if self.roads:
             d = _segment_distance(xy, self.roads)
-            edge = np.clip((self.road_width / 2.0 - d) / 0.15 + 0.5, 0.0, 1.0)
+            edge = np.clip((self.road_width / 2.0 - d) / self.edge + 0.5, 0.0, 1.0)
             road = 0.85 + 0.05 * (v - 0.5)
             v = v * (1.0 - edge) + road * edge
         return v
