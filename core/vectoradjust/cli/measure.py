@@ -120,11 +120,13 @@ def _load(args):
     orientation = None
     if args.orientation:
         orientation = json.loads(Path(args.orientation).read_text(encoding="utf-8"))
-    geoms = image_geometries(spec, orientation)
     readers = {k: RasterioImage(v, k) for k, v in _image_paths(spec, args.image).items()}
     control = read_control(spec.control["path"]) if spec.control is not None else None
     if control is not None:
         control = control_to_project_crs(control, spec, crs, where)
+    geoms = image_geometries(spec, orientation,
+                             image_sizes={k: r.size for k, r in readers.items()},
+                             control=control)
     layers, height = [], None
     for v in spec.vectors:
         layer = read_line_layer(v.path, v.name, v.id_field, _parts(crs)[0], v.layer, v.where)

@@ -122,6 +122,9 @@ def _cell(v) -> str:
 def read_pixel_table(path) -> dict:
     """Read measured pixels: ``point_id,image_id,col,row`` (more columns are ignored).
 
+    A measurement template (``measured_col, measured_row`` columns) gives the rows whose
+    ``measured_col`` is filled in; rows with an empty column are skipped.
+
     Raises
     ------
     InputFileError
@@ -133,19 +136,21 @@ def read_pixel_table(path) -> dict:
                              "(point_id,image_id,col,row)", path=str(p))
     with open(p, newline="", encoding="utf-8-sig") as fh:
         rows = list(csv.DictReader(fh))
-    need = ("point_id", "image_id", "col", "row")
+    cc, rc = ("measured_col", "measured_row") if rows and "measured_col" in rows[0] \
+        else ("col", "row")
+    need = ("point_id", "image_id", cc, rc)
     if not rows or any(k not in rows[0] for k in need):
         raise InputFileError(f"{p}: needs the columns {', '.join(need)}",
                              "Fill col,row (pixels) of the points you measured in the "
                              "measurement template and keep its header", path=str(p))
     out: dict = {k: [] for k in ("point_id", "image_id", "col", "row", "source")}
     for i, r in enumerate(rows, start=2):
-        if not (r["col"] or "").strip():
+        if not (r[cc] or "").strip():
             continue
         try:
-            c, w = float(r["col"]), float(r["row"])
+            c, w = float(r[cc]), float(r[rc])
         except ValueError:
-            raise InputFileError(f"{p}, line {i}: col/row {r['col']!r}, {r['row']!r} are "
+            raise InputFileError(f"{p}, line {i}: {cc}/{rc} {r[cc]!r}, {r[rc]!r} are "
                                  "not numbers", "Write pixel coordinates as numbers",
                                  path=str(p)) from None
         out["point_id"].append(r["point_id"])

@@ -19,6 +19,7 @@ no raster library.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Callable, Optional
@@ -37,7 +38,7 @@ from vectoradjust.measure.matching import flag_names
 from vectoradjust.measure.roads import ROAD_FLAGS, RoadSettings, centreline_crossing, measurable
 from vectoradjust.measure.roads import vertex_arms as _vertex_arms
 from vectoradjust.measure.transfer import MatchSettings, match_batch
-from vectoradjust.sensor.interior import parse_corrections
+from vectoradjust.sensor.interior import parse_corrections, terrain_height_for
 
 __all__ = ["PointSet", "image_geometries", "project_points", "predict", "transfer",
            "measure_roads", "image_points", "read_chips", "BATCH"]
@@ -74,7 +75,8 @@ class PointSet:
 
 
 def image_geometries(spec, orientation: Optional[Mapping] = None,
-                     default_sigma: tuple[float, float] = (5.0, 0.5)) -> dict:
+                     default_sigma: tuple[float, float] = (5.0, 0.5),
+                     image_sizes: Optional[Mapping] = None, control=None) -> dict:
     """One :class:`ImageGeometry` per ``[[images]]`` entry.
 
     Parameters
@@ -86,8 +88,17 @@ def image_geometries(spec, orientation: Optional[Mapping] = None,
     default_sigma : (float, float)
         Sigma of position (m) and attitude (degrees) of an image whose orientation is
         free (no ``sigma_position`` / ``sigma_attitude``).
+    image_sizes : mapping, optional
+        Image id -> (columns, rows) of its file, used when the camera has no
+        ``image_size`` (a scan treated as a digital frame of the camera's pixel size,
+        centred on the fiducial centre). Without it such a camera's image size is the
+        fiducials' extent.
+    control : ControlPoints, optional
+        Their mean height is the terrain height of refraction and earth curvature when
+        ``[corrections]`` gives none.
     """
     switches, terrain = parse_corrections(spec.corrections)
+    terrain, _ = terrain_height_for(control, terrain)
     cal = spec.camera.calibration
     adjusted = {}
     for im in (orientation or {}).get("images", []) or []:
@@ -104,8 +115,19 @@ def image_geometries(spec, orientation: Optional[Mapping] = None,
         sa = _sigma3(sa, default_sigma[1])
         eo = np.r_[pos, np.radians(att)]
         sig = np.r_[sp, np.radians(sa)]
-        out[im.id] = ImageGeometry(im.id, eo, cal, switches, terrain, None, sig)
+        out[im.id] = ImageGeometry(im.id, eo, _sized(cal, (image_sizes or {}).get(im.id)),
+                                   switches, terrain, None, sig)
     return out
+
+
+def _sized(cal, size):
+    """The calibration with an image size (from the file, else the fiducials' extent)."""
+    if cal.image_size is not None or cal.pixel_size is None:
+        return cal
+    if size is None and cal.fiducials:
+        ext = 2.0 * np.abs(np.array(list(cal.fiducials.values()))).max(axis=0) + 2.0
+        size = tuple(int(np.ceil(e / p)) for e, p in zip(ext, cal.pixel_size))
+    return cal if size is None else dataclasses.replace(cal, image_size=tuple(size))
 
 
 def _sigma3(v, default: float) -> np.ndarray:
@@ -166,7 +188,8 @@ def predict(geoms: Mapping[str, ImageGeometry], points: PointSet, k: float = WIN
     dict of numpy.ndarray
         Columns ``point_id, image_id, kind, col, row, x, y`` (x, y: photo mm as measured,
         the contract's unit), ``win_major, win_minor, win_angle`` (search ellipse,
-        pixels, degrees), ``sigma_col, sigma_row`` (pixels) and ``source`` = predicted.
+        pixels, degrees), ``sigma_col, sigma_row`` (pixels), ``source`` = predicted and
+        the empty ``measured_col, measured_row`` for the analyst's measurements.
     """
     cols: dict = {k_: [] for k_ in ("point_id", "image_id", "kind", "col", "row", "x", "y",
                                      "win_major", "win_minor", "win_angle", "sigma_col",
@@ -194,6 +217,8 @@ def predict(geoms: Mapping[str, ImageGeometry], points: PointSet, k: float = WIN
         cols["sigma_row"].append(np.sqrt(cov[inside, 1, 1]))
     out = {k_: np.concatenate(v) if v else np.zeros(0) for k_, v in cols.items()}
     out["source"] = np.full(len(out["col"]), "predicted")
+    out["measured_col"] = np.full(len(out["col"]), np.nan)  # filled in by the analyst
+    out["measured_row"] = np.full(len(out["col"]), np.nan)
     _tick(progress, is_cancelled, 1.0, "predicted")
     return out
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import fft as sfft
-from scipy.ndimage import map_coordinates, maximum_filter
+from scipy.ndimage import maximum_filter
 
 __all__ = [
     "NCCResult",
@@ -176,11 +176,46 @@ def sample(chips: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """
     chips = np.asarray(chips, float)
     n = chips.shape[0]
-    shape = cols.shape
-    idx = np.broadcast_to(np.arange(n).reshape((n,) + (1,) * (len(shape) - 1)), shape)
-    coords = np.stack([idx.ravel().astype(float), rows.ravel(), cols.ravel()])
-    out = map_coordinates(chips, coords, order=1, mode="constant", cval=np.nan)
-    return out.reshape(shape)
+    batch = np.arange(n).reshape((n,) + (1,) * (np.ndim(cols) - 1))
+    return sample_many([chips], batch, cols, rows)[0]
+
+
+def sample_many(arrays: list, batch: np.ndarray, cols: np.ndarray,
+                rows: np.ndarray) -> list:
+    """Bilinear values of several same-shaped chip stacks at the same positions.
+
+    Parameters
+    ----------
+    arrays : list of numpy.ndarray, each shape (n, H, W)
+    batch : numpy.ndarray of int
+        Chip index of each position (broadcast against ``cols``).
+    cols, rows : numpy.ndarray
+        Positions (chip column, row); outside ``[0, W-1] x [0, H-1]`` the value is NaN.
+
+    Returns
+    -------
+    list of numpy.ndarray, shape of ``cols``
+    """
+    n, hh, ww = arrays[0].shape
+    cols = np.asarray(cols, float)
+    rows = np.asarray(rows, float)
+    ok = (cols >= 0) & (rows >= 0) & (cols <= ww - 1) & (rows <= hh - 1)
+    c0 = np.clip(np.floor(np.where(ok, cols, 0.0)), 0, max(ww - 2, 0)).astype(np.int64)
+    r0 = np.clip(np.floor(np.where(ok, rows, 0.0)), 0, max(hh - 2, 0)).astype(np.int64)
+    fc = np.where(ok, cols, 0.0) - c0
+    fr = np.where(ok, rows, 0.0) - r0
+    base = (np.asarray(batch, np.int64) * hh + r0) * ww + c0
+    step_c = 1 if ww > 1 else 0
+    step_r = ww if hh > 1 else 0
+    w00, w01 = (1 - fr) * (1 - fc), (1 - fr) * fc
+    w10, w11 = fr * (1 - fc), fr * fc
+    out = []
+    for a in arrays:
+        f = a.reshape(-1)
+        v = (w00 * f[base] + w01 * f[base + step_c] + w10 * f[base + step_r]
+             + w11 * f[base + step_r + step_c])
+        out.append(np.where(ok, v, np.nan))
+    return out
 
 
 @dataclass
@@ -193,8 +228,8 @@ class LSMResult:
         Chip (column, row) of the template centre (the shift ``t``).
     affine : numpy.ndarray, shape (n, 2, 2)
         ``A``: chip offsets per template pixel.
-    radiometry : numpy.ndarray, shape (n, 2)
-        ``r0, r1``.
+    radiometry : numpy.ndarray, shape (n, 2) or (n, 3)
+        ``r0, r1`` (and ``r2`` with the quadratic term).
     sigma : numpy.ndarray, shape (n, 2)
         Standard deviations of ``pos`` (chip pixels) from ``sigma0^2 N^-1``.
     rho : numpy.ndarray, shape (n,)
@@ -215,22 +250,32 @@ class LSMResult:
     iterations: np.ndarray
 
 
-def _lsm_design(chips, grads, p, u, v):
-    """Residuals ``(n, m)`` and design matrix ``(n, m, 8)`` at parameters ``p``."""
+def _lsm_design(chips, grads, p, u, v, scale, idx=None):
+    """Model values ``(k, m)`` and design matrix ``(k, m, q)`` at parameters ``p``.
+
+    ``p``: ``a11 a12 a21 a22 t_col t_row r0 r1 [r2]``; the radiometric model is
+    ``r0 + r1 g2 (+ r2 g2^2 / scale)``. ``idx``: the chips the rows of ``p`` belong to
+    (default all).
+    """
+    idx = np.arange(len(p)) if idx is None else idx
+    u, v, scale = u[:1], v[:1], scale[idx]
     cols = p[:, 4, None] + p[:, 0, None] * u + p[:, 1, None] * v
     rows = p[:, 5, None] + p[:, 2, None] * u + p[:, 3, None] * v
-    g2 = sample(chips, cols, rows)
-    gx = sample(grads[1], cols, rows)
-    gy = sample(grads[0], cols, rows)
-    r1 = p[:, 7, None]
-    a = np.stack([r1 * gx * u, r1 * gx * v, r1 * gy * u, r1 * gy * v, r1 * gx, r1 * gy,
-                  np.ones_like(g2), g2], axis=-1)
-    return g2, a
+    g2, gx, gy = sample_many([chips, grads[1], grads[0]], idx[:, None], cols, rows)
+    quad = p.shape[1] == 9
+    r1 = p[:, 7, None] + (2.0 * p[:, 8, None] * g2 / scale[:, None] if quad else 0.0)
+    colsd = [r1 * gx * u, r1 * gx * v, r1 * gy * u, r1 * gy * v, r1 * gx, r1 * gy,
+             np.ones_like(g2), g2]
+    model = p[:, 6, None] + p[:, 7, None] * g2
+    if quad:
+        colsd.append(g2 * g2 / scale[:, None])
+        model = model + p[:, 8, None] * colsd[-1]
+    return model, g2, np.stack(colsd, axis=-1)
 
 
 def lsm(templates: np.ndarray, chips: np.ndarray, start: np.ndarray,
         affine0: np.ndarray | None = None, max_iterations: int = 40,
-        tol: float = 0.005) -> LSMResult:
+        tol: float = 0.005, quadratic: bool = False) -> LSMResult:
     """Least-squares matching with an affine patch and linear radiometry (Gruen 1985).
 
     Parameters
@@ -246,6 +291,9 @@ def lsm(templates: np.ndarray, chips: np.ndarray, start: np.ndarray,
     max_iterations : int
     tol : float
         Convergence: the largest change of a patch corner's position below ``tol`` px.
+    quadratic : bool
+        Add a quadratic radiometric term ``r2 g2^2`` (a gamma difference between the
+        images); 9 parameters instead of 8.
 
     Returns
     -------
@@ -261,31 +309,34 @@ def lsm(templates: np.ndarray, chips: np.ndarray, start: np.ndarray,
     v = (vv - (th - 1) / 2.0).ravel()[None, :].repeat(n, 0)
     g1 = t.reshape(n, -1)
     grads = np.gradient(s, axis=(1, 2))
-    p = np.zeros((n, 8))
+    scale = np.nanmax(np.abs(s).reshape(n, -1), axis=1) + 1e-12 if n else np.ones(0)
+    p = np.zeros((n, 9 if quadratic else 8))
     a0 = np.broadcast_to(np.eye(2), (n, 2, 2)) if affine0 is None else np.asarray(affine0, float)
     p[:, :4] = a0.reshape(n, 4)
     p[:, 4:6] = np.asarray(start, float)
-    g2, _ = _lsm_design(s, grads, p, u, v)
+    _, g2, _ = _lsm_design(s, grads, p, u, v, scale)
     p[:, 7], p[:, 6] = _linear_fit(g2, g1)
     active = np.ones(n, bool)
     done = np.zeros(n, bool)
     its = np.zeros(n, int)
     corner = np.array([(tw - 1) / 2.0, (th - 1) / 2.0])
     for _ in range(max_iterations):
-        g2, a = _lsm_design(s, grads, p, u, v)
-        bad = ~np.all(np.isfinite(a), axis=(1, 2)) | ~np.all(np.isfinite(g2), axis=1)
-        active &= ~bad
-        if not active.any():
+        ia = np.flatnonzero(active)
+        if ia.size == 0:
             break
-        l = g1 - (p[:, 6, None] + p[:, 7, None] * g2)
-        dp = _solve(a, np.where(np.isfinite(l), l, 0.0), active)
-        p = np.where(active[:, None], p + dp, p)
-        its += active
+        model, g2, a = _lsm_design(s, grads, p[ia], u, v, scale, ia)
+        bad = ~np.all(np.isfinite(a), axis=(1, 2)) | ~np.all(np.isfinite(g2), axis=1)
+        active[ia[bad]] = False
+        ok = ~bad
+        ia, a, l = ia[ok], a[ok], (g1[ia] - model)[ok]
+        dp = _solve(a, np.where(np.isfinite(l), l, 0.0), np.ones(len(ia), bool))
+        p[ia] += np.nan_to_num(dp)
+        its[ia] += 1
         move = np.abs(dp[:, 4:6]).max(axis=1) + np.abs(dp[:, :4]).max(axis=1) * corner.max()
-        fin = active & (move < tol)
-        done |= fin
-        active &= ~fin & np.isfinite(move)
-    return _lsm_result(s, grads, p, u, v, g1, done, its)
+        fin = move < tol
+        done[ia[fin]] = True
+        active[ia[fin | ~np.isfinite(move)]] = False
+    return _lsm_result(s, grads, p, u, v, g1, done, its, scale)
 
 
 def _linear_fit(x: np.ndarray, y: np.ndarray):
@@ -300,8 +351,8 @@ def _linear_fit(x: np.ndarray, y: np.ndarray):
 
 def _solve(a: np.ndarray, l: np.ndarray, active: np.ndarray) -> np.ndarray:
     """Gauss-Newton steps of the active rows (zero elsewhere, and where N is singular)."""
-    n = len(a)
-    out = np.zeros((n, 8))
+    n, k = len(a), a.shape[-1]
+    out = np.zeros((n, k))
     idx = np.flatnonzero(active)
     if idx.size == 0:
         return out
@@ -309,7 +360,7 @@ def _solve(a: np.ndarray, l: np.ndarray, active: np.ndarray) -> np.ndarray:
     b = np.einsum("nmi,nm->ni", a[idx], l[idx])
     cond = np.linalg.cond(nn)
     ok = np.isfinite(cond) & (cond < 1e13)
-    sol = np.zeros((idx.size, 8))
+    sol = np.zeros((idx.size, k))
     if ok.any():
         sol[ok] = np.linalg.solve(nn[ok], b[ok][..., None])[..., 0]
     sol[~ok] = np.nan
@@ -317,24 +368,24 @@ def _solve(a: np.ndarray, l: np.ndarray, active: np.ndarray) -> np.ndarray:
     return out
 
 
-def _lsm_result(s, grads, p, u, v, g1, done, its) -> LSMResult:
+def _lsm_result(s, grads, p, u, v, g1, done, its, scale) -> LSMResult:
     """Precision and correlation coefficient at the final parameters."""
-    n = len(p)
-    g2, a = _lsm_design(s, grads, p, u, v)
+    n, k = p.shape
+    model, g2, a = _lsm_design(s, grads, p, u, v, scale)
     finite = np.all(np.isfinite(a), axis=(1, 2)) & np.all(np.isfinite(g2), axis=1)
     a = np.where(finite[:, None, None], a, 0.0)
     g2 = np.where(finite[:, None], g2, 0.0)
-    res = g1 - (p[:, 6, None] + p[:, 7, None] * g2)
+    res = np.where(finite[:, None], g1 - model, 0.0)
     m = g1.shape[1]
-    s0sq = np.sum(res * res, axis=1) / max(m - 8, 1)
-    nn = np.einsum("nmi,nmj->nij", a, a) + np.eye(8) * 1e-12
+    s0sq = np.sum(res * res, axis=1) / max(m - k, 1)
+    nn = np.einsum("nmi,nmj->nij", a, a) + np.eye(k) * 1e-12
     q = np.linalg.pinv(nn)
     sig = np.sqrt(np.clip(s0sq[:, None] * np.stack([q[:, 4, 4], q[:, 5, 5]], axis=1), 0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
         rho = np.array([np.nan] * n) if n == 0 else _rowcorr(g1, g2)
     conv = done & finite
     sig = np.where(conv[:, None], sig, np.nan)
-    return LSMResult(p[:, 4:6].copy(), p[:, :4].reshape(n, 2, 2), p[:, 6:8].copy(), sig,
+    return LSMResult(p[:, 4:6].copy(), p[:, :4].reshape(n, 2, 2), p[:, 6:].copy(), sig,
                      np.where(finite, rho, np.nan), np.sqrt(s0sq), conv, its)
 
 

@@ -45,15 +45,22 @@ class MatchSettings:
         A second NCC peak within this of the first flags the match as ambiguous.
     k : float
         Scale of the search ellipse.
+    quadratic : bool
+        LSM with a quadratic radiometric term (images with different gamma).
+    max_anisotropy : float
+        Largest ratio of the LSM sigmas of the two axes (above ``max_sigma / 3``): a
+        patch textured in one direction only (an edge, a road) slides along it.
     """
 
-    half_template: int = 15
+    half_template: int = 20
     max_radius: float = 40.0
     min_ncc: float = 0.8
     max_sigma: float = 0.07
     max_lsm_move: float = 1.5
     ambiguity: float = 0.02
     k: float = WINDOW_K
+    quadratic: bool = True
+    max_anisotropy: float = float("inf")
 
 
 @dataclass
@@ -146,7 +153,8 @@ def match_batch(ref_chips: np.ndarray, ref_origin: np.ndarray, ref_px: np.ndarra
     nc = ncc_search(templ, warped, allowed)
     d = nc.pos - (h + rad)
     approx = np.asarray(pred_px, float) + np.einsum("nij,nj->ni", a, d)
-    res = lsm(templ, tgt_chips, approx - np.asarray(tgt_origin, float), a)
+    res = lsm(templ, tgt_chips, approx - np.asarray(tgt_origin, float), a,
+              quadratic=st.quadratic)
     px = res.pos + np.asarray(tgt_origin, float)
     flags |= _quality_flags(nc, res, px, approx, np.asarray(pred_px, float), cov, st)
     px = np.where(res.converged[:, None], px, np.nan)
@@ -174,8 +182,10 @@ def _quality_flags(nc, res, px, approx, pred, cov, st: MatchSettings) -> np.ndar
     moved = np.hypot(*(px - approx).T)
     bad = ~res.converged | ~np.isfinite(moved) | (moved > st.max_lsm_move)
     f[bad] |= FLAGS["not_converged"]
-    sig = np.where(np.isfinite(res.sigma), res.sigma, np.inf).max(axis=1)
-    f[~bad & (sig > st.max_sigma)] |= FLAGS["poor_precision"]
+    s_all = np.where(np.isfinite(res.sigma), res.sigma, np.inf)
+    sig, smin = s_all.max(axis=1), s_all.min(axis=1)
+    aniso = (sig > st.max_sigma / 3.0) & (sig > st.max_anisotropy * smin)
+    f[~bad & ((sig > st.max_sigma) | aniso)] |= FLAGS["poor_precision"]
     c = np.asarray(cov, float) + (0.5**2 / st.k**2) * np.eye(2)
     d = np.where(np.isfinite(px), px - pred, 0.0)
     m = np.einsum("ni,nij,nj->n", d, np.linalg.inv(c), d)
