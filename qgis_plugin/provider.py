@@ -11,6 +11,7 @@ from .algorithms.buffer_test import BufferAccuracyTest
 from .algorithms.compare import CompareRoadDatabases
 from .algorithms.equal_error_map import EqualErrorMap
 from .algorithms.extract_shape_points import ExtractShapePoints
+from .algorithms.measure_images import MeasureOnImages
 from .algorithms.uncertainty_bands import UncertaintyBands
 
 PLUGIN_DIR = os.path.dirname(os.path.abspath(__file__))
@@ -34,5 +35,5 @@ class VectorAdjustProvider(QgsProcessingProvider):
     def loadAlgorithms(self):
         for alg in (ExtractShapePoints(), AdjustRoadVectors(), CompareRoadDatabases(),
                     BufferAccuracyTest(), AccuracyControl(), UncertaintyBands(),
-                    EqualErrorMap()):
+                    EqualErrorMap(), MeasureOnImages()):
             self.addAlgorithm(alg)

@@ -198,3 +198,26 @@ def test_vertex_arms_and_measurable():
     xyz = coords[[0, 1, 2, 3, 5, 6, 7, 8]]
     assert measurable(xyz, arms, deg).tolist() == [False, True, False, False, False, False,
                                                     True, False]
+
+
+def test_window_axes_and_batched_solve_against_numpy():
+    from vectoradjust.measure.geometry import inv2, window_axes
+    from vectoradjust.measure.matching import batched_solve
+
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(50, 2, 3))
+    c = a @ np.swapaxes(a, 1, 2)
+    w = window_axes(c, 2.0)
+    ev, vec = np.linalg.eigh(c)
+    assert np.allclose(w[:, 0], 2.0 * np.sqrt(ev[:, 1]))
+    assert np.allclose(w[:, 1], 2.0 * np.sqrt(ev[:, 0]))
+    u = np.c_[np.cos(np.radians(w[:, 2])), np.sin(np.radians(w[:, 2]))]
+    assert np.allclose(np.abs(np.einsum("ni,ni->n", u, vec[:, :, 1])), 1.0)
+    assert np.allclose(inv2(c) @ c, np.eye(2))
+    m = rng.normal(size=(40, 9, 20))
+    m = m @ np.swapaxes(m, 1, 2)
+    b = rng.normal(size=(40, 9))
+    x = batched_solve(m, b)
+    assert np.allclose(np.einsum("nij,nj->ni", m, x), b)
+    m[3] = 0.0
+    assert np.isnan(batched_solve(m, b)[3]).all()

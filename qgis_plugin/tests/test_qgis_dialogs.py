@@ -11,7 +11,8 @@ pytest.importorskip("qgis.core")
 pytestmark = pytest.mark.qgis
 
 ALGORITHMS = ("extractshapepoints", "adjustroadvectors", "compareroaddatabases",
-              "bufferaccuracytest", "accuracycontrol", "uncertaintybands", "equalerrormap")
+              "bufferaccuracytest", "accuracycontrol", "uncertaintybands", "equalerrormap",
+              "measureonimages")
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +60,8 @@ def user_choices(alg_id, sample, layers):
                             "CONTOUR_INTERVAL": 1.0},
         "uncertaintybands": {"INPUT": osm, "PROJECT": project},
         "equalerrormap": {"PROJECT": project},
+        # the sample has no image files: the default run predicts positions only
+        "measureonimages": {"PROJECT": project},
     }[alg_id]
 
 

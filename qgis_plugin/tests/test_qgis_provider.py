@@ -21,6 +21,7 @@ ALGORITHMS = {
     "vectoradjust:accuracycontrol": "Accuracy control",
     "vectoradjust:uncertaintybands": "Uncertainty bands",
     "vectoradjust:equalerrormap": "Equal-error map",
+    "vectoradjust:measureonimages": "Measure on the images",
 }
 
 

@@ -35,6 +35,7 @@ __all__ = [
     "window_axes",
     "inside_window",
     "local_affine",
+    "inv2",
 ]
 
 #: Scale of the search ellipse: P(chi2 with 2 dof <= k^2) = 0.999.
@@ -221,6 +222,19 @@ def pixel_covariance(geom: ImageGeometry, xyz: np.ndarray, cov_xyz: np.ndarray) 
     return jac @ c_mm @ np.swapaxes(jac, 1, 2)
 
 
+def inv2(c: np.ndarray) -> np.ndarray:
+    """Inverses of ``(..., 2, 2)`` matrices in closed form (NaN where singular)."""
+    c = np.asarray(c, float)
+    det = c[..., 0, 0] * c[..., 1, 1] - c[..., 0, 1] * c[..., 1, 0]
+    out = np.empty_like(c)
+    out[..., 0, 0] = c[..., 1, 1]
+    out[..., 1, 1] = c[..., 0, 0]
+    out[..., 0, 1] = -c[..., 0, 1]
+    out[..., 1, 0] = -c[..., 1, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return out / np.where(det != 0, det, np.nan)[..., None, None]
+
+
 def window_axes(cov: np.ndarray, k: float = WINDOW_K) -> np.ndarray:
     """Search ellipse of each covariance: ``(n, 3)`` semi-major, semi-minor (px), angle.
 
@@ -228,10 +242,12 @@ def window_axes(cov: np.ndarray, k: float = WINDOW_K) -> np.ndarray:
     axis.
     """
     cov = np.asarray(cov, float).reshape(-1, 2, 2)
-    w, v = np.linalg.eigh(cov)
-    w = np.clip(w, 0.0, None)
-    ang = np.degrees(np.arctan2(v[:, 1, 1], v[:, 0, 1]))
-    return np.column_stack([k * np.sqrt(w[:, 1]), k * np.sqrt(w[:, 0]), ang])
+    a, b, d = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    root = np.sqrt(0.25 * (a - d) ** 2 + b * b)
+    big = np.clip(0.5 * (a + d) + root, 0.0, None)
+    small = np.clip(0.5 * (a + d) - root, 0.0, None)
+    ang = np.degrees(0.5 * np.arctan2(2.0 * b, a - d))
+    return np.column_stack([k * np.sqrt(big), k * np.sqrt(small), ang])
 
 
 def inside_window(cov: np.ndarray, d: np.ndarray, k: float = WINDOW_K,
@@ -243,7 +259,7 @@ def inside_window(cov: np.ndarray, d: np.ndarray, k: float = WINDOW_K,
     """
     cov = np.asarray(cov, float).reshape(-1, 2, 2) + floor_px**2 / k**2 * np.eye(2)
     d = np.asarray(d, float).reshape(-1, 2)
-    m = np.einsum("ni,nij,nj->n", d, np.linalg.inv(cov), d)
+    m = np.einsum("ni,nij,nj->n", d, inv2(cov), d)
     return m <= k * k
 
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vectoradjust.measure.geometry import inv2
 from vectoradjust.measure.matching import sample
 
 __all__ = ["vertex_arms", "measurable", "RoadSettings", "RoadResult", "centreline_crossing",
@@ -324,12 +325,13 @@ def _intersect(loc, dirs, nrm, a, b, armok):
     wgt = armok.astype(float)[..., None, None]
     m = np.sum(wgt * nvec[..., :, None] * nvec[..., None, :], axis=1)
     rhs = np.sum(wgt[..., 0] * nvec * np.sum(nvec * p, -1)[..., None], axis=1)
-    lam = np.linalg.eigvalsh(m)[:, 0] if len(m) else np.zeros(0)
+    half = 0.5 * (m[:, 0, 0] + m[:, 1, 1])
+    lam = half - np.sqrt(0.25 * (m[:, 0, 0] - m[:, 1, 1]) ** 2 + m[:, 0, 1] ** 2)
     narms = armok.sum(axis=1)
     ok = (narms >= 2) & (lam > 1e-6)
     px = np.full(loc.shape, np.nan)
     if ok.any():
-        px[ok] = np.linalg.solve(m[ok], rhs[ok][..., None])[..., 0]
+        px[ok] = np.einsum("nij,nj->ni", inv2(m[ok]), rhs[ok])
     # normalise the smallest eigenvalue per arm pair: two unit normals give 1 - |cos|
     lam_pair = np.where(narms >= 2, lam * 2.0 / np.maximum(narms, 2), 0.0)
     return px, lam_pair, narms

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vectoradjust.measure.geometry import WINDOW_K
+from vectoradjust.measure.geometry import WINDOW_K, inv2
 from vectoradjust.measure.matching import FLAGS, lsm, ncc_search, sample
 
 __all__ = ["MatchSettings", "MatchResult", "match_batch"]
@@ -164,7 +164,7 @@ def match_batch(ref_chips: np.ndarray, ref_origin: np.ndarray, ref_px: np.ndarra
 def _in_ellipse(a, cov, du, dv, k):
     """Reference-geometry offsets whose target offset ``A d`` lies in the ellipse."""
     c = np.asarray(cov, float) + (0.5**2 / k**2) * np.eye(2)
-    ci = np.linalg.inv(c)
+    ci = inv2(c)
     tx = a[:, 0, 0, None, None] * du + a[:, 0, 1, None, None] * dv
     ty = a[:, 1, 0, None, None] * du + a[:, 1, 1, None, None] * dv
     m = (ci[:, 0, 0, None, None] * tx * tx + 2 * ci[:, 0, 1, None, None] * tx * ty
@@ -188,7 +188,7 @@ def _quality_flags(nc, res, px, approx, pred, cov, st: MatchSettings) -> np.ndar
     f[~bad & ((sig > st.max_sigma) | aniso)] |= FLAGS["poor_precision"]
     c = np.asarray(cov, float) + (0.5**2 / st.k**2) * np.eye(2)
     d = np.where(np.isfinite(px), px - pred, 0.0)
-    m = np.einsum("ni,nij,nj->n", d, np.linalg.inv(c), d)
+    m = np.einsum("ni,nij,nj->n", d, inv2(c), d)
     out = m > st.k**2
     f[out & ~bad] |= FLAGS["outside_window"]
     return f
