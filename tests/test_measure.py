@@ -144,6 +144,20 @@ def test_transfer_on_a_rendered_pair(pair):
     assert all(out["flag_text"][~acc] != "")
 
 
+def test_transfer_reports_progress_and_honours_cancel(pair):
+    from vectoradjust.errors import CancelledError
+
+    readers = {k: ArrayImage(v) for k, v in pair.images.items()}
+    meas = {"point_id": np.array(["a"]), "image_id": np.array(["L"]),
+            "col": np.array([500.0]), "row": np.array([500.0])}
+    seen = []
+    transfer(pair.approx, readers, meas, pair.scene.height,
+             progress=lambda f, m: seen.append(f))
+    assert seen and seen[-1] == 1.0
+    with pytest.raises(CancelledError):
+        transfer(pair.approx, readers, meas, pair.scene.height, is_cancelled=lambda: True)
+
+
 def test_flat_template_is_flagged_not_accepted(pair):
     flat = np.full((1000, 1000), 120.0)
     readers = {"L": ArrayImage(flat), "R": ArrayImage(pair.images["R"])}

@@ -106,3 +106,31 @@ def test_measure_then_adjust(tmp_path):
         assert np.abs(np.radians(im["attitude"]) - true[3:]).max() < np.radians(0.05)
     # the automatic measurements are not worse than the sigmas written for them
     assert summary["sigma0_squared"] < 2.0
+    # a second round with the adjusted orientation: much smaller search windows for the
+    # control points (those of the shape points stay dominated by the database's 3 m)
+    assert main(["measure", "predict", str(proj), "--out", str(tmp_path / "m2"), "-q",
+                 "--chips", "none", "--orientation", str(tmp_path / "adj" / "summary.json")]) == 0
+    before = _column(out / "measurement_template.csv", "win_major")
+    after = _column(tmp_path / "m2" / "measurement_template.csv", "win_major")
+    assert np.median(after) < 0.25 * np.median(before)
+
+
+def _column(path, name):
+    import csv
+
+    with open(path, newline="") as fh:
+        return np.array([float(r[name]) for r in csv.DictReader(fh) if r["kind"] == "control"])
+
+
+def test_missing_image_file_is_a_clear_error(tmp_path, capsys):
+    (tmp_path / "p.toml").write_text(
+        'crs = "EPSG:32616"\n[camera]\nfocal_length = 50.0\npixel_size = 0.04\n'
+        'image_size = [100, 100]\n[[images]]\nid = "L"\nposition = [0.0, 0.0, 300.0]\n'
+        '[measurements]\npath = "image_points.csv"\n')
+    assert main(["measure", "predict", str(tmp_path / "p.toml"), "--out", str(tmp_path),
+                 "-q"]) == 1
+    err = capsys.readouterr().err
+    assert "no image file for L" in err and "path =" in err
+    assert main(["measure", "predict", str(tmp_path / "p.toml"), "--out", str(tmp_path),
+                 "-q", "--image", "L=nothing.tif"]) == 1
+    assert "nothing.tif does not exist" in capsys.readouterr().err
