@@ -154,8 +154,10 @@ class ImageGeometry:
         v = np.stack([xy[:, 0] - x0, xy[:, 1] - y0,
                       np.full(len(xy), -self.camera.focal_length)], axis=1)
         m = rotation_matrix(*self.eo[3:])
-        d = v @ m  # M' v: image -> object frame
-        return d / np.linalg.norm(d, axis=1, keepdims=True)
+        # M' v (image -> object frame), written out: a (n, 3) @ (3, 3) product through
+        # BLAS is slow on a busy machine
+        d = v[:, 0, None] * m[0] + v[:, 1, None] * m[1] + v[:, 2, None] * m[2]
+        return d / np.sqrt(np.sum(d * d, axis=1))[:, None]
 
     def to_ground(self, px: np.ndarray, height: Callable[[np.ndarray], np.ndarray] | float,
                   z0: Optional[float] = None, iterations: int = 30,

@@ -70,15 +70,15 @@ def fractal_noise(shape: tuple[int, int], seed: int, octaves: int = 6) -> np.nda
 
 def _segment_distance(xy: np.ndarray, lines: list) -> np.ndarray:
     """Distance of every point to the nearest of the polylines."""
-    d = np.full(len(xy), np.inf)
+    d2 = np.full(len(xy), np.inf)
+    x, y = xy[:, 0], xy[:, 1]
     for line in lines:
-        a, b = line[:-1], line[1:]
-        ab = b - a
-        ll = np.maximum(np.sum(ab * ab, axis=1), 1e-12)
-        t = np.clip(((xy[:, None, :] - a[None]) * ab[None]).sum(-1) / ll, 0.0, 1.0)
-        p = a[None] + t[..., None] * ab[None]
-        d = np.minimum(d, np.sqrt(((xy[:, None, :] - p) ** 2).sum(-1)).min(axis=1))
-    return d
+        for (ax, ay), (bx, by) in zip(line[:-1], line[1:]):  # segments, not points
+            ux, uy = bx - ax, by - ay
+            t = np.clip(((x - ax) * ux + (y - ay) * uy) / max(ux * ux + uy * uy, 1e-12),
+                        0.0, 1.0)
+            d2 = np.minimum(d2, (x - ax - t * ux) ** 2 + (y - ay - t * uy) ** 2)
+    return np.sqrt(d2)
 
 
 @dataclass
@@ -152,7 +152,7 @@ def make_scene(extent: float = 500.0, cell: float = 0.25, seed: int = 0,
 
 def render(scene: Scene, geom: ImageGeometry, gain: float = 1.0, offset: float = 0.0,
            gamma: float = 1.0, noise: float = 0.0, seed: int = 0, supersample: int = 2,
-           rows_per_chunk: int = 200,
+           rows_per_chunk: int = 64,
            progress: Optional[Callable[[float, str], None]] = None) -> np.ndarray:
     """Render one image (``uint8``, ``image_size`` of the camera).
 
