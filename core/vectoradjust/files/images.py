@@ -11,6 +11,7 @@ the image in a GIS that shows an image without georeferencing in pixel units).
 from __future__ import annotations
 
 import csv
+import warnings
 from pathlib import Path
 from typing import Optional
 
@@ -33,6 +34,7 @@ class RasterioImage:
 
     def __init__(self, path, image_id: str = "") -> None:
         import rasterio
+        import rasterio.errors
 
         p = Path(path)
         if not p.is_file():
@@ -40,7 +42,9 @@ class RasterioImage:
                                  "Set path = in its [[images]] entry or give --image "
                                  f"{image_id}=FILE", path=str(p))
         try:
-            self._ds = rasterio.open(p)
+            with warnings.catch_warnings():  # aerial images are rarely georeferenced
+                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                self._ds = rasterio.open(p)
         except Exception as exc:  # rasterio raises its own RasterioIOError
             raise InputFileError(f"image {image_id!r}: {p} cannot be read as a raster ({exc})",
                                  "Give a TIFF, JPEG or JPEG 2000 image", path=str(p)) from exc
@@ -72,6 +76,7 @@ def write_chip(path, chip: np.ndarray, col0: int, row0: int, mark=None) -> Path:
     ``mark`` (chip column, row) draws a small cross (PNG only) at the prediction.
     """
     import rasterio
+    import rasterio.errors
     from rasterio.transform import Affine
 
     p = Path(path)
@@ -87,9 +92,11 @@ def write_chip(path, chip: np.ndarray, col0: int, row0: int, mark=None) -> Path:
                     img[r, c + d] = 255
                 if 0 <= r + d < img.shape[0] and 0 <= c < img.shape[1]:
                     img[r + d, c] = 255
-        with rasterio.open(p, "w", driver="PNG", width=img.shape[1], height=img.shape[0],
-                           count=1, dtype="uint8") as ds:
-            ds.write(img, 1)
+        with warnings.catch_warnings():  # a PNG chip has no georeferencing
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            with rasterio.open(p, "w", driver="PNG", width=img.shape[1], height=img.shape[0],
+                               count=1, dtype="uint8") as ds:
+                ds.write(img, 1)
         return p
     tr = Affine(1.0, 0.0, float(col0), 0.0, -1.0, -float(row0))
     with rasterio.open(p, "w", driver="GTiff", width=a.shape[1], height=a.shape[0], count=1,
