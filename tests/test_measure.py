@@ -235,3 +235,27 @@ def test_window_axes_and_batched_solve_against_numpy():
     assert np.allclose(np.einsum("nij,nj->ni", m, x), b)
     m[3] = 0.0
     assert np.isnan(batched_solve(m, b)[3]).all()
+
+
+def test_scanned_film_geometry_through_the_fiducial_affine():
+    """Pixels of a scan with a known (rotated, sheared) pixel -> mm affine."""
+    from vectoradjust.sensor.camera import CameraCalibration
+    from vectoradjust.sensor.collinearity import project
+    from vectoradjust.sensor.refine import fit_fiducial_affine
+
+    fid = {"1": (-106.0, -106.0), "2": (106.0, 106.0), "3": (-106.0, 106.0),
+           "4": (106.0, -106.0)}
+    cal = CameraCalibration(focal_length=152.4, fiducials=fid, pixel_size=0.02)
+    a = np.array([[0.0201, 0.0004], [0.0003, -0.0199]])   # pixel -> mm (row axis down)
+    t = np.array([-115.0, 114.0])
+    ainv = np.linalg.inv(a)
+    measured = {k: tuple(ainv @ (np.array(v) - t)) for k, v in fid.items()}
+    fit = fit_fiducial_affine(measured, cal, unit="pixel", image_id="L")
+    eo = np.r_[1000.0, 2000.0, 800.0, 0.01, -0.02, 0.3]
+    g = ImageGeometry("L", eo, cal, {"distortion": False}, None, fit)
+    xyz = np.c_[np.random.default_rng(0).uniform(800, 1200, (20, 2)) + [0, 1000],
+                np.full(20, 200.0)]
+    px = g.to_pixel(xyz)
+    mm = project(eo, xyz, 152.4)
+    assert np.allclose(px @ a.T + t, mm, atol=1e-9)
+    assert np.allclose(g.pixel_to_measured_mm(px), mm, atol=1e-9)

@@ -59,7 +59,8 @@ y = -row, the way QGIS shows an image without georeferencing; fields <code>col</
 <code>sigma_px</code>, <code>flags</code> and <code>accepted</code>. Filter it by
 <code>image_id</code> over each image and move the points that need it.</li>
 <li><b>image_points.csv</b> (optional): the accepted measurements in the contract format
-(photo mm), ready for <i>Adjust road vectors</i>.</li>
+(photo mm, or pixels when the project's measurements are in pixels with fiducials), ready
+for <i>Adjust road vectors</i>.</li>
 </ul>
 """
 
@@ -166,8 +167,13 @@ class MeasureOnImages(VectorAdjustAlgorithm):
                 return np.where(np.isfinite(z), z, np.nanmean(z) if np.isfinite(z).any()
                                 else 0.0)
         points = project_points(control, layers, spec.settings.merge_tolerance)
+        fiducials = None
+        if spec.measurements.get("fiducials") and spec.measurements.get("unit") == "pixel":
+            from vectoradjust.files.tables import read_fiducials
+
+            fiducials = read_fiducials(spec.measurements["fiducials"], "pixel")
         geoms = image_geometries(spec, image_sizes={k: r.size for k, r in readers.items()},
-                                 control=control)
+                                 control=control, fiducials=fiducials)
         if height is None and control is not None and len(control.xyz):
             height = float(np.mean(control.xyz[:, 2]))
         return spec, geoms, readers, points, height
@@ -208,7 +214,8 @@ class MeasureOnImages(VectorAdjustAlgorithm):
         if ip_path:
             from vectoradjust.files.images import write_table
 
-            ip = image_points(geoms, measured, res, auto)
+            ip = image_points(geoms, measured, res, auto,
+                              unit=spec.measurements.get("unit", "mm"))
             write_table(ip_path, ip, ["point_id", "image_id", "x", "y", "sigma_x", "sigma_y"])
             out[self.IMAGE_POINTS] = ip_path
         feedback.pushInfo(f"{len(pred['point_id'])} predicted positions on {len(geoms)} "

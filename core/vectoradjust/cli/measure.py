@@ -124,9 +124,15 @@ def _load(args):
     control = read_control(spec.control["path"]) if spec.control is not None else None
     if control is not None:
         control = control_to_project_crs(control, spec, crs, where)
+    fid_path = spec.measurements.get("fiducials")
+    fiducials = None
+    if fid_path and spec.measurements.get("unit", "mm") == "pixel":
+        from vectoradjust.files.tables import read_fiducials
+
+        fiducials = read_fiducials(fid_path, "pixel")
     geoms = image_geometries(spec, orientation,
                              image_sizes={k: r.size for k, r in readers.items()},
-                             control=control)
+                             control=control, fiducials=fiducials)
     layers, height = [], None
     for v in spec.vectors:
         layer = read_line_layer(v.path, v.name, v.id_field, _parts(crs)[0], v.layer, v.where)
@@ -213,13 +219,15 @@ def cmd_transfer(args) -> int:
     out = Path(args.out)
     write_table(out / "transfer.csv", res)
     auto = _read_automatic(args.automatic) if args.automatic else None
-    ip = image_points(geoms, measured, res, auto)
+    unit = spec.measurements.get("unit", "mm")
+    ip = image_points(geoms, measured, res, auto, unit=unit)
     path = write_table(out / "image_points.csv", ip, list(CONTRACT_COLUMNS))
     write_table(out / "image_points_quality.csv", ip)
     acc = int(res["accepted"].sum())
     print(f"vectoradjust measure transfer: {acc} of {len(res['accepted'])} transfers "
           f"accepted ({len(res['accepted']) - acc} flagged, see {out / 'transfer.csv'})")
-    print(f"  wrote {path} ({len(ip['point_id'])} measurements, photo mm)")
+    print(f"  wrote {path} ({len(ip['point_id'])} measurements, "
+          f"{'pixels' if unit == 'pixel' else 'photo mm'})")
     return 0
 
 

@@ -39,6 +39,7 @@ from vectoradjust.measure.roads import ROAD_FLAGS, RoadSettings, centreline_cros
 from vectoradjust.measure.roads import vertex_arms as _vertex_arms
 from vectoradjust.measure.transfer import MatchSettings, match_batch
 from vectoradjust.sensor.interior import parse_corrections, terrain_height_for
+from vectoradjust.sensor.refine import fit_fiducial_affine
 
 __all__ = ["PointSet", "image_geometries", "project_points", "predict", "transfer",
            "measure_roads", "image_points", "read_chips", "BATCH"]
@@ -76,7 +77,8 @@ class PointSet:
 
 def image_geometries(spec, orientation: Optional[Mapping] = None,
                      default_sigma: tuple[float, float] = (5.0, 0.5),
-                     image_sizes: Optional[Mapping] = None, control=None) -> dict:
+                     image_sizes: Optional[Mapping] = None, control=None,
+                     fiducials=None) -> dict:
     """One :class:`ImageGeometry` per ``[[images]]`` entry.
 
     Parameters
@@ -96,6 +98,10 @@ def image_geometries(spec, orientation: Optional[Mapping] = None,
     control : ControlPoints, optional
         Their mean height is the terrain height of refraction and earth curvature when
         ``[corrections]`` gives none.
+    fiducials : FiducialMeasurements, optional
+        Fiducials measured in pixels (scanned film, ``[measurements] fiducials`` with
+        ``unit = "pixel"``): each image with fiducials gets its fiducial affine, which
+        then maps between its pixels and photo mm.
     """
     switches, terrain = parse_corrections(spec.corrections)
     terrain, _ = terrain_height_for(control, terrain)
@@ -115,8 +121,14 @@ def image_geometries(spec, orientation: Optional[Mapping] = None,
         sa = _sigma3(sa, default_sigma[1])
         eo = np.r_[pos, np.radians(att)]
         sig = np.r_[sp, np.radians(sa)]
-        out[im.id] = ImageGeometry(im.id, eo, _sized(cal, (image_sizes or {}).get(im.id)),
-                                   switches, terrain, None, sig)
+        fit = None
+        measured = fiducials.of_image(im.id) if fiducials is not None else {}
+        if measured:
+            fit = fit_fiducial_affine(measured, cal, unit="pixel", image_id=im.id)
+        size = (image_sizes or {}).get(im.id)
+        cam = _sized(cal, size) if fit is None else (
+            cal if size is None else dataclasses.replace(cal, image_size=tuple(size)))
+        out[im.id] = ImageGeometry(im.id, eo, cam, switches, terrain, fit, sig)
     return out
 
 
@@ -198,7 +210,7 @@ def predict(geoms: Mapping[str, ImageGeometry], points: PointSet, k: float = WIN
         _tick(progress, is_cancelled, i / max(len(geoms), 1), f"predicting on {iid}")
         px = g.to_pixel(points.xyz)
         cov = pixel_covariance(g, points.xyz, points.sigma)
-        w, h = g.camera.image_size if g.affine is None else (np.inf, np.inf)
+        w, h = g.camera.image_size if g.camera.image_size is not None else (np.inf, np.inf)
         inside = (px[:, 0] >= -0.5) & (px[:, 1] >= -0.5) & (px[:, 0] <= w - 0.5) & \
                  (px[:, 1] <= h - 0.5)
         ax = window_axes(cov[inside], k)
@@ -393,8 +405,11 @@ def measure_roads(geoms: Mapping[str, ImageGeometry], readers: Mapping, points: 
 def image_points(geoms: Mapping[str, ImageGeometry], manual: Optional[Mapping] = None,
                  transferred: Optional[Mapping] = None, automatic: Optional[Mapping] = None,
                  sigma_manual_px: float = 0.5, sigma_floor_px: float = 0.3,
-                 sigma_road_px: float = 0.75) -> dict:
+                 sigma_road_px: float = 0.75, unit: str = "mm") -> dict:
     """The accepted measurements as ``image_points.csv`` columns (photo mm as measured).
+
+    With ``unit = "pixel"`` (``[measurements] unit`` of a scanned-film project with
+    measured fiducials) ``x, y`` are the column and row and the sigmas are in pixels.
 
     Columns: ``point_id, image_id, x, y, sigma_x, sigma_y`` (mm; the contract) and
     ``source`` (manual, transferred, automatic), ``ncc``, ``lsm_sigma`` (pixels),
@@ -428,13 +443,15 @@ def image_points(geoms: Mapping[str, ImageGeometry], manual: Optional[Mapping] =
         px = np.column_stack([t["col"], t["row"]]).astype(float)
         mm = np.zeros_like(px)
         smm = np.zeros_like(px)
-        for g_id in np.unique(iid):
+        for g_id in np.unique(iid) if unit != "pixel" else ():
             m = iid == g_id
             g = geoms[g_id]
             mm[m] = g.pixel_to_measured_mm(px[m])
             jac = np.abs(g.pixel_to_measured_mm(px[m] + [1.0, 0.0]) - mm[m])[:, 0], \
                 np.abs(g.pixel_to_measured_mm(px[m] + [0.0, 1.0]) - mm[m])[:, 1]
             smm[m] = np.column_stack(jac) * sig_px[m, None]
+        if unit == "pixel":
+            mm, smm = px.copy(), np.column_stack([sig_px, sig_px])
         for key, val in (("point_id", t["point_id"]), ("image_id", iid), ("x", mm[:, 0]),
                          ("y", mm[:, 1]), ("sigma_x", smm[:, 0]), ("sigma_y", smm[:, 1]),
                          ("source", src), ("ncc", ncc), ("lsm_sigma", lsm_s),
