@@ -259,3 +259,16 @@ def test_scanned_film_geometry_through_the_fiducial_affine():
     mm = project(eo, xyz, 152.4)
     assert np.allclose(px @ a.T + t, mm, atol=1e-9)
     assert np.allclose(g.pixel_to_measured_mm(px), mm, atol=1e-9)
+
+
+def test_transfer_without_any_height_is_a_clear_error(pair):
+    from vectoradjust.errors import MeasurementError
+
+    readers = {k: ArrayImage(v) for k, v in pair.images.items()}
+    meas = {"point_id": np.array(["a"]), "image_id": np.array(["L"]),
+            "col": np.array([500.0]), "row": np.array([500.0])}
+    with pytest.raises(MeasurementError, match="terrain height"):
+        transfer(pair.approx, readers, meas, None)
+    meas["image_id"] = np.array(["X"])
+    with pytest.raises(MeasurementError, match="'X' is not in"):
+        transfer(pair.approx, readers, meas, 200.0)

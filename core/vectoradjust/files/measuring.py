@@ -246,7 +246,16 @@ def read_chips(reader, centres: np.ndarray, half: int) -> tuple[np.ndarray, np.n
 
 
 def _heights(height, g_src: ImageGeometry):
-    return height if height is not None else float(g_src.terrain_height or 0.0)
+    """The terrain height function; the mean terrain height when there is no DEM."""
+    if height is not None:
+        return height
+    if g_src.terrain_height is None:
+        raise MeasurementError(
+            "the transfer needs the terrain height: the project has no DEM, no control "
+            "points and no [corrections] terrain_height",
+            "Give a dem = in a [[vectors]] entry, control points, or [corrections] "
+            "terrain_height = <metres above sea level>")
+    return float(g_src.terrain_height)
 
 
 def _transfer_pair(src: ImageGeometry, dst: ImageGeometry, rd_src, rd_dst, ref_px, height,
@@ -307,7 +316,7 @@ def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Map
     st = settings or MatchSettings()
     pid = np.asarray(measured["point_id"]).astype(str)
     iid = np.asarray(measured["image_id"]).astype(str)
-    for bad in sorted(set(iid) - set(geoms)):
+    for bad in sorted(set(iid.tolist()) - set(geoms)):
         raise MeasurementError(f"measured image {bad!r} is not in [[images]]",
                                f"Use one of {', '.join(geoms)}", details={"image_id": bad})
     px = np.column_stack([measured["col"], measured["row"]]).astype(float)
