@@ -272,3 +272,16 @@ def test_transfer_without_any_height_is_a_clear_error(pair):
     meas["image_id"] = np.array(["X"])
     with pytest.raises(MeasurementError, match="'X' is not in"):
         transfer(pair.approx, readers, meas, 200.0)
+
+
+def test_rough_orientation_clips_the_window_and_flags_it(pair):
+    rough = {k: ImageGeometry(k, g.eo, g.camera, g.corrections, None, None,
+                              np.r_[np.full(3, 20.0), np.radians(np.full(3, 2.0))])
+             for k, g in pair.approx.items()}
+    pl, _ = _overlap_points(pair, 20, seed=4)
+    readers = {k: ArrayImage(v) for k, v in pair.images.items()}
+    meas = {"point_id": np.arange(len(pl)).astype(str), "image_id": np.full(len(pl), "L"),
+            "col": pl[:, 0], "row": pl[:, 1]}
+    out = transfer(rough, readers, meas, pair.scene.height)
+    assert np.all(out["flags"] & FLAGS["window_clipped"])
+    assert not out["accepted"].any()

@@ -43,6 +43,7 @@ FLAGS = {
     "edge": 16,                # template or search window leaves the image
     "no_texture": 32,          # template without contrast (NCC undefined)
     "ambiguous": 64,           # second NCC peak nearly as high as the first
+    "window_clipped": 128,     # the search window was larger than the largest radius
 }
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vectoradjust.measure.geometry import WINDOW_K, inv2
+from vectoradjust.measure.geometry import WINDOW_K, inv2, window_axes
 from vectoradjust.measure.matching import FLAGS, lsm, ncc_search, sample
 
 __all__ = ["MatchSettings", "MatchResult", "match_batch"]
@@ -157,6 +157,9 @@ def match_batch(ref_chips: np.ndarray, ref_origin: np.ndarray, ref_px: np.ndarra
               quadratic=st.quadratic)
     px = res.pos + np.asarray(tgt_origin, float)
     flags |= _quality_flags(nc, res, px, approx, np.asarray(pred_px, float), cov, st)
+    ai = inv2(a)
+    cov_ref = ai @ np.asarray(cov, float) @ np.swapaxes(ai, 1, 2)
+    flags[window_axes(cov_ref, st.k)[:, 0] > st.max_radius] |= FLAGS["window_clipped"]
     px = np.where(res.converged[:, None], px, np.nan)
     return MatchResult(px, nc.ncc, res.rho, res.sigma, flags)
 
