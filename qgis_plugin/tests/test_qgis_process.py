@@ -34,6 +34,7 @@ ALGORITHM_LINES = [
     "vectoradjust:compareroaddatabases\tCompare road databases",
     "vectoradjust:equalerrormap\tEqual-error map",
     "vectoradjust:extractshapepoints\tExtract shape points",
+    "vectoradjust:measureonimages\tMeasure on the images",
     "vectoradjust:uncertaintybands\tUncertainty bands",
 ]
 
