@@ -12,6 +12,7 @@ from .algorithms.compare import CompareRoadDatabases
 from .algorithms.equal_error_map import EqualErrorMap
 from .algorithms.extract_shape_points import ExtractShapePoints
 from .algorithms.gcp_study import GcpStudy
+from .algorithms.measure_images import MeasureOnImages
 from .algorithms.uncertainty_bands import UncertaintyBands
 
 PLUGIN_DIR = os.path.dirname(os.path.abspath(__file__))
@@ -35,5 +36,5 @@ class VectorAdjustProvider(QgsProcessingProvider):
     def loadAlgorithms(self):
         for alg in (ExtractShapePoints(), AdjustRoadVectors(), CompareRoadDatabases(),
                     BufferAccuracyTest(), AccuracyControl(), UncertaintyBands(),
-                    EqualErrorMap(), GcpStudy()):
+                    EqualErrorMap(), GcpStudy(), MeasureOnImages()):
             self.addAlgorithm(alg)

@@ -21,7 +21,7 @@ PKG = ROOT / "core" / "vectoradjust"
 LAYERS = {
     "errors": 0, "model": 0, "results": 0, "formatting": 0, "_compat": 0,
     "sensor": 1,
-    "adjust": 2,
+    "adjust": 2, "measure": 2,
     "accuracy": 3,
     "qa": 4,
     "pipeline": 5,

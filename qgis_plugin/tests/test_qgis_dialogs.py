@@ -12,7 +12,7 @@ pytestmark = pytest.mark.qgis
 
 ALGORITHMS = ("extractshapepoints", "adjustroadvectors", "compareroaddatabases",
               "bufferaccuracytest", "accuracycontrol", "uncertaintybands", "equalerrormap",
-              "gcpstudy")
+              "gcpstudy", "measureonimages")
 
 
 @pytest.fixture(scope="module")
@@ -61,6 +61,8 @@ def user_choices(alg_id, sample, layers):
         "uncertaintybands": {"INPUT": osm, "PROJECT": project},
         "equalerrormap": {"PROJECT": project},
         "gcpstudy": {"PROJECT": project},
+        # the sample has no image files: the default run predicts positions only
+        "measureonimages": {"PROJECT": project},
     }[alg_id]
 
 

@@ -35,6 +35,7 @@ ALGORITHM_LINES = [
     "vectoradjust:equalerrormap\tEqual-error map",
     "vectoradjust:extractshapepoints\tExtract shape points",
     "vectoradjust:gcpstudy\tGCP study (number and location of control points)",
+    "vectoradjust:measureonimages\tMeasure on the images",
     "vectoradjust:uncertaintybands\tUncertainty bands",
 ]
 

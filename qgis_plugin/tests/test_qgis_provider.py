@@ -22,6 +22,7 @@ ALGORITHMS = {
     "vectoradjust:uncertaintybands": "Uncertainty bands",
     "vectoradjust:equalerrormap": "Equal-error map",
     "vectoradjust:gcpstudy": "GCP study (number and location of control points)",
+    "vectoradjust:measureonimages": "Measure on the images",
 }
 
 

@@ -19,6 +19,7 @@ from vectoradjust import __version__
 from vectoradjust.accuracy.summary import compare_columns, compare_row
 from vectoradjust.cli import buffer as cli_buffer
 from vectoradjust.cli import many as cli_many
+from vectoradjust.cli import measure as cli_measure
 from vectoradjust.cli import propagate as cli_propagate
 from vectoradjust.cli import qa as cli_qa
 from vectoradjust.cli import study as cli_study
@@ -280,6 +281,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_buffer.add_parser(sub)
     cli_study.add_parser(sub)
     cli_many.add_parser(sub)
+    cli_measure.add_parser(sub)
     return p
 
 

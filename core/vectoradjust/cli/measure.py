@@ -1,0 +1,243 @@
+"""``vectoradjust measure``: predicted positions, chips, transfer and road junctions.
+
+``vectoradjust measure predict PROJECT.toml --out DIR [--image ID=FILE] [--orientation
+summary.json] [--chips png|tif|none] [--roads]`` writes ``DIR/measurement_template.csv``
+(every control, check and shape point on every image it falls on: pixel and mm position
+and search ellipse), a chip per point and image (``DIR/chips/<image>/<point>.png``)
+and, with ``--roads``, the junction and corner shape points located automatically
+(``DIR/automatic_points.csv``, all attempts with their flags).
+
+``vectoradjust measure transfer PROJECT.toml --measured FILE --out DIR [--automatic
+DIR/automatic_points.csv]`` finds every point measured on one image (``FILE``:
+``point_id,image_id,col,row`` in pixels, e.g. the filled-in template) on the other
+images, writes every attempt with its quality to ``DIR/transfer.csv`` and the accepted
+measurements to ``DIR/image_points.csv`` in the contract format (photo mm) - ready for
+``vectoradjust adjust`` - and, row for row, with their source (manual, transferred,
+automatic), correlation coefficient, LSM sigma and pixel position to
+``DIR/image_points_quality.csv`` (the contract reader refuses extra columns).
+
+Images are named by ``path`` in each ``[[images]]`` entry or by ``--image ID=FILE``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from vectoradjust.errors import ProjectError
+
+__all__ = ["add_parser", "cmd_predict", "cmd_transfer", "CONTRACT_COLUMNS"]
+
+#: the columns of image_points.csv that ``adjust`` reads (DESIGN section 9); the quality
+#: columns (source, ncc, lsm_sigma, col, row) go to image_points_quality.csv
+CONTRACT_COLUMNS = ("point_id", "image_id", "x", "y", "sigma_x", "sigma_y")
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add ``measure predict`` and ``measure transfer`` to the ``vectoradjust`` sub-parsers."""
+    m = subparsers.add_parser("measure", help="measure on the images: predict, transfer",
+                              description="Predicted image positions, chips and automatic "
+                                          "measurement (transfer by NCC + least-squares "
+                                          "matching; road junctions) towards image_points.csv.")
+    sub = m.add_subparsers(dest="measure_command", required=True)
+    p = sub.add_parser("predict", help="predicted positions, search windows, chips")
+    _common(p)
+    p.add_argument("--chips", choices=("png", "tif", "none"), default="png",
+                   help="chip format per point and image (default png)")
+    p.add_argument("--chip-size", type=int, default=64, help="chip half size (pixels)")
+    p.add_argument("--roads", action="store_true",
+                   help="also locate junction and corner shape points automatically")
+    p.add_argument("--road-width", type=float, default=6.0, help="road surface width (m)")
+    p.set_defaults(func=cmd_predict)
+    t = sub.add_parser("transfer", help="find measured points on the other images")
+    _common(t)
+    t.add_argument("--measured", required=True,
+                   help="CSV point_id,image_id,col,row of points measured (pixels)")
+    t.add_argument("--automatic", help="automatic_points.csv of predict --roads to include")
+    t.add_argument("--min-ncc", type=float, default=0.8, help="correlation threshold")
+    t.add_argument("--max-sigma", type=float, default=0.07, help="largest LSM sigma (px)")
+    t.add_argument("--max-radius", type=float, default=40.0, help="largest search radius (px)")
+    t.add_argument("--sigma-height", type=float, default=2.0,
+                   help="uncertainty of the terrain height (m) for the search window")
+    t.set_defaults(func=cmd_transfer)
+    return m
+
+
+def _common(p) -> None:
+    p.add_argument("project", help="project file (TOML)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--image", action="append", default=[], metavar="ID=FILE",
+                   help="image file of an [[images]] id (overrides its path)")
+    p.add_argument("--orientation", help="summary.json of an adjustment: use its adjusted "
+                                         "orientation and sigmas")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+
+def _image_paths(spec, overrides: list) -> dict:
+    paths = {}
+    for entry in spec.raw.get("images", []):
+        if isinstance(entry, dict) and entry.get("path"):
+            q = Path(str(entry["path"]))
+            paths[str(entry["id"])] = str(q if q.is_absolute() else spec.base_dir / q)
+    for o in overrides:
+        if "=" not in o:
+            raise ProjectError(f"--image {o!r} is not ID=FILE", "Write e.g. --image L=left.tif")
+        k, v = o.split("=", 1)
+        if k not in {im.id for im in spec.images}:
+            raise ProjectError(f"--image {o!r}: no [[images]] entry has id {k!r}",
+                               f"Use one of {', '.join(im.id for im in spec.images)}")
+        paths[k] = v
+    missing = [im.id for im in spec.images if im.id not in paths]
+    if missing:
+        raise ProjectError(f"no image file for {', '.join(missing)}",
+                           'Add path = "image.tif" to each [[images]] entry or give '
+                           "--image ID=FILE")
+    return paths
+
+
+def _load(args):
+    """Project, geometries, readers, points and height function."""
+    from vectoradjust.adjust.dem import bilinear
+    from vectoradjust.files.images import RasterioImage
+    from vectoradjust.files.measuring import image_geometries, project_points
+    from vectoradjust.files.project import load_project
+    from vectoradjust.files.readers import (
+        _parts,
+        check_projected_crs,
+        control_to_project_crs,
+        read_dem,
+        read_line_layer,
+        sample_dem,
+    )
+    from vectoradjust.files.tables import read_control
+
+    spec = load_project(args.project)
+    where = str(spec.path)
+    crs = check_projected_crs(spec.crs, f"{where}: crs")
+    orientation = None
+    if args.orientation:
+        orientation = json.loads(Path(args.orientation).read_text(encoding="utf-8"))
+    readers = {k: RasterioImage(v, k) for k, v in _image_paths(spec, args.image).items()}
+    control = read_control(spec.control["path"]) if spec.control is not None else None
+    if control is not None:
+        control = control_to_project_crs(control, spec, crs, where)
+    fid_path = spec.measurements.get("fiducials")
+    fiducials = None
+    if fid_path and spec.measurements.get("unit", "mm") == "pixel":
+        from vectoradjust.files.tables import read_fiducials
+
+        fiducials = read_fiducials(fid_path, "pixel")
+    geoms = image_geometries(spec, orientation,
+                             image_sizes={k: r.size for k, r in readers.items()},
+                             control=control, fiducials=fiducials)
+    layers, height = [], None
+    for v in spec.vectors:
+        layer = read_line_layer(v.path, v.name, v.id_field, _parts(crs)[0], v.layer, v.where)
+        if v.dem:
+            layer.coords[:, 2] = sample_dem(v.dem, layer.coords[:, :2], _parts(crs)[0])
+            if height is None:
+                grid, gt, nodata, _ = read_dem(v.dem)
+                height = _dem_height(bilinear, grid, gt, nodata)
+        layers.append((v, layer))
+    points = project_points(control, layers, spec.settings.merge_tolerance)
+    if height is None and control is not None and len(control.xyz):
+        height = float(np.mean(control.xyz[:, 2]))
+    return spec, geoms, readers, points, height
+
+
+def _dem_height(bilinear, grid, gt, nodata):
+    fallback = float(np.nanmean(np.where(grid == nodata, np.nan, grid))) if nodata is not None \
+        else float(np.nanmean(grid))
+
+    def height(xy):
+        z = bilinear(grid, gt, np.asarray(xy, float).reshape(-1, 2), nodata=nodata)
+        return np.where(np.isfinite(z), z, fallback)
+    return height
+
+
+def cmd_predict(args) -> int:
+    """Run ``vectoradjust measure predict``."""
+    from vectoradjust.cli.progress import ProgressBar
+    from vectoradjust.files.images import write_table
+    from vectoradjust.files.measuring import measure_roads, predict
+
+    bar = ProgressBar("measure", enabled=not args.quiet)
+    spec, geoms, readers, points, _ = _load(args)
+    out = Path(args.out)
+    tab = predict(geoms, points, progress=lambda f, m: bar(0.3 * f, m))
+    path = write_table(out / "measurement_template.csv", tab)
+    if args.chips != "none":
+        _write_chips(out / "chips", tab, readers, args.chip_size, args.chips,
+                     lambda f, m: bar(0.3 + 0.4 * f, m))
+    print(f"vectoradjust measure predict: {len(tab['point_id'])} predictions on "
+          f"{len(geoms)} images -> {path}")
+    if args.roads:
+        auto = measure_roads(geoms, readers, points, args.road_width,
+                             progress=lambda f, m: bar(0.7 + 0.3 * f, m))
+        apath = write_table(out / "automatic_points.csv", auto)
+        print(f"  road junctions/corners: {int(auto['accepted'].sum())} of "
+              f"{len(auto['accepted'])} located -> {apath}")
+    bar(1.0, "done")
+    return 0
+
+
+def _write_chips(folder: Path, tab: dict, readers: dict, half: int, fmt: str, progress) -> None:
+    from vectoradjust.files.images import write_chip
+
+    n = len(tab["point_id"])
+    for i in range(n):  # I/O: one file per point and image
+        iid, pid = str(tab["image_id"][i]), str(tab["point_id"][i])
+        c0, r0 = int(round(tab["col"][i])) - half, int(round(tab["row"][i])) - half
+        chip = readers[iid].read(c0, r0, 2 * half + 1, 2 * half + 1)
+        mark = (tab["col"][i] - c0, tab["row"][i] - r0)
+        write_chip(folder / iid / f"{_safe(pid)}.{fmt}", chip, c0, r0, mark)
+        if progress is not None and i % 50 == 0:
+            progress(i / max(n, 1), "writing chips")
+
+
+def _safe(name: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)
+
+
+def cmd_transfer(args) -> int:
+    """Run ``vectoradjust measure transfer``."""
+    from vectoradjust.cli.progress import ProgressBar
+    from vectoradjust.files.images import read_pixel_table, write_table
+    from vectoradjust.files.measuring import image_points, transfer
+    from vectoradjust.measure.transfer import MatchSettings
+
+    bar = ProgressBar("measure", enabled=not args.quiet)
+    spec, geoms, readers, points, height = _load(args)
+    measured = read_pixel_table(args.measured)
+    st = MatchSettings(min_ncc=args.min_ncc, max_sigma=args.max_sigma,
+                       max_radius=args.max_radius)
+    res = transfer(geoms, readers, measured, height, st, sigma_height=args.sigma_height,
+                   progress=bar)
+    out = Path(args.out)
+    write_table(out / "transfer.csv", res)
+    auto = _read_automatic(args.automatic) if args.automatic else None
+    unit = spec.measurements.get("unit", "mm")
+    ip = image_points(geoms, measured, res, auto, unit=unit)
+    path = write_table(out / "image_points.csv", ip, list(CONTRACT_COLUMNS))
+    write_table(out / "image_points_quality.csv", ip)
+    acc = int(res["accepted"].sum())
+    print(f"vectoradjust measure transfer: {acc} of {len(res['accepted'])} transfers "
+          f"accepted ({len(res['accepted']) - acc} flagged, see {out / 'transfer.csv'})")
+    print(f"  wrote {path} ({len(ip['point_id'])} measurements, "
+          f"{'pixels' if unit == 'pixel' else 'photo mm'})")
+    return 0
+
+
+def _read_automatic(path) -> dict:
+    import csv
+
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    out = {k: np.array([r[k] for r in rows]) for k in ("point_id", "image_id")}
+    for k in ("col", "row", "rms"):
+        out[k] = np.array([float(r[k]) if r[k] else np.nan for r in rows])
+    out["accepted"] = np.array([r["accepted"] == "True" for r in rows])
+    return out

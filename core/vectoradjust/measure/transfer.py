@@ -1,0 +1,197 @@
+"""Transfer of points between images: prediction, NCC search, LSM refinement, flags.
+
+:func:`match_batch` finds ``n`` points of a reference image on a target image. For
+each point the caller gives a chip of each image (read around the reference position and
+the predicted target position), the local affine between the images over the terrain
+(:func:`vectoradjust.measure.geometry.local_affine`) and the covariance of the
+prediction. The reference patch is correlated with the target chip resampled into the
+reference geometry (so rotation, scale and relief displacement between the images do
+not spoil the correlation), the best position inside the search ellipse is refined by
+least-squares matching, and every failure is flagged (:data:`matching.FLAGS`): a flagged
+match is never accepted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vectoradjust.measure.geometry import WINDOW_K, inv2, window_axes
+from vectoradjust.measure.matching import FLAGS, lsm, ncc_search, sample
+
+__all__ = ["MatchSettings", "MatchResult", "match_batch"]
+
+
+@dataclass
+class MatchSettings:
+    """Thresholds of automatic transfer.
+
+    Attributes
+    ----------
+    half_template : int
+        Template half size (pixels of the reference image); the template is
+        ``2 h + 1`` square.
+    max_radius : float
+        Largest search radius (pixels of the reference geometry); a larger window is
+        clipped to it.
+    min_ncc : float
+        Correlation coefficient threshold (0.8 - 0.95 in production) for NCC and LSM.
+    max_sigma : float
+        Largest accepted LSM standard deviation of the position (pixels).
+    max_lsm_move : float
+        Largest accepted distance between the NCC and the LSM positions (pixels).
+    ambiguity : float
+        A second NCC peak within this of the first flags the match as ambiguous.
+    k : float
+        Scale of the search ellipse.
+    quadratic : bool
+        LSM with a quadratic radiometric term (images with different gamma).
+    max_anisotropy : float
+        Largest ratio of the LSM sigmas of the two axes (above ``max_sigma / 3``): a
+        patch textured in one direction only (an edge, a road) slides along it.
+    """
+
+    half_template: int = 20
+    max_radius: float = 40.0
+    min_ncc: float = 0.8
+    max_sigma: float = 0.07
+    max_lsm_move: float = 1.5
+    ambiguity: float = 0.02
+    k: float = WINDOW_K
+    quadratic: bool = True
+    max_anisotropy: float = float("inf")
+
+
+@dataclass
+class MatchResult:
+    """Matched target pixels and their quality.
+
+    Attributes
+    ----------
+    px : numpy.ndarray, shape (n, 2)
+        Target image (column, row) from LSM (NaN where LSM failed).
+    ncc : numpy.ndarray, shape (n,)
+        NCC coefficient at the approximate position.
+    rho : numpy.ndarray, shape (n,)
+        Correlation coefficient after LSM.
+    sigma : numpy.ndarray, shape (n, 2)
+        LSM standard deviations (target pixels).
+    flags : numpy.ndarray of int, shape (n,)
+        Bits of :data:`matching.FLAGS`; 0 = accepted.
+    """
+
+    px: np.ndarray
+    ncc: np.ndarray
+    rho: np.ndarray
+    sigma: np.ndarray
+    flags: np.ndarray
+
+    @property
+    def accepted(self) -> np.ndarray:
+        """Matches without any flag."""
+        return self.flags == 0
+
+
+def match_batch(ref_chips: np.ndarray, ref_origin: np.ndarray, ref_px: np.ndarray,
+                tgt_chips: np.ndarray, tgt_origin: np.ndarray, pred_px: np.ndarray,
+                affine: np.ndarray, cov: np.ndarray,
+                settings: MatchSettings | None = None) -> MatchResult:
+    """Find reference points on a target image.
+
+    Parameters
+    ----------
+    ref_chips : numpy.ndarray, shape (n, Hr, Wr)
+        Reference image chips (NaN outside the image).
+    ref_origin : numpy.ndarray, shape (n, 2)
+        Image (column, row) of each reference chip's pixel (0, 0).
+    ref_px : numpy.ndarray, shape (n, 2)
+        Reference image (column, row) of the points.
+    tgt_chips : numpy.ndarray, shape (n, Ht, Wt)
+        Target image chips around the predictions.
+    tgt_origin : numpy.ndarray, shape (n, 2)
+    pred_px : numpy.ndarray, shape (n, 2)
+        Predicted target (column, row).
+    affine : numpy.ndarray, shape (n, 2, 2)
+        ``d target / d reference`` at the points.
+    cov : numpy.ndarray, shape (n, 2, 2)
+        Covariance of the prediction (target pixels^2).
+    settings : MatchSettings, optional
+
+    Returns
+    -------
+    MatchResult
+    """
+    st = settings or MatchSettings()
+    h = int(st.half_template)
+    n = len(ref_px)
+    off = np.arange(-h, h + 1, dtype=float)
+    vv, uu = np.meshgrid(off, off, indexing="ij")
+    rloc = np.asarray(ref_px, float) - np.asarray(ref_origin, float)
+    templ = sample(ref_chips, rloc[:, 0, None, None] + uu, rloc[:, 1, None, None] + vv)
+    flags = np.zeros(n, np.int64)
+    flags[~np.all(np.isfinite(templ), axis=(1, 2))] |= FLAGS["edge"]
+    templ = np.where(np.isfinite(templ), templ, np.nanmean(templ) if np.isfinite(templ).any()
+                     else 0.0)
+    spread = templ.std(axis=(1, 2))
+    flags[spread < 1e-6 * (np.abs(templ).max(axis=(1, 2)) + 1e-12)] |= FLAGS["no_texture"]
+
+    rad = int(np.ceil(st.max_radius))
+    soff = np.arange(-(h + rad), h + rad + 1, dtype=float)
+    sv, su = np.meshgrid(soff, soff, indexing="ij")
+    a = np.asarray(affine, float)
+    ploc = np.asarray(pred_px, float) - np.asarray(tgt_origin, float)
+    wc = ploc[:, 0, None, None] + a[:, 0, 0, None, None] * su + a[:, 0, 1, None, None] * sv
+    wr = ploc[:, 1, None, None] + a[:, 1, 0, None, None] * su + a[:, 1, 1, None, None] * sv
+    warped = sample(tgt_chips, wc, wr)
+    fill = np.nanmean(np.where(np.isfinite(warped), warped, np.nan), axis=(1, 2))
+    warped = np.where(np.isfinite(warped), warped, np.nan_to_num(fill)[:, None, None])
+
+    dr = np.arange(-rad, rad + 1, dtype=float)
+    dv, du = np.meshgrid(dr, dr, indexing="ij")
+    allowed = _in_ellipse(a, cov, du, dv, st.k) & (du**2 + dv**2 <= st.max_radius**2)
+    nc = ncc_search(templ, warped, allowed)
+    d = nc.pos - (h + rad)
+    approx = np.asarray(pred_px, float) + np.einsum("nij,nj->ni", a, d)
+    res = lsm(templ, tgt_chips, approx - np.asarray(tgt_origin, float), a,
+              quadratic=st.quadratic)
+    px = res.pos + np.asarray(tgt_origin, float)
+    flags |= _quality_flags(nc, res, px, approx, np.asarray(pred_px, float), cov, st)
+    ai = inv2(a)
+    cov_ref = ai @ np.asarray(cov, float) @ np.swapaxes(ai, 1, 2)
+    flags[window_axes(cov_ref, st.k)[:, 0] > st.max_radius] |= FLAGS["window_clipped"]
+    px = np.where(res.converged[:, None], px, np.nan)
+    return MatchResult(px, nc.ncc, res.rho, res.sigma, flags)
+
+
+def _in_ellipse(a, cov, du, dv, k):
+    """Reference-geometry offsets whose target offset ``A d`` lies in the ellipse."""
+    c = np.asarray(cov, float) + (0.5**2 / k**2) * np.eye(2)
+    ci = inv2(c)
+    tx = a[:, 0, 0, None, None] * du + a[:, 0, 1, None, None] * dv
+    ty = a[:, 1, 0, None, None] * du + a[:, 1, 1, None, None] * dv
+    m = (ci[:, 0, 0, None, None] * tx * tx + 2 * ci[:, 0, 1, None, None] * tx * ty
+         + ci[:, 1, 1, None, None] * ty * ty)
+    return m <= k * k
+
+
+def _quality_flags(nc, res, px, approx, pred, cov, st: MatchSettings) -> np.ndarray:
+    """Flags from the NCC peak, the LSM solution and the search window."""
+    n = len(px)
+    f = np.zeros(n, np.int64)
+    rho = np.where(np.isfinite(res.rho), res.rho, -1.0)
+    f[(nc.ncc < st.min_ncc) | (rho < st.min_ncc)] |= FLAGS["low_correlation"]
+    f[nc.second >= nc.ncc - st.ambiguity] |= FLAGS["ambiguous"]
+    moved = np.hypot(*(px - approx).T)
+    bad = ~res.converged | ~np.isfinite(moved) | (moved > st.max_lsm_move)
+    f[bad] |= FLAGS["not_converged"]
+    s_all = np.where(np.isfinite(res.sigma), res.sigma, np.inf)
+    sig, smin = s_all.max(axis=1), s_all.min(axis=1)
+    aniso = (sig > st.max_sigma / 3.0) & (sig > st.max_anisotropy * smin)
+    f[~bad & ((sig > st.max_sigma) | aniso)] |= FLAGS["poor_precision"]
+    c = np.asarray(cov, float) + (0.5**2 / st.k**2) * np.eye(2)
+    d = np.where(np.isfinite(px), px - pred, 0.0)
+    m = np.einsum("ni,nij,nj->n", d, inv2(c), d)
+    out = m > st.k**2
+    f[out & ~bad] |= FLAGS["outside_window"]
+    return f
