@@ -11,9 +11,12 @@ every other vertex
 with the trend ``t`` the database's estimated systematic offset (``-G(x) T``,
 :mod:`vectoradjust.adjust.offsets`; a constant mean for axes the offset model does not
 cover), ``C(r)`` a covariance function (exponential or Gaussian) fitted to the empirical
-semivariogram of the measured residuals ``d_m - t_m``, and
+semivariogram of the measured residuals ``d_m - t_m`` (Cressie's weights), and
 ``N = diag(n_db + D_i)`` the white noise: the database's own random error ``n_db``
-(the fitted nugget less the known noise) plus the measured point's variance ``D_i``.
+(the fitted nugget less the known noise) plus the measured point's variance ``D_i``
+(the images' share of its covariance plus the identification variance). The measured
+displacement is taken as the images see it (:func:`image_only`): the adjusted shape
+point is pulled towards the database by its prior, which would shrink the field.
 The variance of the real vertex's position error is
 ``C(0) - c_xm (C_mm + N)^-1 c_mx + n_db + Var(t(x))``.
 
@@ -33,7 +36,8 @@ import numpy as np
 from vectoradjust.errors import CancelledError, ProjectError
 
 __all__ = ["ConflationSettings", "CovarianceModel", "settings_from_table", "fit_covariance",
-           "empirical_semivariogram", "krige", "cross_validate", "SOURCES", "CONFLATION_KEYS",
+           "empirical_semivariogram", "krige", "cross_validate", "image_only",
+           "conflate_database", "conflate_run", "SOURCES", "CONFLATION_KEYS",
            "CE90_CIRCULAR", "LE90"]
 
 #: the ``Source`` values of a vertex
@@ -180,7 +184,8 @@ def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
     resid : numpy.ndarray, shape (n, c)
         Residuals; the components share one semivariogram (averaged).
     n_bins : int
-        Bins of equal pair count, up to half the largest distance.
+        Bins up to half the largest distance: one below the 1st percentile of the
+        distances, the others geometrically spaced above it.
     max_points : int
         A random subset of this many points is used when there are more.
     seed : int
@@ -203,7 +208,10 @@ def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
     h, g = h[keep], g[keep]
     if h.size < n_bins:
         return h, g, np.ones(h.size)
-    edges = np.quantile(h, np.linspace(0.0, 1.0, n_bins + 1))
+    # geometric bins from the 1st percentile of the distances: the short lags, which
+    # carry the nugget and the field's behaviour near zero, get bins of their own
+    h0 = max(float(np.quantile(h, 0.01)), 1e-6)
+    edges = np.r_[0.0, np.geomspace(h0, h.max() * (1 + 1e-9), n_bins)]
     b = np.clip(np.searchsorted(edges, h, side="right") - 1, 0, n_bins - 1)
     count = np.bincount(b, minlength=n_bins).astype(float)
     ok = count > 0
@@ -233,7 +241,8 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     Returns
     -------
     CovarianceModel
-        Weighted least squares (weights: pairs per bin) with nugget, sill, length >= 0;
+        Weighted least squares (weights: square root of the pairs per bin) with the
+        nugget at least the mean known noise and sill, length >= 0;
         without enough pairs a pure nugget model (no correlated signal).
     """
     from scipy.optimize import least_squares
@@ -256,11 +265,15 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
         rho = np.exp(-u) if kind == "exponential" else np.exp(-u * u)
         return nug + sill * (1.0 - rho)
 
-    p0 = [min(gam[0], scale) * 0.5, max(scale - gam[0], 1e-3 * scale), lag[-1] / 3.0]
-    lo = [0.0, 0.0, lag[0] / 10.0]
+    # the measured points' own noise is part of the nugget: it cannot be smaller
+    floor = min(noise, 0.999 * 4.0 * scale)
+    p0 = [max(min(gam[0], scale) * 0.5, floor), max(scale - gam[0], 1e-3 * scale),
+          lag[-1] / 3.0]
+    lo = [floor, 0.0, lag[0] / 10.0]
     hi = [4.0 * scale, 4.0 * scale, lag[-1] * 10.0]
     p0 = np.clip(p0, lo, np.asarray(hi) * 0.999)
-    sol = least_squares(lambda p: w * (model(p) - gam) / scale, p0, bounds=(lo, hi))
+    # Cressie's weights: N_h / gamma(h)^2, so that the short lags count as much
+    sol = least_squares(lambda p: w * (gam / model(p) - 1.0), p0, bounds=(lo, hi))
     nug, sill, length = (float(v) for v in sol.x)
     return CovarianceModel(kind, sill, length, max(nug - noise, 0.0), noise,
                            max(nug - photo, 0.0),
@@ -415,7 +428,7 @@ def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, photo: np.nd
         col = dm[:, a][np.isfinite(dm[:, a])]
         if col.size:
             t[:, a] = col.mean()
-            tcov[:, a, a] = max(col.var() / col.size, float(np.mean(photo[:, a])))
+            tcov[:, a, a] = max(col.var() / col.size, float(np.nanmean(photo[:, a])))
     return t, tcov, covered
 
 
@@ -512,13 +525,73 @@ def _measured_objects(d):
     return obj_pt, meas_v
 
 
+def image_only(result, problem, pts: np.ndarray, min_share: float = 0.1,
+               scale: Optional[float] = None):
+    """What the images alone say about measured shape points: position and covariance.
+
+    The adjusted shape point is a weighted mean of the images' intersection and the
+    database prior ``X_prior = X_db - G T``: ``X_hat - X_prior = Q P_img (X_img -
+    X_prior)`` with ``Q = (P_img + P_prior)^-1`` its cofactor, so its displacement is
+    shrunk towards the database by the prior's weight. The collocation needs the
+    unshrunk observation ``X_img = X_prior + P_img^-1 Q^-1 (X_hat - X_prior)`` with
+    covariance ``scale P_img^-1``, ``P_img = Q^-1 - P_prior`` (per point; the
+    correlation with other points through the orientation is left out).
+
+    Parameters
+    ----------
+    result : BundleResult
+    problem : BundleProblem
+        The final problem (priors).
+    pts : numpy.ndarray of int
+        Bundle points.
+    min_share : float
+        An axis where the images carry less than this share of the weight is NaN
+        (the images say next to nothing there).
+    scale : float, optional
+        Variance factor of the images' share (default: the run's). An a-posteriori
+        sigma0^2 driven by the databases' residuals (a correlated error the prior
+        does not know) says nothing about the images; :func:`conflate_database` passes
+        the image group's ``v'Pv / r``.
+
+    Returns
+    -------
+    xyz : numpy.ndarray, shape (p, 3)
+    var : numpy.ndarray, shape (p, 3)
+        Variances per axis (m^2).
+    """
+    vf = result.variance_factor
+    q_inv = np.linalg.inv(result.point_cov[pts] / vf)
+    scale = vf if scale is None or not np.isfinite(scale) else float(scale)
+    p_img = q_inv - problem.prior_weight[pts]
+    p_img = 0.5 * (p_img + np.swapaxes(p_img, 1, 2))
+    share = np.einsum("nii->ni", p_img) / np.einsum("nii->ni", q_inv)
+    ok = (share >= min_share).all(axis=1) & (np.linalg.eigvalsh(p_img)[:, 0] > 0)
+    q_img = np.full_like(p_img, np.nan)
+    q_img[ok] = np.linalg.inv(p_img[ok])
+    prior = problem.prior_xyz[pts]
+    shift = np.einsum("nij,njk,nk->ni", q_img, q_inv, result.xyz[pts] - prior)
+    var = scale * np.einsum("nii->ni", q_img)
+    bad = (share < min_share) | ~ok[:, None]
+    xyz = np.where(bad, np.nan, prior + shift)
+    return xyz, np.where(bad, np.nan, var)
+
+
+def _image_scale(out) -> float:
+    """Variance factor of the images' share: 1 with ``covariance_scale = "a-priori"``,
+    else the image coordinates' ``v'Pv / r`` (summary ``variance_factors``), at least 1."""
+    if getattr(out.result, "covariance_scale", "") == "a-priori":
+        return 1.0
+    groups = (out.summary.get("variance_factors") or {}).get("groups") or {}
+    f = (groups.get("image") or {}).get("factor")
+    return max(float(f), 1.0) if f is not None and np.isfinite(f) else float("nan")
+
+
 def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     """Displacement, covariance and nearest distance of the unmeasured object points."""
     db = d.shape.object_xyz
     m_obj, u_obj = np.flatnonzero(obj_pt >= 0), np.flatnonzero(obj_pt < 0)
-    res = out.result
-    dm = res.xyz[obj_pt[m_obj]] - db[m_obj]
-    photo = np.einsum("nii->ni", res.point_cov[obj_pt[m_obj]])
+    x_img, photo = image_only(out.result, out.problem, obj_pt[m_obj], scale=_image_scale(out))
+    dm = x_img - db[m_obj]
     noise = photo + d.spec.identification_variance
     t, tcov, covered = _trend(rec, db, dm, photo)
     resid = dm - t[m_obj]
@@ -529,8 +602,8 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
                       lambda f: report(0.5 + 0.5 * f), cancel)
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
     cov = tcov[u_obj].copy()
-    nug_h = fh.cov.vertex_nugget if fh.cov is not None else np.nan
-    nug_v = fv.cov.vertex_nugget if fv.cov is not None else np.nan
+    nug_h = fh.cov.nugget if fh.cov is not None else np.nan
+    nug_v = fv.cov.nugget if fv.cov is not None else np.nan
     cov[:, 0, 0] += fh.var + nug_h
     cov[:, 1, 1] += fh.var + nug_h
     cov[:, 2, 2] += fv.var + nug_v
