@@ -402,14 +402,15 @@ def cross_validate(cov: CovarianceModel, xy_m: np.ndarray, resid: np.ndarray,
 
 
 # --------------------------------------------------------------------------- a run
-def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, photo: np.ndarray):
+def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.ndarray):
     """Trend ``t`` (n, 3) and its covariance (n, 3, 3) at every object point.
 
     ``-G(x) T`` of the estimated offset (database minus images, so the displacement is
     its negative); axes the offset model does not cover get the measured points' mean,
-    with the larger of its variance over their number and their mean variance from
-    the adjustment ``photo`` (m, 3): the adjusted points share the block's errors (a
-    common height error of a stereo model), which do not average out.
+    with the larger of its variance over their number and ``common`` (3,), the
+    adjusted points' mean variance: the points share the errors of the exterior
+    orientation (a common height error of a stereo model), which do not average out,
+    and a predicted vertex is not more certain in them than a measured one.
     """
     from vectoradjust.adjust.offsets import _kind_design
 
@@ -428,7 +429,7 @@ def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, photo: np.nd
         col = dm[:, a][np.isfinite(dm[:, a])]
         if col.size:
             t[:, a] = col.mean()
-            tcov[:, a, a] = max(col.var() / col.size, float(np.nanmean(photo[:, a])))
+            tcov[:, a, a] = max(col.var() / col.size, float(common[a]))
     return t, tcov, covered
 
 
@@ -560,12 +561,18 @@ def image_only(result, problem, pts: np.ndarray, min_share: float = 0.1,
         Variances per axis (m^2).
     """
     vf = result.variance_factor
-    q_inv = np.linalg.inv(result.point_cov[pts] / vf)
+    q = result.point_cov[pts] / vf
+    usable = np.isfinite(q).all(axis=(1, 2))
+    usable[usable] = np.linalg.eigvalsh(q[usable])[:, 0] > 0
+    q_inv = np.broadcast_to(np.eye(3), q.shape).copy()
+    q_inv[usable] = np.linalg.inv(q[usable])
     scale = vf if scale is None or not np.isfinite(scale) else float(scale)
     p_img = q_inv - problem.prior_weight[pts]
     p_img = 0.5 * (p_img + np.swapaxes(p_img, 1, 2))
     share = np.einsum("nii->ni", p_img) / np.einsum("nii->ni", q_inv)
-    ok = (share >= min_share).all(axis=1) & (np.linalg.eigvalsh(p_img)[:, 0] > 0)
+    # a point on one image only has no image-only position (rank 2): left out
+    ev = np.linalg.eigvalsh(p_img)
+    ok = usable & (ev[:, 0] > 1e-6 * np.maximum(ev[:, 2], 1e-300))
     q_img = np.full_like(p_img, np.nan)
     q_img[ok] = np.linalg.inv(p_img[ok])
     prior = problem.prior_xyz[pts]
@@ -593,7 +600,8 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     x_img, photo = image_only(out.result, out.problem, obj_pt[m_obj], scale=_image_scale(out))
     dm = x_img - db[m_obj]
     noise = photo + d.spec.identification_variance
-    t, tcov, covered = _trend(rec, db, dm, photo)
+    common = np.einsum("nii->i", out.result.point_cov[obj_pt[m_obj]]) / len(m_obj)
+    t, tcov, covered = _trend(rec, db, dm, common)
     resid = dm - t[m_obj]
     xy_m, xy_u = db[m_obj, :2], db[u_obj, :2]
     fh = _group_field(xy_m, resid[:, :2], noise[:, :2].mean(axis=1), photo[:, :2].mean(axis=1),
