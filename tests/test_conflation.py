@@ -274,3 +274,15 @@ def test_too_few_measured_points_leave_the_database_unchanged_with_a_warning():
     assert np.all(d.vertices["Source"][~m] == "unchanged")
     assert np.array_equal(d.vertices["AdjX"][~m], d.vertices["X"][~m])
     assert any("conflation not done" in w for w in out.warnings)
+
+
+def test_field_model_predicts_what_the_vertices_got():
+    _, out, _ = _runs("helsinki")
+    d = out.databases[0]
+    v = d.vertices
+    u = np.flatnonzero(v["Adjusted"] == 0)[:200]
+    obj = d.shape.object_xyz[d.shape.vertex_object[u]]  # vertices of one object share it
+    disp, var = d.conflation.predict(obj[:, :2])
+    assert np.allclose(obj[:, 0] + disp[:, 0], v["AdjX"][u], atol=1e-6)
+    assert np.allclose(obj[:, 2] + disp[:, 2], v["AdjZ"][u], atol=1e-6)
+    assert np.allclose(np.sqrt(var[:, 0]), v["SigmaX"][u], rtol=1e-6)

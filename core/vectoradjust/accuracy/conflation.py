@@ -36,7 +36,7 @@ import numpy as np
 from vectoradjust.errors import CancelledError, ProjectError
 
 __all__ = ["ConflationSettings", "CovarianceModel", "settings_from_table", "fit_covariance",
-           "empirical_semivariogram", "krige", "cross_validate", "image_only",
+           "empirical_semivariogram", "krige", "cross_validate", "image_only", "FieldModel",
            "conflate_database", "conflate_run", "SOURCES", "CONFLATION_KEYS",
            "CE90_CIRCULAR", "LE90"]
 
@@ -615,13 +615,73 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     cov[:, 0, 0] += fh.var + nug_h
     cov[:, 1, 1] += fh.var + nug_h
     cov[:, 2, 2] += fv.var + nug_v
+    mean = np.where(covered, 0.0, t[0] if len(t) else 0.0)
+    mean_var = np.where(covered, 0.0, tcov[0].diagonal() if len(t) else 0.0)
+    model = FieldModel(xy_m, resid, noise, fh.cov, fv.cov, rec, mean, mean_var, s.k)
     info = {"trend": {"offset": rec.get("kind") if rec else None,
                       "axes_from_offset": [a for a, c in zip("XYZ", covered) if c],
                       "axes_from_mean": [a for a, c in zip("XYZ", covered) if not c]},
             "covariance": {"horizontal": fh.cov.as_dict() if fh.cov else None,
                            "vertical": fv.cov.as_dict() if fv.cov else None},
             "cross_validation": {"horizontal": fh.cv, "vertical": fv.cv}}
-    return u_obj, disp, cov, fh, info
+    return u_obj, disp, cov, fh, info, model
+
+
+@dataclass
+class FieldModel:
+    """A database's fitted displacement field, to predict it anywhere (maps, rasters).
+
+    Attributes
+    ----------
+    xy : numpy.ndarray, shape (m, 2)
+        Measured object points.
+    resid : numpy.ndarray, shape (m, 3)
+        Their displacement less the trend (NaN where the images say too little).
+    noise : numpy.ndarray, shape (m, 3)
+        Their known noise variance per axis.
+    cov_h, cov_v : CovarianceModel or None
+    rec : dict or None
+        The offset record (trend ``-G T``).
+    mean : numpy.ndarray, shape (3,)
+        Trend value of the axes the offset does not cover (0 on the others) ...
+    mean_var : numpy.ndarray, shape (3,)
+        ... and its variance.
+    k : int
+    """
+
+    xy: np.ndarray
+    resid: np.ndarray
+    noise: np.ndarray
+    cov_h: Optional[CovarianceModel]
+    cov_v: Optional[CovarianceModel]
+    rec: Optional[dict]
+    mean: np.ndarray
+    mean_var: np.ndarray
+    k: int
+
+    def predict(self, xy: np.ndarray):
+        """Displacement (n, 3) and its variance per axis (n, 3) at ``xy`` (n, 2).
+
+        The same prediction as the vertices get (trend + collocation, with the
+        database's white noise), NaN where a component has no field.
+        """
+        xyz = np.column_stack([xy, np.zeros(len(xy))])
+        dm = np.broadcast_to(self.mean, (1, 3)).copy()
+        t, tcov, _ = _trend(self.rec, xyz, dm, self.mean_var)
+        disp = t.copy()
+        var = np.einsum("nii->ni", tcov).copy()
+        for cols, cov in (((0, 1), self.cov_h), ((2,), self.cov_v)):
+            c = list(cols)
+            if cov is None:
+                disp[:, c] = np.nan
+                var[:, c] = np.nan
+                continue
+            ok = np.isfinite(self.resid[:, c]).all(axis=1)
+            pred, kv, _ = krige(cov, self.xy[ok], self.resid[ok][:, c],
+                                self.noise[ok][:, c].mean(axis=1), xy, self.k)
+            disp[:, c] += pred
+            var[:, c] += (kv + cov.nugget)[:, None]
+        return disp, var
 
 
 def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
@@ -659,7 +719,8 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
                            f"{s.min_points}")
         entry["vertices"] = {k: int((source == k).sum()) for k in SOURCES}
         return entry
-    u_obj, disp, cov, fh, info = _predicted_objects(out, d, rec, s, obj_pt, report, cancel)
+    u_obj, disp, cov, fh, info, d.conflation = _predicted_objects(out, d, rec, s, obj_pt,
+                                                                  report, cancel)
     nobj = d.shape.n_objects
     db = d.shape.object_xyz
     adj_o = np.full((nobj, 3), np.nan)
