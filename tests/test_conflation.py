@@ -286,3 +286,20 @@ def test_field_model_predicts_what_the_vertices_got():
     assert np.allclose(obj[:, 0] + disp[:, 0], v["AdjX"][u], atol=1e-6)
     assert np.allclose(obj[:, 2] + disp[:, 2], v["AdjZ"][u], atol=1e-6)
     assert np.allclose(np.sqrt(var[:, 0]), v["SigmaX"][u], rtol=1e-6)
+
+
+def test_report_has_the_conflation_section_and_figure():
+    from vectoradjust.accuracy.conflation import field_grid
+    from vectoradjust.files.report import conflation_figure, report_html
+
+    _, out, ref = _runs("smooth")
+    html = report_html(out)
+    assert "Conflation: every vertex corrected" in html and "conflation field" in html
+    assert conflation_figure(ref) is None  # nothing conflated: no figure
+    g = field_grid(out.databases[0], cell=25.0)
+    x = g["x0"] + 25.0 * np.array([0.5, 3.5])
+    y = g["y0"] - 25.0 * np.array([0.5, 2.5])
+    disp, var = out.databases[0].conflation.predict(np.column_stack([x, y]))
+    assert g["cell"] == 25.0
+    assert np.allclose([g["dx"][0, 0], g["dx"][2, 3]], disp[:, 0])
+    assert np.all(g["ce90"] > 0) and np.isfinite(g["dx"]).all()

@@ -37,6 +37,7 @@ from vectoradjust.errors import CancelledError, ProjectError
 
 __all__ = ["ConflationSettings", "CovarianceModel", "settings_from_table", "fit_covariance",
            "empirical_semivariogram", "krige", "cross_validate", "image_only", "FieldModel",
+           "field_grid",
            "conflate_database", "conflate_run", "SOURCES", "CONFLATION_KEYS",
            "CE90_CIRCULAR", "LE90"]
 
@@ -778,3 +779,46 @@ def conflate_run(out, offsets: Optional[dict], settings: ConflationSettings,
     return {"enabled": settings.enabled, "k": settings.k, "model": settings.model,
             "max_distance": settings.max_distance, "min_points": settings.min_points,
             "databases": entries}
+
+
+def field_grid(d, cell: Optional[float] = None, max_cells: int = 40000) -> Optional[dict]:
+    """The displacement field of a conflated database on a regular grid.
+
+    Parameters
+    ----------
+    d : DatabaseResult
+        Conflated (``d.conflation`` set).
+    cell : float, optional
+        Cell size (m); default: the extent over ``sqrt(max_cells)``, rounded up to 1-2-5.
+    max_cells : int
+        At most this many cells (the cell grows when needed).
+
+    Returns
+    -------
+    dict or None
+        ``x0``, ``y0`` (upper left corner), ``cell``, ``dx``, ``dy``, ``dz`` and
+        ``ce90``, ``le90`` arrays (rows from north to south); None without a field.
+    """
+    model = getattr(d, "conflation", None)
+    xy = np.asarray(d.shape.layer.coords, float)[:, :2] if len(d.shape.layer.coords) else None
+    if model is None or xy is None:
+        return None
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    ext = float(max((hi - lo).max(), 1.0))
+    need = ext / np.sqrt(max_cells)
+    if cell is None or cell < need:
+        e = 10.0 ** np.floor(np.log10(need))
+        cell = float(next(m * e for m in (1.0, 2.0, 5.0, 10.0) if m * e >= need))
+    nx = int(np.ceil((hi[0] - lo[0]) / cell)) + 1
+    ny = int(np.ceil((hi[1] - lo[1]) / cell)) + 1
+    x0, y0 = float(lo[0] - cell / 2), float(hi[1] + cell / 2)
+    gx = x0 + cell * (np.arange(nx) + 0.5)
+    gy = y0 - cell * (np.arange(ny) + 0.5)
+    xx, yy = np.meshgrid(gx, gy)
+    disp, var = model.predict(np.column_stack([xx.ravel(), yy.ravel()]))
+    sig_h = np.sqrt(np.maximum(var[:, :2].mean(axis=1), 0.0))
+    shape = (ny, nx)
+    return {"x0": x0, "y0": y0, "cell": cell, "dx": disp[:, 0].reshape(shape),
+            "dy": disp[:, 1].reshape(shape), "dz": disp[:, 2].reshape(shape),
+            "ce90": (CE90_CIRCULAR * sig_h).reshape(shape),
+            "le90": (LE90 * np.sqrt(np.maximum(var[:, 2], 0.0))).reshape(shape)}
