@@ -303,3 +303,17 @@ def test_report_has_the_conflation_section_and_figure():
     assert g["cell"] == 25.0
     assert np.allclose([g["dx"][0, 0], g["dx"][2, 3]], disp[:, 0])
     assert np.all(g["ce90"] > 0) and np.isfinite(g["dx"]).all()
+
+
+def test_conflation_raster_is_written_with_the_field(tmp_path):
+    rasterio = pytest.importorskip("rasterio")
+    from vectoradjust.accuracy.conflation import field_grid
+    from vectoradjust.files.derived_outputs import write_conflation_rasters
+
+    _, out, _ = _runs("shift")
+    paths = write_conflation_rasters(out, tmp_path, cell=20.0)
+    g = field_grid(out.databases[0], 20.0)
+    with rasterio.open(paths["OSM"]) as src:
+        assert src.count == 5 and src.res == (20.0, 20.0)
+        assert np.allclose(src.read(1), g["dx"]) and np.allclose(src.read(4), g["ce90"])
+        assert src.transform.c == pytest.approx(g["x0"]) and src.crs is not None
