@@ -246,8 +246,6 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
         nugget at least the mean known noise and sill, length >= 0;
         without enough pairs a pure nugget model (no correlated signal).
     """
-    from scipy.optimize import least_squares
-
     noise = float(np.mean(known_noise)) if len(known_noise) else 0.0
     photo = noise if photo_noise is None or not len(photo_noise) else float(np.mean(photo_noise))
     total = float(np.mean(resid ** 2)) if resid.size else 0.0
@@ -257,29 +255,55 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
         return CovarianceModel(kind, 0.0, 0.0, max(total - noise, 0.0), noise,
                                max(total - photo, 0.0),
                                {**fit, "status": "too few pairs: white noise only"})
-    w = np.sqrt(cnt / cnt.sum())
-    scale = max(float(gam.max()), 1e-12)
-
-    def model(p):
-        nug, sill, length = p
-        u = lag / length
-        rho = np.exp(-u) if kind == "exponential" else np.exp(-u * u)
-        return nug + sill * (1.0 - rho)
-
     # the measured points' own noise is part of the nugget: it cannot be smaller
-    floor = min(noise, 0.999 * 4.0 * scale)
-    p0 = [max(min(gam[0], scale) * 0.5, floor), max(scale - gam[0], 1e-3 * scale),
-          lag[-1] / 3.0]
-    lo = [floor, 0.0, lag[0] / 10.0]
-    hi = [4.0 * scale, 4.0 * scale, lag[-1] * 10.0]
-    p0 = np.clip(p0, lo, np.asarray(hi) * 0.999)
-    # Cressie's weights: N_h / gamma(h)^2, so that the short lags count as much
-    sol = least_squares(lambda p: w * (gam / model(p) - 1.0), p0, bounds=(lo, hi))
-    nug, sill, length = (float(v) for v in sol.x)
+    floor = min(noise, 0.999 * float(gam.max()))
+    nug, sill, length = _fit_grid(lag, gam, cnt, kind, floor)
     return CovarianceModel(kind, sill, length, max(nug - noise, 0.0), noise,
-                           max(nug - photo, 0.0),
-                           {**fit, "status": "fitted" if sol.success else "fit did not converge",
-                            "fitted_nugget": nug})
+                           max(nug - photo, 0.0), {**fit, "status": "fitted",
+                                                   "fitted_nugget": nug})
+
+
+def _nonneg_pair(f: np.ndarray, g: np.ndarray, w: np.ndarray):
+    """Per row: ``a, b >= 0`` minimising ``sum w (g - a - b f)^2`` (the KKT candidates)."""
+    sw, sf, sff = w.sum(1), (w * f).sum(1), (w * f * f).sum(1)
+    sg, sfg = (w * g).sum(1), (w * f * g).sum(1)
+    det = sw * sff - sf * sf
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cands = [((sff * sg - sf * sfg) / det, (sw * sfg - sf * sg) / det),  # both free
+                 (np.zeros_like(sw), np.maximum(sfg / sff, 0.0)),            # a = 0
+                 (np.maximum(sg / sw, 0.0), np.zeros_like(sw))]             # b = 0
+    best_a, best_b = cands[2]
+    best = ((g - best_a[:, None]) ** 2 * w).sum(1)
+    for a, b in cands[:2]:
+        ok = np.isfinite(a) & np.isfinite(b) & (a >= 0) & (b >= 0)
+        a, b = np.where(ok, a, 0.0), np.where(ok, b, 0.0)
+        sse = np.where(ok, ((g - a[:, None] - b[:, None] * f) ** 2 * w).sum(1), np.inf)
+        better = sse < best
+        best_a, best_b, best = (np.where(better, a, best_a), np.where(better, b, best_b),
+                                np.where(better, sse, best))
+    return best_a, best_b, best
+
+
+def _fit_grid(lag, gam, cnt, kind: str, floor: float, n_lengths: int = 241):
+    """``(nugget, sill, length)`` of the semivariogram model, weighted least squares.
+
+    For each length on a geometric grid the model is linear in the nugget (>= floor)
+    and the sill (>= 0) and solved exactly; the best length wins. Cressie's weights
+    ``N_h / gamma(h)^2`` (the short lags count as much as the long ones), with the
+    model of the previous round, four rounds. No iterative optimiser: the same data
+    give the same model on every platform (QGIS's numpy and scipy included).
+    """
+    lengths = np.geomspace(lag[0] / 10.0, lag[-1] * 10.0, n_lengths)
+    u = lag[None, :] / lengths[:, None]
+    f = 1.0 - (np.exp(-u) if kind == "exponential" else np.exp(-u * u))
+    g = np.broadcast_to(gam - floor, f.shape)
+    model = np.maximum(gam, 1e-12 * max(float(gam.max()), 1e-300))
+    for _ in range(4):
+        w = np.broadcast_to(cnt / model ** 2, f.shape)
+        a, b, sse = _nonneg_pair(f, g, w)
+        i = int(np.argmin(sse))
+        model = np.maximum(floor + a[i] + b[i] * f[i], 1e-12 * max(float(gam.max()), 1e-300))
+    return float(floor + a[i]), float(b[i]), float(lengths[i])
 
 
 def _neighbours(tree, xy: np.ndarray, k: int, skip_self: bool):
@@ -297,9 +321,8 @@ def _solve_chunk(cov: CovarianceModel, xy_m, resid, noise, dist, idx):
     """Simple kriging of one chunk: prediction (b, c) and signal error variance (b,)."""
     if cov.sill <= 0 or cov.length <= 0:  # no correlated signal: the trend alone
         return np.zeros((len(idx), resid.shape[1])), np.zeros(len(idx))
-    pts = xy_m[idx]  # (b, k, 2)
-    dd = np.sqrt(((pts[:, :, None, :] - pts[:, None, :, :]) ** 2).sum(-1))
-    a = cov(dd)
+    px, py = xy_m[idx, 0], xy_m[idx, 1]  # (b, k)
+    a = cov(np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :]))
     diag = np.arange(idx.shape[1])
     a[:, diag, diag] += cov.nugget + noise[idx]
     c = cov(dist)
