@@ -317,19 +317,26 @@ def _neighbours(tree, xy: np.ndarray, k: int, skip_self: bool):
     return dist, idx
 
 
-def _solve_chunk(cov: CovarianceModel, xy_m, resid, noise, dist, idx):
-    """Simple kriging of one chunk: prediction (b, c) and signal error variance (b,)."""
-    if cov.sill <= 0 or cov.length <= 0:  # no correlated signal: the trend alone
-        return np.zeros((len(idx), resid.shape[1])), np.zeros(len(idx))
-    px, py = xy_m[idx, 0], xy_m[idx, 1]  # (b, k)
-    a = cov(np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :]))
+def _solve_chunk(models: list, xy_m, dist, idx) -> list:
+    """Simple kriging of one chunk for each ``(cov, resid, noise)`` of ``models`` (same
+    measured points and neighbours): prediction (b, c) and signal error variance (b,)."""
+    out = []
+    dd = None
     diag = np.arange(idx.shape[1])
-    a[:, diag, diag] += cov.nugget + noise[idx]
-    c = cov(dist)
-    w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
-    pred = np.einsum("bk,bkc->bc", w, resid[idx])
-    var = np.maximum(cov.sill - np.einsum("bk,bk->b", w, c), 0.0)
-    return pred, var
+    for cov, resid, noise in models:
+        if cov.sill <= 0 or cov.length <= 0:  # no correlated signal: the trend alone
+            out.append((np.zeros((len(idx), resid.shape[1])), np.zeros(len(idx))))
+            continue
+        if dd is None:  # the neighbours' distances, once for all models
+            px, py = xy_m[idx, 0], xy_m[idx, 1]  # (b, k)
+            dd = np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :])
+        a = cov(dd)
+        a[:, diag, diag] += cov.nugget + noise[idx]
+        c = cov(dist)
+        w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
+        out.append((np.einsum("bk,bkc->bc", w, resid[idx]),
+                    np.maximum(cov.sill - np.einsum("bk,bk->b", w, c), 0.0)))
+    return out
 
 
 def krige(cov: CovarianceModel, xy_m: np.ndarray, resid: np.ndarray, noise: np.ndarray,
@@ -368,26 +375,35 @@ def krige(cov: CovarianceModel, xy_m: np.ndarray, resid: np.ndarray, noise: np.n
     nearest : numpy.ndarray, shape (n,)
         Distance to the nearest measured point used.
     """
+    (res,), nearest = _krige_many([(cov, resid, noise)], xy_m, xy_p, k, skip_self, chunk,
+                                  progress, is_cancelled)
+    return res[0], res[1], nearest
+
+
+def _krige_many(models: list, xy_m, xy_p, k: int, skip_self: bool = False,
+                chunk: int = 20000, progress=None, is_cancelled=None):
+    """:func:`krige` for several ``(cov, resid, noise)`` on the same measured points: one
+    KD-tree query and one distance matrix per chunk. Returns ``[(pred, var)], nearest``."""
     from scipy.spatial import cKDTree
 
     n = len(xy_p)
     k = int(min(k, len(xy_m) - (1 if skip_self else 0)))
-    pred = np.zeros((n, resid.shape[1]))
-    var = np.full(n, float(cov.sill))
+    out = [(np.zeros((n, r.shape[1])), np.full(n, float(c.sill))) for c, r, _ in models]
     nearest = np.full(n, np.inf)
     if n == 0 or k < 1:
-        return pred, var, nearest
+        return out, nearest
     tree = cKDTree(xy_m)
     for s in range(0, n, chunk):
         if is_cancelled is not None and is_cancelled():
             raise CancelledError("The conflation was cancelled", "Run it again when ready")
         e = min(s + chunk, n)
         dist, idx = _neighbours(tree, xy_p[s:e], k, skip_self)
-        pred[s:e], var[s:e] = _solve_chunk(cov, xy_m, resid, noise, dist, idx)
+        for (pred, var), (p, v) in zip(out, _solve_chunk(models, xy_m, dist, idx)):
+            pred[s:e], var[s:e] = p, v
         nearest[s:e] = dist[:, 0]
         if progress is not None:
             progress(e / n)
-    return pred, var, nearest
+    return out, nearest
 
 
 def cross_validate(cov: CovarianceModel, xy_m: np.ndarray, resid: np.ndarray,
@@ -416,6 +432,12 @@ def cross_validate(cov: CovarianceModel, xy_m: np.ndarray, resid: np.ndarray,
         return {"count": int(m), "rmse": None, "rmse_trend_only": None,
                 "share_within_90": None, "mean_sigma": None}
     pred, var, _ = krige(cov, xy_m, resid, noise, xy_m, k, skip_self=True)
+    return _cv_stats(cov, resid, noise, pred, var, factor)
+
+
+def _cv_stats(cov: CovarianceModel, resid, noise, pred, var, factor: float) -> dict:
+    """The leave-one-out figures from the held-out predictions."""
+    m = len(resid)
     err = resid - pred
     sig = np.sqrt(var + cov.nugget + noise)
     size = np.sqrt((err ** 2).sum(axis=1))
@@ -468,19 +490,36 @@ class _Field:
     cv: dict
 
 
-def _group_field(xy_m, resid, noise, photo, xy_u, s: ConflationSettings, factor, report,
-                 cancel):
-    """Fit, predict and cross-validate one component group (horizontal or vertical)."""
-    ok = np.isfinite(resid).all(axis=1)
+def _fields(xy_m, resid, noise, photo, xy_u, s: ConflationSettings, report, cancel):
+    """Fit, predict and cross-validate the horizontal and the vertical field.
+
+    Each group (X and Y sharing one covariance function; Z) uses the measured points
+    where it is finite; when both use the same points the KD-tree queries and the
+    neighbours' distance matrices are shared.
+    """
+    groups = [(resid[:, :2], noise[:, :2].mean(axis=1), photo[:, :2].mean(axis=1),
+               CE90_CIRCULAR), (resid[:, 2:], noise[:, 2], photo[:, 2], LE90)]
     n_u = len(xy_u)
-    if ok.sum() < s.min_points:
-        return _Field(np.full((n_u, resid.shape[1]), np.nan), np.full(n_u, np.nan),
-                      np.full(n_u, np.inf), None, {"count": int(ok.sum()), "rmse": None})
-    cov = fit_covariance(xy_m[ok], resid[ok], noise[ok], s.model, photo[ok])
-    pred, var, nearest = krige(cov, xy_m[ok], resid[ok], noise[ok], xy_u, s.k,
-                               progress=report, is_cancelled=cancel)
-    cv = cross_validate(cov, xy_m[ok], resid[ok], noise[ok], s.k, factor)
-    return _Field(pred, var, nearest, cov, cv)
+    oks = [np.isfinite(r).all(axis=1) for r, _, _, _ in groups]
+    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model, ph[ok])
+            if ok.sum() >= s.min_points else None for ok, (r, nz, ph, _) in zip(oks, groups)]
+    live = [i for i, c in enumerate(covs) if c is not None]
+    fields = [_Field(np.full((n_u, r.shape[1]), np.nan), np.full(n_u, np.nan),
+                     np.full(n_u, np.inf), None, {"count": int(ok.sum()), "rmse": None})
+              for ok, (r, _, _, _) in zip(oks, groups)]
+    batches = ([live] if len(live) == 2 and np.array_equal(*oks) else [[i] for i in live])
+    for b, batch in enumerate(batches):
+        ok = oks[batch[0]]
+        models = [(covs[i], groups[i][0][ok], groups[i][1][ok]) for i in batch]
+        part = (b, len(batches))
+        res, nearest = _krige_many(models, xy_m[ok], xy_u, s.k, progress=lambda f, p=part:
+                                   report((p[0] + f) / p[1]), is_cancelled=cancel)
+        loo, _ = _krige_many(models, xy_m[ok], xy_m[ok], s.k, skip_self=True)
+        for i, (pred, var), (lp, lv), m in zip(batch, res, loo, models):
+            cv = (_cv_stats(covs[i], m[1], m[2], lp, lv, groups[i][3]) if ok.sum() >= 3 else
+                  {"count": int(ok.sum()), "rmse": None})
+            fields[i] = _Field(pred, var, nearest, covs[i], cv)
+    return fields[0], fields[1]
 
 
 def _vertex_columns(d, meas_v, adj, cov, source) -> None:
@@ -628,10 +667,7 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     t, tcov, covered = _trend(rec, db, dm, common)
     resid = dm - t[m_obj]
     xy_m, xy_u = db[m_obj, :2], db[u_obj, :2]
-    fh = _group_field(xy_m, resid[:, :2], noise[:, :2].mean(axis=1), photo[:, :2].mean(axis=1),
-                      xy_u, s, CE90_CIRCULAR, lambda f: report(0.5 * f), cancel)
-    fv = _group_field(xy_m, resid[:, 2:], noise[:, 2], photo[:, 2], xy_u, s, LE90,
-                      lambda f: report(0.5 + 0.5 * f), cancel)
+    fh, fv = _fields(xy_m, resid, noise, photo, xy_u, s, report, cancel)
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
     cov = tcov[u_obj].copy()
     nug_h = fh.cov.nugget if fh.cov is not None else np.nan
