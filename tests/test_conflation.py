@@ -317,3 +317,22 @@ def test_conflation_raster_is_written_with_the_field(tmp_path):
         assert src.count == 5 and src.res == (20.0, 20.0)
         assert np.allclose(src.read(1), g["dx"]) and np.allclose(src.read(4), g["ce90"])
         assert src.transform.c == pytest.approx(g["x0"]) and src.crs is not None
+
+
+def test_the_stage_reports_progress_and_honours_cancel():
+    data, _, _ = _runs("shift")
+    seen = []
+
+    def progress(f, msg):
+        seen.append((f, msg))
+
+    run(data, progress=progress)
+    conf = [f for f, m in seen if m.startswith("conflation of OSM")]
+    assert conf and 0.9 <= min(conf) and max(conf) <= 1.0
+    state = {"go": False}
+
+    def progress_then_cancel(f, msg):
+        state["go"] = state["go"] or msg.startswith("conflation")
+
+    with pytest.raises(CancelledError, match="conflation"):
+        run(data, progress=progress_then_cancel, is_cancelled=lambda: state["go"])

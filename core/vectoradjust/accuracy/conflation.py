@@ -514,7 +514,8 @@ def _fields(xy_m, resid, noise, photo, xy_u, s: ConflationSettings, report, canc
         part = (b, len(batches))
         res, nearest = _krige_many(models, xy_m[ok], xy_u, s.k, progress=lambda f, p=part:
                                    report((p[0] + f) / p[1]), is_cancelled=cancel)
-        loo, _ = _krige_many(models, xy_m[ok], xy_m[ok], s.k, skip_self=True)
+        loo, _ = _krige_many(models, xy_m[ok], xy_m[ok], s.k, skip_self=True,
+                             is_cancelled=cancel)
         for i, (pred, var), (lp, lv), m in zip(batch, res, loo, models):
             cv = (_cv_stats(covs[i], m[1], m[2], lp, lv, groups[i][3]) if ok.sum() >= 3 else
                   {"count": int(ok.sum()), "rmse": None})
