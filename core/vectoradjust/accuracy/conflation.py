@@ -137,12 +137,6 @@ class CovarianceModel:
         less the measured points' mean known noise.
     known_noise : float
         Mean variance of the measured points (adjustment + identification), m^2.
-    vertex_nugget : float
-        White error (m^2) of an unmeasured vertex: the fitted nugget less the
-        adjustment's share only. The identification error cannot be told apart from the
-        database's own white error (DESIGN section 10), and the shape point prior pulls
-        the measured points towards the database, so the split ``nugget`` is too
-        small; this is the safe side.
     fit : dict
         The empirical semivariogram and the fit's status.
     """
@@ -152,7 +146,6 @@ class CovarianceModel:
     length: float
     nugget: float
     known_noise: float = 0.0
-    vertex_nugget: float = 0.0
     fit: dict = field(default_factory=dict)
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
@@ -171,8 +164,7 @@ class CovarianceModel:
         """JSON-ready description."""
         return {"model": self.kind, "sill": float(self.sill), "length": float(self.length),
                 "practical_range": self.practical_range, "nugget": float(self.nugget),
-                "known_noise": float(self.known_noise),
-                "vertex_nugget": float(self.vertex_nugget), **self.fit}
+                "known_noise": float(self.known_noise), **self.fit}
 
 
 def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
@@ -222,8 +214,7 @@ def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
 
 
 def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
-                   kind: str = "exponential",
-                   photo_noise: Optional[np.ndarray] = None) -> CovarianceModel:
+                   kind: str = "exponential") -> CovarianceModel:
     """Fit ``gamma(h) = nugget + C0 (1 - rho(h / L))`` to the empirical semivariogram.
 
     Parameters
@@ -236,8 +227,6 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
         Each point's known noise variance per component (m^2).
     kind : str
         ``"exponential"`` or ``"gaussian"``.
-    photo_noise : numpy.ndarray, shape (n,), optional
-        The adjustment's share of ``known_noise`` (default: all of it).
 
     Returns
     -------
@@ -247,20 +236,17 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
         without enough pairs a pure nugget model (no correlated signal).
     """
     noise = float(np.mean(known_noise)) if len(known_noise) else 0.0
-    photo = noise if photo_noise is None or not len(photo_noise) else float(np.mean(photo_noise))
     total = float(np.mean(resid ** 2)) if resid.size else 0.0
     lag, gam, cnt = empirical_semivariogram(xy, resid)
     fit = {"lags": lag.tolist(), "semivariance": gam.tolist(), "pairs": cnt.astype(int).tolist()}
     if lag.size < 4:
         return CovarianceModel(kind, 0.0, 0.0, max(total - noise, 0.0), noise,
-                               max(total - photo, 0.0),
                                {**fit, "status": "too few pairs: white noise only"})
     # the measured points' own noise is part of the nugget: it cannot be smaller
     floor = min(noise, 0.999 * float(gam.max()))
     nug, sill, length = _fit_grid(lag, gam, cnt, kind, floor)
     return CovarianceModel(kind, sill, length, max(nug - noise, 0.0), noise,
-                           max(nug - photo, 0.0), {**fit, "status": "fitted",
-                                                   "fitted_nugget": nug})
+                           {**fit, "status": "fitted", "fitted_nugget": nug})
 
 
 def _nonneg_pair(f: np.ndarray, g: np.ndarray, w: np.ndarray):
@@ -490,23 +476,23 @@ class _Field:
     cv: dict
 
 
-def _fields(xy_m, resid, noise, photo, xy_u, s: ConflationSettings, report, cancel):
+def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel):
     """Fit, predict and cross-validate the horizontal and the vertical field.
 
     Each group (X and Y sharing one covariance function; Z) uses the measured points
     where it is finite; when both use the same points the KD-tree queries and the
     neighbours' distance matrices are shared.
     """
-    groups = [(resid[:, :2], noise[:, :2].mean(axis=1), photo[:, :2].mean(axis=1),
-               CE90_CIRCULAR), (resid[:, 2:], noise[:, 2], photo[:, 2], LE90)]
+    groups = [(resid[:, :2], noise[:, :2].mean(axis=1), CE90_CIRCULAR),
+              (resid[:, 2:], noise[:, 2], LE90)]
     n_u = len(xy_u)
-    oks = [np.isfinite(r).all(axis=1) for r, _, _, _ in groups]
-    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model, ph[ok])
-            if ok.sum() >= s.min_points else None for ok, (r, nz, ph, _) in zip(oks, groups)]
+    oks = [np.isfinite(r).all(axis=1) for r, _, _ in groups]
+    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model)
+            if ok.sum() >= s.min_points else None for ok, (r, nz, _) in zip(oks, groups)]
     live = [i for i, c in enumerate(covs) if c is not None]
     fields = [_Field(np.full((n_u, r.shape[1]), np.nan), np.full(n_u, np.nan),
                      np.full(n_u, np.inf), None, {"count": int(ok.sum()), "rmse": None})
-              for ok, (r, _, _, _) in zip(oks, groups)]
+              for ok, (r, _, _) in zip(oks, groups)]
     batches = ([live] if len(live) == 2 and np.array_equal(*oks) else [[i] for i in live])
     for b, batch in enumerate(batches):
         ok = oks[batch[0]]
@@ -517,7 +503,7 @@ def _fields(xy_m, resid, noise, photo, xy_u, s: ConflationSettings, report, canc
         loo, _ = _krige_many(models, xy_m[ok], xy_m[ok], s.k, skip_self=True,
                              is_cancelled=cancel)
         for i, (pred, var), (lp, lv), m in zip(batch, res, loo, models):
-            cv = (_cv_stats(covs[i], m[1], m[2], lp, lv, groups[i][3]) if ok.sum() >= 3 else
+            cv = (_cv_stats(covs[i], m[1], m[2], lp, lv, groups[i][2]) if ok.sum() >= 3 else
                   {"count": int(ok.sum()), "rmse": None})
             fields[i] = _Field(pred, var, nearest, covs[i], cv)
     return fields[0], fields[1]
@@ -664,11 +650,11 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     x_img, photo = image_only(out.result, out.problem, obj_pt[m_obj], scale=_image_scale(out))
     dm = x_img - db[m_obj]
     noise = photo + d.spec.identification_variance
-    common = np.einsum("nii->i", out.result.point_cov[obj_pt[m_obj]]) / len(m_obj)
+    common = np.nanmean(np.einsum("nii->ni", out.result.point_cov[obj_pt[m_obj]]), axis=0)
     t, tcov, covered = _trend(rec, db, dm, common)
     resid = dm - t[m_obj]
     xy_m, xy_u = db[m_obj, :2], db[u_obj, :2]
-    fh, fv = _fields(xy_m, resid, noise, photo, xy_u, s, report, cancel)
+    fh, fv = _fields(xy_m, resid, noise, xy_u, s, report, cancel)
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
     cov = tcov[u_obj].copy()
     nug_h = fh.cov.nugget if fh.cov is not None else np.nan
