@@ -21,7 +21,8 @@ a measured vertex against the same run without conflation, and the largest dista
 between vertices of one object point (coincident vertices); and the RMS step of the
 displacement between a measured vertex and its unmeasured neighbour on a road, without
 conflation (its whole V) > with it (what is left: mostly the database's white noise,
-which no prediction can know). ``!`` marks a reduction
+which no prediction can know); and the height RMSE of the predicted vertices before >
+after (the database's heights are DEM heights here). ``!`` marks a reduction
 below 70 % or a coverage outside 0.85-0.95.
 """
 
@@ -101,6 +102,7 @@ def one(name: str, kw: dict, seed: int) -> dict:
             "rmse_db": tr["rmse_database_truth_horizontal"],
             "rmse_conf": tr["rmse_conflated_truth_horizontal"], "reduction": tr["reduction"],
             "ce90": tr["share_within_ce90"], "le90": tr["share_within_le90"],
+            "z_db": tr["rmse_database_truth_z"], "z_conf": tr["rmse_conflated_truth_z"],
             "cv_rmse": cv["rmse"], "cv_share": cv["share_within_90"], "moved": moved,
             "spread": spread, "step0": step0, "step1": step1, "seconds": el}
 
@@ -111,7 +113,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     head = (f"{'scenario':12s} {'seed':>4s} {'meas':>5s} {'pred':>5s} {'db m':>6s} "
             f"{'conf m':>6s} {'reduc':>6s} {'CE90':>5s} {'LE90':>5s} {'cvRMSE':>6s} "
-            f"{'cv90':>5s} {'moved':>7s} {'spread':>7s} {'step':>9s} {'run s':>5s}")
+            f"{'cv90':>5s} {'moved':>7s} {'spread':>7s} {'step':>9s} {'Z m':>9s} {'run s':>5s}")
     print(head)
     rows = []
     for name, kw in scenarios().items():
@@ -123,6 +125,7 @@ def main(argv=None) -> int:
                   f"{r['rmse_db']:6.2f} {r['rmse_conf']:6.2f} {r['reduction']:6.1%} "
                   f"{r['ce90']:5.2f} {r['le90']:5.2f} {r['cv_rmse']:6.2f} {r['cv_share']:5.2f} "
                   f"{r['moved']:7.1e} {r['spread']:7.1e} {r['step0']:4.1f}>{r['step1']:4.1f} "
+                  f"{r['z_db']:4.2f}>{r['z_conf']:4.2f} "
                   f"{r['seconds']:5.1f} {flag}")
     print("\nover the seeds (predicted vertices pooled by seed; min - max):")
     for name in scenarios():

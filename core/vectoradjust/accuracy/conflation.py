@@ -438,8 +438,9 @@ def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.n
     """Trend ``t`` (n, 3) and its covariance (n, 3, 3) at every object point.
 
     ``-G(x) T`` of the estimated offset (database minus images, so the displacement is
-    its negative); axes the offset model does not cover get the measured points' mean,
-    with the larger of its variance over their number and ``common`` (3,), the
+    its negative); axes the offset model does not cover get the measured points' mean
+    where it differs significantly from zero (else zero), with the larger of its
+    variance over their number and ``common`` (3,), the
     adjusted points' mean variance: the points share the errors of the exterior
     orientation (a common height error of a stereo model), which do not average out,
     and a predicted vertex is not more certain in them than a measured one.
@@ -460,8 +461,11 @@ def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.n
     for a in np.flatnonzero(~covered):
         col = dm[:, a][np.isfinite(dm[:, a])]
         if col.size:
-            t[:, a] = col.mean()
-            tcov[:, a, a] = max(col.var() / col.size, float(common[a]))
+            var = max(col.var() / col.size, float(common[a]))
+            # only a mean the images tell from zero (z > 1.96) moves the vertices: a
+            # common error of the adjusted heights must not spoil the database's heights
+            t[:, a] = col.mean() if abs(col.mean()) > 1.96 * np.sqrt(var) else 0.0
+            tcov[:, a, a] = var
     return t, tcov, covered
 
 
@@ -667,7 +671,11 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     model = FieldModel(xy_m, resid, noise, fh.cov, fv.cov, rec, mean, mean_var, s.k)
     info = {"trend": {"offset": rec.get("kind") if rec else None,
                       "axes_from_offset": [a for a, c in zip("XYZ", covered) if c],
-                      "axes_from_mean": [a for a, c in zip("XYZ", covered) if not c]},
+                      "axes_from_mean": [a for a, c in zip("XYZ", covered) if not c],
+                      "mean": [None if c else float(t[0, a]) if len(t) else None
+                               for a, c in enumerate(covered)],
+                      "mean_sigma": [None if c else float(np.sqrt(tcov[0, a, a]))
+                                     if len(t) else None for a, c in enumerate(covered)]},
             "covariance": {"horizontal": fh.cov.as_dict() if fh.cov else None,
                            "vertical": fv.cov.as_dict() if fv.cov else None},
             "cross_validation": {"horizontal": fh.cv, "vertical": fv.cv}}
