@@ -336,3 +336,27 @@ def test_the_stage_reports_progress_and_honours_cancel():
 
     with pytest.raises(CancelledError, match="conflation"):
         run(data, progress=progress_then_cancel, is_cancelled=lambda: state["go"])
+
+
+def test_a_mean_height_shift_moves_heights_only_where_significant():
+    data, out, _ = _runs("helsinki")
+    e = out.summary["conflation"]["databases"][0]
+    mean, sig = e["trend"]["mean"][2], e["trend"]["mean_sigma"][2]
+    d = out.databases[0]
+    v = d.vertices
+    m = v["Adjusted"] == 1
+    raw = float(np.nanmean(v["Vz"][m]))  # the adjusted heights' mean displacement
+    assert abs(raw) > 0.2  # the stereo model's common height error in this scenario
+    # at least the measured points' own height sigma (SigmaZ less the identification's)
+    own = np.sqrt(np.nanmean(v["SigmaZ"][m] ** 2) - d.spec.identification_sigma[1] ** 2)
+    assert sig >= 0.98 * own  # per object point, not per vertex: near, not equal
+    if abs(raw) <= 1.96 * sig:
+        assert mean == 0.0
+    else:
+        assert mean != 0.0
+    tid, txyz = data.truth["OSM"]
+    t = np.asarray(txyz)[lookup(tid, d.shape.vertex_ids)]
+    u = ~m
+    rz_db = np.sqrt(np.mean((v["Z"][u] - t[u, 2]) ** 2))
+    rz = np.sqrt(np.mean((v["AdjZ"][u] - t[u, 2]) ** 2))
+    assert rz <= rz_db * 1.1  # the DEM heights are not spoilt
