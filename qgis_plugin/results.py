@@ -25,7 +25,7 @@ from qgis.PyQt.QtCore import QVariant
 from .qgis_io import fields_for, line_z, new_feature, point_z
 
 _SHAPE_TYPES = {"point_id": "s", "feature_id": "s", "Database": "s", "NImages": "i",
-                "Adjusted": "i"}
+                "Adjusted": "i", "Source": "s"}
 _FEATURE_TYPES = {"NPts": "i", "NAdj": "i", "Images": "s", "ImgDate": "s", "Database": "s",
                   "Problem": "s"}
 _CONTROL_TYPES = {"point_id": "s", "role": "s", "NImages": "i", "Used": "i"}
@@ -122,6 +122,8 @@ def shape_point_features(run, fields):
     for d in run.databases:
         v = d.vertices
         adj = v["Adjusted"] == 1
+        if "Source" in v:  # vertices corrected by the conflation carry values too
+            adj = adj | np.isin(v["Source"], ("interpolated", "extrapolated"))
         cols = [_column(v[f], adj if f in _MASKED else None) for f in names]
         for i in range(len(adj)):
             out.append(new_feature(fields, [c[i] for c in cols],

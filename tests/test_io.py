@@ -84,8 +84,14 @@ def test_shape_points_fields_and_values(project_dir, shp_run):
     adj = pts["Adjusted"] == 1
     assert 0 < adj.sum() < len(pts)
     assert np.allclose(pts.loc[adj, "Vx"], pts.loc[adj, "AdjX"] - pts.loc[adj, "X"], atol=1e-6)
-    assert pts.loc[~adj, "Vx"].isna().all() and pts.loc[~adj, "CE90"].isna().all()
-    assert np.allclose(pts.loc[~adj, "AdjX"], pts.loc[~adj, "X"])
+    # unmeasured vertices: corrected by the conflation (with their CE90), or unchanged
+    conf = pts["Source"].isin(["interpolated", "extrapolated"])
+    assert (conf == ~adj).all()
+    assert np.allclose(pts.loc[conf, "Vx"], pts.loc[conf, "AdjX"] - pts.loc[conf, "X"], atol=1e-6)
+    assert pts.loc[conf, "CE90"].notna().all()
+    unc = pts["Source"] == "unchanged"
+    assert pts.loc[unc, "Vx"].isna().all() and pts.loc[unc, "CE90"].isna().all()
+    assert np.allclose(pts.loc[unc, "AdjX"], pts.loc[unc, "X"])
     # point geometry sits at the adjusted position
     assert np.allclose(pts.geometry.x, pts["AdjX"]) and np.allclose(pts.geometry.y, pts["AdjY"])
     # ids are <feature id>_<vertex index>

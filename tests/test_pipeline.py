@@ -63,10 +63,15 @@ def test_residuals_are_adjusted_minus_database(two_pass_run):
         adj = v["Adjusted"] == 1
         assert np.allclose(v["Vx"][adj], v["AdjX"][adj] - v["X"][adj])
         assert np.allclose(v["Vz"][adj], v["AdjZ"][adj] - v["Z"][adj])
-        # unmeasured vertices: carried through, not adjusted
-        assert np.all(np.isnan(v["Vx"][~adj]))
-        assert np.array_equal(v["AdjX"][~adj], v["X"][~adj])
+        # unmeasured vertices: moved by the conflation (V = adjusted - database too), or
+        # carried through unchanged
         assert (~adj).sum() > 0  # the scenario has vertices outside the stereo model
+        conf = np.isin(v["Source"], ("interpolated", "extrapolated"))
+        assert np.array_equal(conf, ~adj)  # conflation is on by default
+        assert np.allclose(v["Vx"][conf], v["AdjX"][conf] - v["X"][conf])
+        unc = v["Source"] == "unchanged"
+        assert np.all(np.isnan(v["Vx"][unc]))
+        assert np.array_equal(v["AdjX"][unc], v["X"][unc])
 
 
 def test_feature_rmse_matches_its_vertices(two_pass_run):

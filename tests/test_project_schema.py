@@ -152,13 +152,13 @@ def test_readmes_example_is_valid_toml_with_known_keys():
     raw = tomllib.loads(text)
     check_keys(raw, PROJECT_SCHEMA["top level"], "README", "")
     for name in ("camera", "corrections", "measurements", "control", "adjustment", "truth",
-                 "qa"):
+                 "qa", "conflation"):
         check_keys(raw[name], PROJECT_SCHEMA[f"[{name}]"], "README", f"[{name}]")
     for name in ("images", "vectors"):
         for entry in raw[name]:
             check_keys(entry, PROJECT_SCHEMA[f"[[{name}]]"], "README", f"[[{name}]]")
     documented = {k for t in ("camera", "corrections", "measurements", "control", "adjustment",
-                              "truth", "qa") for k in raw[t]}
+                              "truth", "qa", "conflation") for k in raw[t]}
     documented |= set(raw) | set(raw["images"][0]) | set(raw["vectors"][0])
     every = {k for keys in PROJECT_SCHEMA.values() for k in keys}
     assert every <= documented, f"not in README's example: {sorted(every - documented)}"

@@ -163,8 +163,8 @@ def test_self_contained(page):
 
 
 def test_figures_are_valid_pngs(page):
-    # residual vectors, RMSE bars, error ellipses, residual histogram
-    assert len(page.images) == 4
+    # residual vectors, RMSE bars, conflation field, error ellipses, residual histogram
+    assert len(page.images) == 5
     for img in page.images:
         w, h, size = _png_info(img["src"])
         assert w >= 400 and h >= 250
@@ -358,8 +358,8 @@ def test_compare_report(scenario, tmp_path):
     assert [r[0] for r in body] == ["OSM", "TIGER"]
     j = head.index("RMSE h (m)")
     assert float(body[1][j]) == pytest.approx(rows[1]["rmse_horizontal"], abs=5e-4)
-    # bars across databases + per database: vectors, ellipses, histogram
-    assert len(p.images) == 1 + 3 * len(runs)
+    # bars across databases + per database: vectors, conflation field, ellipses, histogram
+    assert len(p.images) == 1 + 4 * len(runs)
     for img in p.images:
         _png_info(img["src"])
     assert len(p.ids) == len(set(p.ids))

@@ -337,6 +337,8 @@ class ProjectData:
         the summary as ``interior_orientation``.
     qa : dict or None
         The ``[qa]`` table (product specification for accuracy control).
+    conflation : dict or None
+        The ``[conflation]`` table (None: the defaults, conflation on).
     """
 
     crs: str
@@ -351,3 +353,4 @@ class ProjectData:
     source: str = "<project>"
     interior: dict = field(default_factory=dict)
     qa: Optional[dict] = None
+    conflation: Optional[dict] = None

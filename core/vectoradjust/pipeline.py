@@ -188,6 +188,21 @@ def _inputs(out: AdjustmentRun) -> None:
             _warn(out, f"control points: {reading['warning']}")
 
 
+def _conflation(out: AdjustmentRun, solution, report, is_cancelled) -> None:
+    """Correct every unmeasured vertex from the measured ones (least-squares collocation,
+    DESIGN section 10; ``[conflation]``), after the statistics of the measured points."""
+    from vectoradjust.accuracy.conflation import conflate_run, settings_from_table
+
+    settings = settings_from_table(out.data.conflation, out.data.source)
+    rec = conflate_run(out, solution.offsets, settings,
+                       lambda f, m: report(0.9 + 0.09 * f, m), is_cancelled)
+    out.summary["conflation"] = rec
+    for e in rec["databases"]:
+        if e["status"].startswith("not done"):
+            _warn(out, f"{e['name']}: conflation {e['status']}; its unmeasured vertices keep "
+                  "their database position")
+
+
 def distinct_warnings(warnings: list, databases=()) -> list:
     """Each warning once: the same text of several databases (``"OSM: ..."``,
     ``"TNM: ..."``) as one (``"OSM, TNM: ..."``), a repeated one with its count."""
@@ -279,6 +294,7 @@ def run(
     _summarise(out, solution)
     _inputs(out)
     _roads_and_control(out, cls, setup)
+    _conflation(out, solution, report, is_cancelled)
     names = [spec.name for spec, _ in data.vectors]
     out.warnings = distinct_warnings(out.warnings, names)
     out.summary["warnings"] = list(out.warnings)

@@ -41,6 +41,9 @@ class DatabaseResult:
         Prior sigma of the shape points in the final pass.
     truth : dict or None
         Truth comparison (simulations).
+    conflation : FieldModel or None
+        The fitted displacement field (:mod:`vectoradjust.accuracy.conflation`), None
+        when the database was not conflated.
     """
 
     spec: VectorSpec
@@ -51,6 +54,7 @@ class DatabaseResult:
     adjusted_coords: Optional[np.ndarray] = None
     sigma_used: tuple = (10.0, 10.0, 10.0)
     truth: Optional[dict] = None
+    conflation: Optional[object] = None
 
     @property
     def name(self) -> str:

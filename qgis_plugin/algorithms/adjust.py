@@ -43,9 +43,13 @@ the layer's Z values are used.</li>
 <ul>
 <li><b>Adjusted shape points</b> (Point Z at the adjusted position): point_id, feature_id,
 database X, Y, Z, residuals Vx, Vy, Vz (adjusted - database), AdjX, AdjY, AdjZ, SigmaX/Y/Z,
-CE90, LE90, NImages, Adjusted (1/0; unmeasured vertices keep their database position).</li>
+CE90, LE90, NImages, Adjusted (1 = measured on the images) and Source: <i>measured</i>,
+or for the other vertices <i>interpolated</i> / <i>extrapolated</i> (corrected by the
+conflation: the database's offset plus the displacement field predicted from the measured
+vertices, with its CE90/LE90; the project's <code>[conflation]</code> table) or
+<i>unchanged</i> (too few measured points, or conflation disabled).</li>
 <li><b>Adjusted road features</b>: every input feature with all its attributes and the adjusted
-geometry, plus NPts, NAdj, RMSE_X/Y/Z, RMSE (horizontal), Length with its standard
+(conflated) geometry, plus NPts, NAdj, RMSE_X/Y/Z, RMSE (horizontal), Length with its standard
 deviation LengthSD (from the joint covariance of the vertices) and LengthSDnc (covariances
 between vertices ignored), first/last point, Images, ImgDate.</li>
 <li><b>Control and check points</b>: surveyed and adjusted (check points: intersected from the

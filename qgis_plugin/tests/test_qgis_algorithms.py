@@ -205,7 +205,7 @@ def test_adjust_identical_to_core_on_plain_arrays(adjusted, sample):
         x = as_float(mine[f])
         y = np.asarray(v[f], float).copy()
         if f in ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90"):
-            y[v["Adjusted"] != 1] = np.nan
+            y[v["Source"] == "unchanged"] = np.nan  # conflated vertices carry values
         assert_same_values(x.tolist(), y.tolist(), f)
     assert close(adjusted["SIGMA0_SQUARED"], ref.summary["sigma0_squared"])
     c = columns(adjusted["CONTROL_POINTS"])
@@ -215,6 +215,22 @@ def test_adjust_identical_to_core_on_plain_arrays(adjusted, sample):
     for f in ("RMSE", "Length", "NAdj"):
         assert_same_values(as_float(feats[f]).tolist(),
                            np.asarray(ref.databases[0].features[f], float).tolist(), f)
+
+
+def test_adjust_shape_points_say_how_each_vertex_was_placed(adjusted):
+    """The conflation's Source field: measured where Adjusted = 1, else predicted (with its
+    CE90) or unchanged (nulls), and the point sits at AdjX/AdjY."""
+    c = columns(adjusted["SHAPE_POINTS"])
+    src = np.array(c["Source"], dtype=object)
+    adj = np.array(c["Adjusted"]) == 1
+    assert set(src) <= {"measured", "interpolated", "extrapolated", "unchanged"}
+    assert np.array_equal(src == "measured", adj)
+    pred = np.isin(src, ["interpolated", "extrapolated"])
+    assert pred.any()
+    ce = as_float(c["CE90"])
+    assert np.isfinite(ce[pred]).all() and np.isnan(ce[src == "unchanged"]).all()
+    xy = np.array([[g.asPoint().x(), g.asPoint().y()] for g in c["_geom"]])
+    assert np.allclose(xy, np.column_stack([as_float(c["AdjX"]), as_float(c["AdjY"])]))
 
 
 def test_adjusted_features_keep_attributes_and_geometry(adjusted, sample):

@@ -144,6 +144,9 @@ def _vertex_table(out: AdjustmentRun, d: DatabaseResult):
         "CE90": ce, "LE90": le, "CE90_meas": ce_meas, "LE90_meas": le_meas,
         "NImages": nimg, "Adjusted": meas_v.astype(np.int64),
         "Database": np.full(nv, d.name, dtype=object),
+        # how the vertex got its position; the conflation stage adds interpolated and
+        # extrapolated (accuracy/conflation.py)
+        "Source": np.where(meas_v, "measured", "unchanged").astype(object),
     }
     return adj, v, ce, le, meas_v
 

@@ -126,6 +126,10 @@ def cmd_adjust(args) -> int:
                             bands=not getattr(args, "no_bands", False),
                             progress=ProgressBar("write", enabled=not args.quiet))
     written.update(truth_csv)
+    if getattr(args, "conflation_raster", False):
+        from vectoradjust.files.derived_outputs import write_conflation_rasters
+
+        written.update(write_conflation_rasters(result, args.out))
     from vectoradjust.files.report import write_report
 
     qa_doc = None
@@ -267,6 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="adjust only this [[vectors]] entry (repeatable)")
     a.add_argument("--no-bands", action="store_true",
                    help="do not write the uncertainty_bands layer (saves time on large runs)")
+    a.add_argument("--conflation-raster", action="store_true",
+                   help="also write each database's conflation field as a GeoTIFF "
+                        "(conflation_<name>.tif: dX, dY, dZ, CE90, LE90)")
     common(a)
     a.set_defaults(func=cmd_adjust)
 

@@ -107,5 +107,6 @@ def project_data(
         crs=crs if crs is not None else spec.crs, camera=camera, images=spec.images,
         measurements=interior.measurements, control=control, vectors=list(vectors),
         settings=spec.settings, truth=dict(truth or {}), corrections=spec.corrections,
-        source=where, qa=(spec.raw or {}).get("qa"), interior=interior.report,
+        source=where, qa=(spec.raw or {}).get("qa"),
+        conflation=(spec.raw or {}).get("conflation"), interior=interior.report,
     )

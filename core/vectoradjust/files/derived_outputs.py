@@ -31,6 +31,7 @@ __all__ = [
     "uncertainty_bands_frame",
     "write_uncertainty_bands",
     "write_equal_error_map",
+    "write_conflation_rasters",
     "EQUAL_ERROR_NODATA",
 ]
 
@@ -237,3 +238,59 @@ def write_equal_error_map(grid: EqualErrorGrid, path, crs,
             path=str(p),
         ) from exc
     return os.fspath(p)
+
+
+def write_conflation_rasters(run: AdjustmentRun, out_dir, cell: Optional[float] = None,
+                             nodata: float = EQUAL_ERROR_NODATA) -> dict:
+    """Each conflated database's displacement field as a 5-band float32 GeoTIFF.
+
+    ``conflation_<database>.tif``: bands dX, dY, dZ (adjusted - database, m) and CE90,
+    LE90 (m) of the corrected position, on a grid over the database's extent
+    (:func:`vectoradjust.accuracy.conflation.field_grid`); NaN (no field) as ``nodata``.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    out_dir : str or os.PathLike
+    cell : float, optional
+        Cell size (m); default: about 200 cells over the extent.
+    nodata : float
+
+    Returns
+    -------
+    dict
+        Path written per database name (databases without a field are left out).
+    """
+    import rasterio
+    from rasterio.errors import RasterioError
+    from rasterio.transform import from_origin
+
+    from vectoradjust.accuracy.conflation import field_grid
+
+    written = {}
+    for d in run.databases:
+        g = field_grid(d, cell)
+        if g is None:
+            continue
+        bands = np.stack([g[k] for k in ("dx", "dy", "dz", "ce90", "le90")]).astype(np.float32)
+        bands = np.where(np.isfinite(bands), bands, np.float32(nodata))
+        safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in d.name)
+        p = Path(out_dir) / f"conflation_{safe}.tif"
+        try:
+            p.parent.mkdir(parents=True, exist_ok=True)
+            with rasterio.open(p, "w", driver="GTiff", height=bands.shape[1],
+                               width=bands.shape[2], count=5, dtype="float32",
+                               crs=run.data.crs, nodata=nodata, compress="deflate",
+                               transform=from_origin(g["x0"], g["y0"], g["cell"], g["cell"])
+                               ) as dst:
+                dst.write(bands)
+                for i, name in enumerate(("dX (m)", "dY (m)", "dZ (m)", "CE90 (m)",
+                                          "LE90 (m)"), start=1):
+                    dst.set_band_description(i, name)
+                dst.update_tags(units="m", quantity=f"conflation field of {d.name}: "
+                                "displacement adjusted - database and its CE90/LE90")
+        except (OSError, RasterioError) as exc:
+            raise InputFileError(f"Cannot write the conflation raster {str(p)!r} ({exc})",
+                                 "Choose a writable output directory", path=str(p)) from exc
+        written[d.name] = os.fspath(p)
+    return written

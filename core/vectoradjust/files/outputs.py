@@ -27,7 +27,7 @@ __all__ = ["write_outputs", "shape_points_frame", "features_frame", "control_poi
 
 SHAPE_FIELDS = ["point_id", "feature_id", "X", "Y", "Z", "Vx", "Vy", "Vz", "AdjX", "AdjY", "AdjZ",
                 "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "CE90_meas", "LE90_meas",
-                "NImages", "Adjusted", "Database"]
+                "NImages", "Adjusted", "Database", "Source"]
 FEATURE_FIELDS = ["NPts", "NAdj", "RMSE_X", "RMSE_Y", "RMSE_Z", "RMSE", "Length", "LengthSD",
                   "LengthSDnc", "FirstX",
                   "FirstY", "LastX", "LastY", "Images", "ImgDate", "Database", "Problem"]
@@ -137,6 +137,8 @@ def shape_points_frame(run: AdjustmentRun):
     for d in run.databases:
         v = d.vertices
         adj = v["Adjusted"] == 1
+        if "Source" in v:  # vertices corrected by the conflation carry values too
+            adj = adj | np.isin(v["Source"], ("interpolated", "extrapolated"))
         cols = {}
         for f in SHAPE_FIELDS:
             col = v[f]

@@ -16,6 +16,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from vectoradjust.accuracy.conflation import CONFLATION_KEYS, settings_from_table
 from vectoradjust.errors import ProjectError
 from vectoradjust.model import AdjustmentSettings, Camera, ImageSpec, VectorSpec
 from vectoradjust.qa.tolerances import _SPEC_KEYS as _QA_KEYS
@@ -41,7 +42,8 @@ __all__ = ["PROJECT_SCHEMA", "ProjectSpec", "load_project", "parse_project", "ch
 #: ``[qa]`` those of :class:`vectoradjust.qa.tolerances.QASpec`.
 PROJECT_SCHEMA: dict = {
     "top level": ("name", "description", "crs", "vertical_crs", "camera", "corrections", "images",
-                  "measurements", "control", "vectors", "adjustment", "truth", "qa"),
+                  "measurements", "control", "vectors", "adjustment", "truth", "qa",
+                  "conflation"),
     "[camera]": tuple(_CAMERA_KEYS),
     "[corrections]": tuple(CORRECTION_KEYS),
     "[[images]]": ("id", "position", "attitude", "sigma_position", "sigma_attitude", "date",
@@ -56,9 +58,11 @@ PROJECT_SCHEMA: dict = {
                      "reuse_points"),
     "[truth]": ("path", "widths"),
     "[qa]": tuple(_QA_KEYS),
+    "[conflation]": CONFLATION_KEYS,
 }
 #: the optional tables that are single tables (``[name]``), not arrays (``[[name]]``)
-_TABLES = ("camera", "corrections", "measurements", "control", "adjustment", "truth", "qa")
+_TABLES = ("camera", "corrections", "measurements", "control", "adjustment", "truth", "qa",
+           "conflation")
 _REWEIGHT = ("none", "two-pass", "vce")
 
 
@@ -225,6 +229,9 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
         if name in raw:
             check_keys(raw[name], PROJECT_SCHEMA[f"[{name}]"], where, f"[{name}]")
     _check_truth(raw.get("truth"), where)
+    if "conflation" in raw:  # used by pipeline.run (accuracy/conflation.py)
+        check_keys(raw["conflation"], PROJECT_SCHEMA["[conflation]"], where, "[conflation]")
+        settings_from_table(raw["conflation"], where)
 
     return ProjectSpec(
         path=Path(path) if path else None, base_dir=base_dir, crs=crs.strip(), camera=camera,

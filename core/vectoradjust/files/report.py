@@ -549,6 +549,84 @@ def residual_vector_figure(run, *, max_arrows: int = MAX_ARROWS,
     return fig
 
 
+def _conflation_arrows(d, origin: tuple) -> tuple:
+    """Displacement arrows of a conflated database: measured and predicted object points."""
+    v = d.vertices
+    first = d.shape.object_vertex  # one arrow per object point
+    xy = np.column_stack([v["X"][first], v["Y"][first]]).astype(float) - origin
+    uv = np.column_stack([v["Vx"][first], v["Vy"][first]]).astype(float)
+    good = np.isfinite(xy).all(axis=1) & np.isfinite(uv).all(axis=1)
+    measured = (v["Adjusted"][first] == 1) & good
+    return (xy[measured], uv[measured]), (xy[~measured & good], uv[~measured & good])
+
+
+def _conflation_panel(fig, ax, d, origin: tuple, max_arrows: int) -> None:
+    """One database: CE90 raster of the field, corrected lines, displacement arrows."""
+    from matplotlib.collections import LineCollection
+
+    from vectoradjust.accuracy.conflation import field_grid
+
+    g = field_grid(d)
+    ox, oy = origin
+    ny, nx = g["ce90"].shape
+    ext = [g["x0"] - ox, g["x0"] + nx * g["cell"] - ox, g["y0"] - ny * g["cell"] - oy,
+           g["y0"] - oy]
+    im = ax.imshow(g["ce90"], extent=ext, origin="upper", cmap="viridis", zorder=0,
+                   interpolation="nearest")
+    fig.colorbar(im, ax=ax, shrink=0.8, label="CE90 of the corrected position (m)")
+    lay = d.shape.layer
+    ax.add_collection(LineCollection(_segments(d.adjusted_coords, lay.vertex_feature,
+                                               lay.vertex_part, origin),
+                                     colors="white", linewidths=0.6, zorder=1))
+    meas, pred = _conflation_arrows(d, origin)
+    extent = float(max(ext[1] - ext[0], ext[3] - ext[2], 1.0))
+    k, key_len = _arrow_scale([meas, pred], extent, max_arrows, None)
+    q = None
+    for (xy, uv), col in ((pred, "#ff7f0e"), (meas, "black")):
+        sel = _subsample(len(xy), max_arrows // 2)
+        if len(sel):
+            q = ax.quiver(xy[sel, 0], xy[sel, 1], uv[sel, 0] * k, uv[sel, 1] * k,
+                          angles="xy", scale_units="xy", scale=1.0, color=col, width=0.004,
+                          headwidth=3.5, headlength=4.5, headaxislength=4.0, zorder=4)
+    ax.set_title(f"{d.name}: {len(meas[0])} measured (black), {len(pred[0])} predicted "
+                 f"(orange)\ndisplacement arrows \u00d7{k:g}", fontsize=9)
+    if q is not None:
+        _arrow_key(ax, q, key_len, k)
+    ax.set_xlim(ext[0], ext[1])
+    ax.set_ylim(ext[2], ext[3])
+    _axis_labels(ax, origin)
+
+
+def conflation_figure(run, *, max_arrows: int = MAX_ARROWS, panel_width: float = 5.0):
+    """The displacement field of every conflated database: arrows and a CE90 raster.
+
+    Displacement ``adjusted - database`` at the measured (black) and the predicted
+    (orange) object points over the raster of the predicted position's CE90 (the
+    field's uncertainty; small near measured points, growing away from them) and the
+    corrected lines (white).
+
+    Returns
+    -------
+    matplotlib.figure.Figure or None
+        None when no database was conflated.
+    """
+    dbs = [d for d in run.databases if getattr(d, "conflation", None) is not None]
+    if not dbs:
+        return None
+    origin = _origin(np.concatenate([d.shape.layer.coords[:, :2] for d in dbs]))
+    ncols = min(len(dbs), 2)
+    nrows = int(math.ceil(len(dbs) / ncols))
+    fig = _new_figure(panel_width * ncols, panel_width * 0.9 * nrows, compressed=True)
+    matplotlib = _mpl()[0]
+    with matplotlib.rc_context(_STYLE):
+        axes = fig.subplots(nrows, ncols, squeeze=False)
+        for i, d in enumerate(dbs):
+            _conflation_panel(fig, axes[i // ncols][i % ncols], d, origin, max_arrows)
+        for j in range(len(dbs), nrows * ncols):
+            axes[j // ncols][j % ncols].set_visible(False)
+    return fig
+
+
 def _figure_legend(fig, ax, handles, ncol: int) -> None:
     """A legend below the panels (matplotlib 3.7+), else inside the first panel."""
     if _has_outside():
@@ -1530,6 +1608,46 @@ def _error_model_body(run) -> str:
     return "".join(parts)
 
 
+def _conflation_rows(c: dict) -> list:
+    """One row per database of summary.json ``conflation``."""
+    rows = []
+    for e in c.get("databases") or []:
+        n = e.get("vertices") or {}
+        cov = ((e.get("covariance") or {}).get("horizontal")) or {}
+        cv = ((e.get("cross_validation") or {}).get("horizontal")) or {}
+        tr = e.get("truth") or {}
+        model = (f"{cov['model']}: C0 {cov['sill']:.3g} m\u00b2, L {cov['length']:.0f} m, "
+                 f"nugget {cov['nugget']:.3g} m\u00b2" if cov else "-")
+        truth = (f"{tr['rmse_database_truth_horizontal']:.2f} \u2192 "
+                 f"{tr['rmse_conflated_truth_horizontal']:.2f} m, CE90 covers "
+                 f"{tr['share_within_ce90']:.0%}" if tr else "-")
+        rows.append([e["name"], e["status"], n.get("measured"), n.get("interpolated"),
+                     n.get("extrapolated"), n.get("unchanged"), model,
+                     _fmt(cv.get("rmse"), 2), _fmt(cv.get("share_within_90"), 2), truth])
+    return rows
+
+
+def _conflation_body(run) -> str:
+    """Conflation: counts, covariance functions, cross-validation, the field's map."""
+    c = (run.summary or {}).get("conflation")
+    if not c:
+        return _note("Conflation was not run.")
+    parts = [_table(["database", "status", "measured", "interpolated", "extrapolated",
+                     "unchanged", "horizontal covariance", "LOO RMSE (m)",
+                     "LOO inside 90 %", "truth: RMSE before \u2192 after (predicted)"],
+                    _conflation_rows(c))]
+    parts.append(_note(
+        "Every vertex not measured on the images is moved by the database's estimated "
+        "offset plus the displacement field predicted by least-squares collocation from "
+        f"its {c.get('k')} nearest measured points ([conflation], DESIGN section 10). "
+        "LOO: each measured point predicted from the others (horizontal RMSE of the "
+        "held-out displacement and the share inside its predicted 90 % radius)."))
+    parts.append(_img(conflation_figure(run), "conflation field",
+                      "Displacement (adjusted \u2212 database) at measured and predicted "
+                      "points over the CE90 of the predicted position."))
+    return "".join(parts)
+
+
 def _warnings_body(run) -> str:
     ws = list(dict.fromkeys(list(run.summary.get("warnings") or []) + list(run.warnings or [])))
     if not ws:
@@ -1550,6 +1668,9 @@ def _run_sections(doc: _Doc, run, *, acc: Optional[dict], qa: Any, reliability: 
                                                                  with_bars=with_bars), level)
     sec(f"{prefix}error-model", "Error model: identification, offsets, variance factors",
         _error_model_body(run), level)
+    if (run.summary or {}).get("conflation"):
+        sec(f"{prefix}conflation", "Conflation: every vertex corrected", _conflation_body(run),
+            level)
     sec(f"{prefix}accuracy", "Accuracy statements", _accuracy_body(acc), level)
     sec(f"{prefix}precision", "Precision of the adjusted points",
         _img(error_ellipse_figure(run, colors=colors), "error ellipses",

@@ -8,8 +8,9 @@ Modules: :mod:`.scenario` (:func:`make_scenario` and the command line),
 :mod:`.geometry` (set-up, terrain, DEM, random streams), :mod:`.roads` (true roads and
 road databases), :mod:`.real_roads` (real road geometry as the true roads),
 :mod:`.imaging` (orientation, image measurements, effects, scanning), :mod:`.container`
-(:class:`Scenario`), :mod:`.writer` (:func:`write_project`) and :mod:`.readme`
-(:func:`describe`).
+(:class:`Scenario`), :mod:`.writer` (:func:`write_project`), :mod:`.readme`
+(:func:`describe`) and :mod:`.conflation` (a database with a smooth error field, partly
+measured: the conflation's test scenarios).
 """
 
 from vectoradjust.simulate.container import Scenario

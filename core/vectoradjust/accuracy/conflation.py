@@ -1,0 +1,878 @@
+"""Conflation: correct every vertex of a road database by least-squares collocation.
+
+DESIGN section 10: a database vertex is ``X_db = X_true + T_db + s(x) + e_db``. The
+adjustment measures some vertices; their displacement ``d = X_hat - X_db`` is the
+negative of the database error, seen through the measurement noise (the adjusted point's
+covariance and the identification error). This module predicts the displacement at
+every other vertex
+
+    d(x) = t(x) + c_xm (C_mm + N)^-1 (d_m - t_m)
+
+with the trend ``t`` the database's estimated systematic offset (``-G(x) T``,
+:mod:`vectoradjust.adjust.offsets`; a constant mean for axes the offset model does not
+cover), ``C(r)`` a covariance function (exponential or Gaussian) fitted to the empirical
+semivariogram of the measured residuals ``d_m - t_m`` (Cressie's weights), and
+``N = diag(n_db + D_i)`` the white noise: the database's own random error ``n_db``
+(the fitted nugget less the known noise) plus the measured point's variance ``D_i``
+(the images' share of its covariance plus the identification variance). The measured
+displacement is taken as the images see it (:func:`image_only`): the adjusted shape
+point is pulled towards the database by its prior, which would shrink the field.
+The variance of the real vertex's position error is
+``C(0) - c_xm (C_mm + N)^-1 c_mx + n_db + Var(t(x))``.
+
+Only the ``k`` nearest measured points enter each prediction (a KD-tree; the ``k x k``
+systems are solved batch-wise with :func:`numpy.linalg.solve`), so the cost is linear
+in the number of vertices. Horizontal (X and Y share one covariance function) and
+vertical are separate fields. Numpy and scipy only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+
+from vectoradjust.errors import CancelledError, ProjectError
+
+__all__ = ["ConflationSettings", "CovarianceModel", "settings_from_table", "fit_covariance",
+           "empirical_semivariogram", "krige", "cross_validate", "image_only", "FieldModel",
+           "field_grid",
+           "conflate_database", "conflate_run", "SOURCES", "CONFLATION_KEYS",
+           "CE90_CIRCULAR", "LE90"]
+
+#: the ``Source`` values of a vertex
+SOURCES = ("measured", "interpolated", "extrapolated", "unchanged")
+#: keys of the project's ``[conflation]`` table
+CONFLATION_KEYS = ("enabled", "k", "max_distance", "model", "min_points")
+#: CE90 / sigma of a circular normal error, sqrt(-2 ln 0.1)
+CE90_CIRCULAR = float(np.sqrt(-2.0 * np.log(0.1)))
+#: LE90 / sigma of a normal error, Phi^-1(0.95)
+LE90 = 1.6448536269514722
+_MODELS = ("exponential", "gaussian")
+
+
+@dataclass
+class ConflationSettings:
+    """The project's ``[conflation]`` table.
+
+    Attributes
+    ----------
+    enabled : bool
+        Correct the unmeasured vertices (default true).
+    k : int
+        Measured points per prediction (nearest neighbours).
+    max_distance : float
+        A vertex farther than this (m) from every measured point is ``extrapolated``,
+        nearer ``interpolated``; 0 (default): the fitted covariance's practical range.
+    model : str
+        ``"exponential"`` (``C0 exp(-r/L)``) or ``"gaussian"`` (``C0 exp(-(r/L)^2)``).
+    min_points : int
+        Fewest measured points a database needs for its field (fewer: ``unchanged``).
+    """
+
+    enabled: bool = True
+    k: int = 12
+    max_distance: float = 0.0
+    model: str = "exponential"
+    min_points: int = 5
+
+
+def settings_from_table(table: Optional[dict], source: str = "<project>") -> ConflationSettings:
+    """Validate a ``[conflation]`` table (None: the defaults).
+
+    Raises
+    ------
+    ProjectError
+        Naming the key and the allowed values.
+    """
+    s = ConflationSettings()
+    if not table:
+        return s
+    unknown = [k for k in table if k not in CONFLATION_KEYS]
+    if unknown:
+        raise ProjectError(f"{source}: [conflation] has no key {unknown[0]!r}",
+                           f"Use only: {', '.join(CONFLATION_KEYS)}", path=source)
+
+    def bad(key, what):
+        return ProjectError(f"{source}: [conflation] {key} = {table[key]!r} is not {what}",
+                            f"Write {key} as {what} (README: [conflation])", path=source)
+
+    if "enabled" in table:
+        if not isinstance(table["enabled"], bool):
+            raise bad("enabled", "true or false")
+        s.enabled = table["enabled"]
+    for key, low in (("k", 1), ("min_points", 2)):
+        if key in table:
+            v = table[key]
+            if isinstance(v, bool) or not isinstance(v, int) or v < low:
+                raise bad(key, f"an integer >= {low}")
+            setattr(s, key, int(v))
+    if "max_distance" in table:
+        v = table["max_distance"]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
+            raise bad("max_distance", "a distance >= 0 in metres")
+        s.max_distance = float(v)
+    if "model" in table:
+        if table["model"] not in _MODELS:
+            raise bad("model", " or ".join(repr(m) for m in _MODELS))
+        s.model = table["model"]
+    return s
+
+
+@dataclass
+class CovarianceModel:
+    """An isotropic covariance function plus white noise, per component.
+
+    Attributes
+    ----------
+    kind : str
+        ``"exponential"`` or ``"gaussian"``.
+    sill : float
+        ``C0`` (m^2), the correlated signal's variance.
+    length : float
+        ``L`` (m).
+    nugget : float
+        White database noise ``n_db`` (m^2) in the kriging system: the fitted nugget
+        less the measured points' mean known noise.
+    known_noise : float
+        Mean variance of the measured points (adjustment + identification), m^2.
+    fit : dict
+        The empirical semivariogram and the fit's status.
+    """
+
+    kind: str
+    sill: float
+    length: float
+    nugget: float
+    known_noise: float = 0.0
+    fit: dict = field(default_factory=dict)
+
+    def __call__(self, r: np.ndarray) -> np.ndarray:
+        """``C(r)`` of the signal (no nugget)."""
+        if self.sill <= 0 or self.length <= 0:
+            return np.zeros_like(np.asarray(r, float))
+        u = np.asarray(r, float) / self.length
+        return self.sill * (np.exp(-u) if self.kind == "exponential" else np.exp(-u * u))
+
+    @property
+    def practical_range(self) -> float:
+        """Distance at which the correlation falls to 5 %."""
+        return float(self.length * (3.0 if self.kind == "exponential" else np.sqrt(3.0)))
+
+    def as_dict(self) -> dict:
+        """JSON-ready description."""
+        return {"model": self.kind, "sill": float(self.sill), "length": float(self.length),
+                "practical_range": self.practical_range, "nugget": float(self.nugget),
+                "known_noise": float(self.known_noise), **self.fit}
+
+
+def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
+                            max_points: int = 2000, seed: int = 0):
+    """Binned semivariogram ``gamma(h) = mean (r_i - r_j)^2 / 2`` of the residuals.
+
+    Parameters
+    ----------
+    xy : numpy.ndarray, shape (n, 2)
+    resid : numpy.ndarray, shape (n, c)
+        Residuals; the components share one semivariogram (averaged).
+    n_bins : int
+        Bins up to half the largest distance: one below the 1st percentile of the
+        distances, the others geometrically spaced above it.
+    max_points : int
+        A random subset of this many points is used when there are more.
+    seed : int
+
+    Returns
+    -------
+    lag, gamma, count : numpy.ndarray
+        Mean distance, semivariance and number of pairs per bin.
+    """
+    from scipy.spatial.distance import pdist
+
+    n = len(xy)
+    if n > max_points:
+        pick = np.random.default_rng(seed).choice(n, max_points, replace=False)
+        xy, resid = xy[pick], resid[pick]
+    h = pdist(xy)
+    g = np.mean([pdist(resid[:, [c]], "sqeuclidean") for c in range(resid.shape[1])],
+                axis=0) / 2.0
+    keep = (h > 0) & (h <= 0.5 * h.max(initial=0.0))
+    h, g = h[keep], g[keep]
+    if h.size < n_bins:
+        return h, g, np.ones(h.size)
+    # geometric bins from the 1st percentile of the distances: the short lags, which
+    # carry the nugget and the field's behaviour near zero, get bins of their own
+    h0 = max(float(np.quantile(h, 0.01)), 1e-6)
+    edges = np.r_[0.0, np.geomspace(h0, h.max() * (1 + 1e-9), n_bins)]
+    b = np.clip(np.searchsorted(edges, h, side="right") - 1, 0, n_bins - 1)
+    count = np.bincount(b, minlength=n_bins).astype(float)
+    ok = count > 0
+    lag = np.bincount(b, weights=h, minlength=n_bins)[ok] / count[ok]
+    gam = np.bincount(b, weights=g, minlength=n_bins)[ok] / count[ok]
+    return lag, gam, count[ok]
+
+
+def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
+                   kind: str = "exponential") -> CovarianceModel:
+    """Fit ``gamma(h) = nugget + C0 (1 - rho(h / L))`` to the empirical semivariogram.
+
+    Parameters
+    ----------
+    xy : numpy.ndarray, shape (n, 2)
+        Measured points.
+    resid : numpy.ndarray, shape (n, c)
+        Their displacements less the trend.
+    known_noise : numpy.ndarray, shape (n,)
+        Each point's known noise variance per component (m^2).
+    kind : str
+        ``"exponential"`` or ``"gaussian"``.
+
+    Returns
+    -------
+    CovarianceModel
+        Weighted least squares (weights: square root of the pairs per bin) with the
+        nugget at least the mean known noise and sill, length >= 0;
+        without enough pairs a pure nugget model (no correlated signal).
+    """
+    noise = float(np.mean(known_noise)) if len(known_noise) else 0.0
+    total = float(np.mean(resid ** 2)) if resid.size else 0.0
+    lag, gam, cnt = empirical_semivariogram(xy, resid)
+    fit = {"lags": lag.tolist(), "semivariance": gam.tolist(), "pairs": cnt.astype(int).tolist()}
+    if lag.size < 4:
+        return CovarianceModel(kind, 0.0, 0.0, max(total - noise, 0.0), noise,
+                               {**fit, "status": "too few pairs: white noise only"})
+    # the measured points' own noise is part of the nugget: it cannot be smaller
+    floor = min(noise, 0.999 * float(gam.max()))
+    nug, sill, length = _fit_grid(lag, gam, cnt, kind, floor)
+    return CovarianceModel(kind, sill, length, max(nug - noise, 0.0), noise,
+                           {**fit, "status": "fitted", "fitted_nugget": nug})
+
+
+def _nonneg_pair(f: np.ndarray, g: np.ndarray, w: np.ndarray):
+    """Per row: ``a, b >= 0`` minimising ``sum w (g - a - b f)^2`` (the KKT candidates)."""
+    sw, sf, sff = w.sum(1), (w * f).sum(1), (w * f * f).sum(1)
+    sg, sfg = (w * g).sum(1), (w * f * g).sum(1)
+    det = sw * sff - sf * sf
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cands = [((sff * sg - sf * sfg) / det, (sw * sfg - sf * sg) / det),  # both free
+                 (np.zeros_like(sw), np.maximum(sfg / sff, 0.0)),            # a = 0
+                 (np.maximum(sg / sw, 0.0), np.zeros_like(sw))]             # b = 0
+    best_a, best_b = cands[2]
+    best = ((g - best_a[:, None]) ** 2 * w).sum(1)
+    for a, b in cands[:2]:
+        ok = np.isfinite(a) & np.isfinite(b) & (a >= 0) & (b >= 0)
+        a, b = np.where(ok, a, 0.0), np.where(ok, b, 0.0)
+        sse = np.where(ok, ((g - a[:, None] - b[:, None] * f) ** 2 * w).sum(1), np.inf)
+        better = sse < best
+        best_a, best_b, best = (np.where(better, a, best_a), np.where(better, b, best_b),
+                                np.where(better, sse, best))
+    return best_a, best_b, best
+
+
+def _fit_grid(lag, gam, cnt, kind: str, floor: float, n_lengths: int = 241):
+    """``(nugget, sill, length)`` of the semivariogram model, weighted least squares.
+
+    For each length on a geometric grid the model is linear in the nugget (>= floor)
+    and the sill (>= 0) and solved exactly; the best length wins. Cressie's weights
+    ``N_h / gamma(h)^2`` (the short lags count as much as the long ones), with the
+    model of the previous round, four rounds. No iterative optimiser: the same data
+    give the same model on every platform (QGIS's numpy and scipy included).
+    """
+    lengths = np.geomspace(lag[0] / 10.0, lag[-1] * 10.0, n_lengths)
+    u = lag[None, :] / lengths[:, None]
+    f = 1.0 - (np.exp(-u) if kind == "exponential" else np.exp(-u * u))
+    g = np.broadcast_to(gam - floor, f.shape)
+    model = np.maximum(gam, 1e-12 * max(float(gam.max()), 1e-300))
+    for _ in range(4):
+        w = np.broadcast_to(cnt / model ** 2, f.shape)
+        a, b, sse = _nonneg_pair(f, g, w)
+        i = int(np.argmin(sse))
+        model = np.maximum(floor + a[i] + b[i] * f[i], 1e-12 * max(float(gam.max()), 1e-300))
+    return float(floor + a[i]), float(b[i]), float(lengths[i])
+
+
+def _neighbours(tree, xy: np.ndarray, k: int, skip_self: bool):
+    """Distances and indices (b, k) of the k nearest measured points."""
+    kk = k + 1 if skip_self else k
+    dist, idx = tree.query(xy, k=kk)
+    dist = np.asarray(dist, float).reshape(len(xy), kk)
+    idx = np.asarray(idx).reshape(len(xy), kk)
+    if skip_self:
+        return dist[:, 1:], idx[:, 1:]
+    return dist, idx
+
+
+def _solve_chunk(models: list, xy_m, dist, idx) -> list:
+    """Simple kriging of one chunk for each ``(cov, resid, noise)`` of ``models`` (same
+    measured points and neighbours): prediction (b, c) and signal error variance (b,)."""
+    out = []
+    dd = None
+    diag = np.arange(idx.shape[1])
+    for cov, resid, noise in models:
+        if cov.sill <= 0 or cov.length <= 0:  # no correlated signal: the trend alone
+            out.append((np.zeros((len(idx), resid.shape[1])), np.zeros(len(idx))))
+            continue
+        if dd is None:  # the neighbours' distances, once for all models
+            px, py = xy_m[idx, 0], xy_m[idx, 1]  # (b, k)
+            dd = np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :])
+        a = cov(dd)
+        a[:, diag, diag] += cov.nugget + noise[idx]
+        c = cov(dist)
+        w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
+        out.append((np.einsum("bk,bkc->bc", w, resid[idx]),
+                    np.maximum(cov.sill - np.einsum("bk,bk->b", w, c), 0.0)))
+    return out
+
+
+def krige(cov: CovarianceModel, xy_m: np.ndarray, resid: np.ndarray, noise: np.ndarray,
+          xy_p: np.ndarray, k: int, *, skip_self: bool = False, chunk: int = 20000,
+          progress: Optional[Callable[[float], None]] = None,
+          is_cancelled: Optional[Callable[[], bool]] = None):
+    """Predict the residual field at ``xy_p`` from the ``k`` nearest measured points.
+
+    Parameters
+    ----------
+    cov : CovarianceModel
+    xy_m : numpy.ndarray, shape (m, 2)
+        Measured points.
+    resid : numpy.ndarray, shape (m, c)
+        Their residuals (displacement less trend).
+    noise : numpy.ndarray, shape (m,)
+        Their known noise variance per component.
+    xy_p : numpy.ndarray, shape (n, 2)
+        Where to predict.
+    k : int
+        Neighbours (at most ``m``, or ``m - 1`` with ``skip_self``).
+    skip_self : bool
+        ``xy_p`` are the measured points themselves, each left out of its own
+        prediction (leave-one-out).
+    chunk : int
+        Targets per batched solve (memory ``chunk * k^2`` floats).
+    progress, is_cancelled : callable, optional
+        ``progress(fraction)`` after each chunk; ``is_cancelled()`` true raises
+        :class:`~vectoradjust.errors.CancelledError`.
+
+    Returns
+    -------
+    pred : numpy.ndarray, shape (n, c)
+    var : numpy.ndarray, shape (n,)
+        Variance of the signal's prediction error ``C(0) - c' (C + N)^-1 c``.
+    nearest : numpy.ndarray, shape (n,)
+        Distance to the nearest measured point used.
+    """
+    (res,), nearest = _krige_many([(cov, resid, noise)], xy_m, xy_p, k, skip_self, chunk,
+                                  progress, is_cancelled)
+    return res[0], res[1], nearest
+
+
+def _krige_many(models: list, xy_m, xy_p, k: int, skip_self: bool = False,
+                chunk: int = 20000, progress=None, is_cancelled=None):
+    """:func:`krige` for several ``(cov, resid, noise)`` on the same measured points: one
+    KD-tree query and one distance matrix per chunk. Returns ``[(pred, var)], nearest``."""
+    from scipy.spatial import cKDTree
+
+    n = len(xy_p)
+    k = int(min(k, len(xy_m) - (1 if skip_self else 0)))
+    out = [(np.zeros((n, r.shape[1])), np.full(n, float(c.sill))) for c, r, _ in models]
+    nearest = np.full(n, np.inf)
+    if n == 0 or k < 1:
+        return out, nearest
+    tree = cKDTree(xy_m)
+    for s in range(0, n, chunk):
+        if is_cancelled is not None and is_cancelled():
+            raise CancelledError("The conflation was cancelled", "Run it again when ready")
+        e = min(s + chunk, n)
+        dist, idx = _neighbours(tree, xy_p[s:e], k, skip_self)
+        for (pred, var), (p, v) in zip(out, _solve_chunk(models, xy_m, dist, idx)):
+            pred[s:e], var[s:e] = p, v
+        nearest[s:e] = dist[:, 0]
+        if progress is not None:
+            progress(e / n)
+    return out, nearest
+
+
+def cross_validate(cov: CovarianceModel, xy_m: np.ndarray, resid: np.ndarray,
+                   noise: np.ndarray, k: int, factor: float) -> dict:
+    """Leave-one-out cross-validation of the field at the measured points.
+
+    Each measured point is predicted from its ``k`` nearest other measured points and
+    compared with its own (noisy) residual; the error's predicted variance is the
+    kriging variance plus the database noise plus the point's own noise.
+
+    Parameters
+    ----------
+    factor : float
+        Radius (LE90 or CE90 factor) of the predicted sigma the share is counted in:
+        :data:`CE90_CIRCULAR` for two components, :data:`LE90` for one.
+
+    Returns
+    -------
+    dict
+        ``count``, ``rmse`` (over the components, per point the root of the sum of
+        squares), ``rmse_trend_only`` (the same without the signal),
+        ``share_within_90`` and the mean predicted sigma.
+    """
+    m = len(xy_m)
+    if m < 3:
+        return {"count": int(m), "rmse": None, "rmse_trend_only": None,
+                "share_within_90": None, "mean_sigma": None}
+    pred, var, _ = krige(cov, xy_m, resid, noise, xy_m, k, skip_self=True)
+    return _cv_stats(cov, resid, noise, pred, var, factor)
+
+
+def _cv_stats(cov: CovarianceModel, resid, noise, pred, var, factor: float) -> dict:
+    """The leave-one-out figures from the held-out predictions."""
+    m = len(resid)
+    err = resid - pred
+    sig = np.sqrt(var + cov.nugget + noise)
+    size = np.sqrt((err ** 2).sum(axis=1))
+    return {"count": int(m), "rmse": float(np.sqrt(np.mean(size ** 2))),
+            "rmse_trend_only": float(np.sqrt(np.mean((resid ** 2).sum(axis=1)))),
+            "share_within_90": float(np.mean(size <= factor * sig)),
+            "mean_sigma": float(np.mean(sig))}
+
+
+# --------------------------------------------------------------------------- a run
+def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.ndarray):
+    """Trend ``t`` (n, 3) and its covariance (n, 3, 3) at every object point.
+
+    ``-G(x) T`` of the estimated offset (database minus images, so the displacement is
+    its negative); axes the offset model does not cover get the measured points' mean
+    where it differs significantly from zero (else zero), with the larger of its
+    variance over their number and ``common`` (3,), the
+    adjusted points' mean variance: the points share the errors of the exterior
+    orientation (a common height error of a stereo model), which do not average out,
+    and a predicted vertex is not more certain in them than a measured one.
+    """
+    from vectoradjust.adjust.offsets import _kind_design
+
+    n = len(db_xyz)
+    t = np.zeros((n, 3))
+    tcov = np.zeros((n, 3, 3))
+    covered = np.zeros(3, bool)
+    if rec is not None:
+        g = _kind_design(rec["kind"], db_xyz, np.asarray(rec["center"], float))
+        vals = np.asarray(rec["values"], float)
+        c_t = np.asarray(rec["cofactor"], float) * float(rec["variance_factor"])
+        t = -np.einsum("niq,q->ni", g, vals)
+        tcov = np.einsum("niq,qr,njr->nij", g, c_t, g)
+        covered = np.abs(g).sum(axis=(0, 2)) > 0
+    for a in np.flatnonzero(~covered):
+        col = dm[:, a][np.isfinite(dm[:, a])]
+        if col.size:
+            var = max(col.var() / col.size, float(common[a]))
+            # only a mean the images tell from zero (z > 1.96) moves the vertices: a
+            # common error of the adjusted heights must not spoil the database's heights
+            t[:, a] = col.mean() if abs(col.mean()) > 1.96 * np.sqrt(var) else 0.0
+            tcov[:, a, a] = var
+    return t, tcov, covered
+
+
+@dataclass
+class _Field:
+    """One component group's field at the unmeasured object points."""
+
+    pred: np.ndarray
+    var: np.ndarray
+    nearest: np.ndarray
+    cov: Optional[CovarianceModel]
+    cv: dict
+
+
+def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel):
+    """Fit, predict and cross-validate the horizontal and the vertical field.
+
+    Each group (X and Y sharing one covariance function; Z) uses the measured points
+    where it is finite; when both use the same points the KD-tree queries and the
+    neighbours' distance matrices are shared.
+    """
+    groups = [(resid[:, :2], noise[:, :2].mean(axis=1), CE90_CIRCULAR),
+              (resid[:, 2:], noise[:, 2], LE90)]
+    n_u = len(xy_u)
+    oks = [np.isfinite(r).all(axis=1) for r, _, _ in groups]
+    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model)
+            if ok.sum() >= s.min_points else None for ok, (r, nz, _) in zip(oks, groups)]
+    live = [i for i, c in enumerate(covs) if c is not None]
+    fields = [_Field(np.full((n_u, r.shape[1]), np.nan), np.full(n_u, np.nan),
+                     np.full(n_u, np.inf), None, {"count": int(ok.sum()), "rmse": None})
+              for ok, (r, _, _) in zip(oks, groups)]
+    batches = ([live] if len(live) == 2 and np.array_equal(*oks) else [[i] for i in live])
+    for b, batch in enumerate(batches):
+        ok = oks[batch[0]]
+        models = [(covs[i], groups[i][0][ok], groups[i][1][ok]) for i in batch]
+        part = (b, len(batches))
+        res, nearest = _krige_many(models, xy_m[ok], xy_u, s.k, progress=lambda f, p=part:
+                                   report((p[0] + f) / p[1]), is_cancelled=cancel)
+        loo, _ = _krige_many(models, xy_m[ok], xy_m[ok], s.k, skip_self=True,
+                             is_cancelled=cancel)
+        for i, (pred, var), (lp, lv), m in zip(batch, res, loo, models):
+            cv = (_cv_stats(covs[i], m[1], m[2], lp, lv, groups[i][2]) if ok.sum() >= 3 else
+                  {"count": int(ok.sum()), "rmse": None})
+            fields[i] = _Field(pred, var, nearest, covs[i], cv)
+    return fields[0], fields[1]
+
+
+def _vertex_columns(d, meas_v, adj, cov, source) -> None:
+    """Write the conflated vertices into ``d.vertices`` / ``d.adjusted_coords`` (in place)."""
+    from vectoradjust.accuracy.tables import _feature_geometry, cov_stats
+
+    v = d.vertices
+    db = d.shape.layer.coords
+    u = ~meas_v
+    sig, ce, le = cov_stats(cov[u])
+    for a, ax in enumerate("XYZ"):
+        col = np.array(v[f"Adj{ax}"], float)
+        col[u] = adj[u, a]
+        v[f"Adj{ax}"] = col
+        vcol = np.array(v[f"V{ax.lower()}"], float)
+        vcol[u] = adj[u, a] - db[u, a]
+        v[f"V{ax.lower()}"] = vcol
+        scol = np.array(v[f"Sigma{ax}"], float)
+        scol[u] = sig[:, a]
+        v[f"Sigma{ax}"] = scol
+    for name, val in (("CE90", ce), ("LE90", le)):
+        col = np.array(v[name], float)
+        col[u] = val
+        v[name] = col
+    v["Source"] = source
+    d.adjusted_coords = np.column_stack([v["AdjX"], v["AdjY"], v["AdjZ"]])
+    d.features.update(_feature_geometry(d.shape.layer, d.adjusted_coords))
+
+
+def _truth_check(out, d, meas_v, source) -> Optional[dict]:
+    """RMSE of the unmeasured vertices to the truth before and after, CE90/LE90 coverage."""
+    from vectoradjust.adjust.shapepoints import lookup
+
+    truth = (getattr(out.data, "truth", None) or {}).get(d.name)
+    if truth is None:
+        return None
+    tid, txyz = truth
+    ti = lookup(np.asarray(tid), d.shape.vertex_ids)
+    m = (~meas_v) & (ti >= 0) & np.isin(source, ("interpolated", "extrapolated"))
+    if not m.any():
+        return None
+    v = d.vertices
+    t = np.asarray(txyz, float)[ti[m]]
+    db = d.shape.layer.coords[m]
+    adj = np.column_stack([v["AdjX"], v["AdjY"], v["AdjZ"]])[m]
+    e_db, e_adj = np.hypot(*(db[:, :2] - t[:, :2]).T), np.hypot(*(adj[:, :2] - t[:, :2]).T)
+    ez = np.abs(adj[:, 2] - t[:, 2])
+    okz = np.isfinite(ez) & np.isfinite(v["LE90"][m])
+    r_db, r_adj = float(np.sqrt(np.mean(e_db ** 2))), float(np.sqrt(np.mean(e_adj ** 2)))
+    return {"count": int(m.sum()), "rmse_database_truth_horizontal": r_db,
+            "rmse_conflated_truth_horizontal": r_adj,
+            "reduction": float(1.0 - r_adj / r_db) if r_db > 0 else None,
+            "share_within_ce90": float(np.mean(e_adj <= v["CE90"][m])),
+            "rmse_database_truth_z": float(np.sqrt(np.nanmean((db[:, 2] - t[:, 2]) ** 2))),
+            "rmse_conflated_truth_z": (float(np.sqrt(np.mean(ez[okz] ** 2)))
+                                       if okz.any() else None),
+            "share_within_le90": float(np.mean(ez[okz] <= v["LE90"][m][okz]))
+            if okz.any() else None}
+
+
+def _measured_objects(d):
+    """Bundle point of every object point (-1: not measured), measured vertex mask."""
+    sp = d.shape
+    meas_v = np.asarray(d.vertex_point) >= 0
+    obj_pt = np.full(sp.n_objects, -1, np.int64)
+    obj_pt[sp.vertex_object[meas_v]] = d.vertex_point[meas_v]
+    return obj_pt, meas_v
+
+
+def image_only(result, problem, pts: np.ndarray, min_share: float = 0.1,
+               scale: Optional[float] = None):
+    """What the images alone say about measured shape points: position and covariance.
+
+    The adjusted shape point is a weighted mean of the images' intersection and the
+    database prior ``X_prior = X_db - G T``: ``X_hat - X_prior = Q P_img (X_img -
+    X_prior)`` with ``Q = (P_img + P_prior)^-1`` its cofactor, so its displacement is
+    shrunk towards the database by the prior's weight. The collocation needs the
+    unshrunk observation ``X_img = X_prior + P_img^-1 Q^-1 (X_hat - X_prior)`` with
+    covariance ``scale P_img^-1``, ``P_img = Q^-1 - P_prior`` (per point; the
+    correlation with other points through the orientation is left out).
+
+    Parameters
+    ----------
+    result : BundleResult
+    problem : BundleProblem
+        The final problem (priors).
+    pts : numpy.ndarray of int
+        Bundle points.
+    min_share : float
+        An axis where the images carry less than this share of the weight is NaN
+        (the images say next to nothing there).
+    scale : float, optional
+        Variance factor of the images' share (default: the run's). An a-posteriori
+        sigma0^2 driven by the databases' residuals (a correlated error the prior
+        does not know) says nothing about the images; :func:`conflate_database` passes
+        the image group's ``v'Pv / r``.
+
+    Returns
+    -------
+    xyz : numpy.ndarray, shape (p, 3)
+    var : numpy.ndarray, shape (p, 3)
+        Variances per axis (m^2).
+    """
+    vf = result.variance_factor
+    q = result.point_cov[pts] / vf
+    usable = np.isfinite(q).all(axis=(1, 2))
+    usable[usable] = np.linalg.eigvalsh(q[usable])[:, 0] > 0
+    q_inv = np.broadcast_to(np.eye(3), q.shape).copy()
+    q_inv[usable] = np.linalg.inv(q[usable])
+    scale = vf if scale is None or not np.isfinite(scale) else float(scale)
+    p_img = q_inv - problem.prior_weight[pts]
+    p_img = 0.5 * (p_img + np.swapaxes(p_img, 1, 2))
+    share = np.einsum("nii->ni", p_img) / np.einsum("nii->ni", q_inv)
+    # a point on one image only has no image-only position (rank 2): left out
+    ev = np.linalg.eigvalsh(p_img)
+    ok = usable & (ev[:, 0] > 1e-6 * np.maximum(ev[:, 2], 1e-300))
+    q_img = np.full_like(p_img, np.nan)
+    q_img[ok] = np.linalg.inv(p_img[ok])
+    prior = problem.prior_xyz[pts]
+    shift = np.einsum("nij,njk,nk->ni", q_img, q_inv, result.xyz[pts] - prior)
+    var = scale * np.einsum("nii->ni", q_img)
+    bad = (share < min_share) | ~ok[:, None]
+    xyz = np.where(bad, np.nan, prior + shift)
+    return xyz, np.where(bad, np.nan, var)
+
+
+def _image_scale(out) -> float:
+    """Variance factor of the images' share: 1 with ``covariance_scale = "a-priori"``,
+    else the image coordinates' ``v'Pv / r`` (summary ``variance_factors``), at least 1."""
+    if getattr(out.result, "covariance_scale", "") == "a-priori":
+        return 1.0
+    groups = (out.summary.get("variance_factors") or {}).get("groups") or {}
+    f = (groups.get("image") or {}).get("factor")
+    return max(float(f), 1.0) if f is not None and np.isfinite(f) else float("nan")
+
+
+def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
+    """Displacement, covariance and nearest distance of the unmeasured object points."""
+    db = d.shape.object_xyz
+    m_obj, u_obj = np.flatnonzero(obj_pt >= 0), np.flatnonzero(obj_pt < 0)
+    x_img, photo = image_only(out.result, out.problem, obj_pt[m_obj], scale=_image_scale(out))
+    dm = x_img - db[m_obj]
+    noise = photo + d.spec.identification_variance
+    common = np.nanmean(np.einsum("nii->ni", out.result.point_cov[obj_pt[m_obj]]), axis=0)
+    t, tcov, covered = _trend(rec, db, dm, common)
+    resid = dm - t[m_obj]
+    xy_m, xy_u = db[m_obj, :2], db[u_obj, :2]
+    fh, fv = _fields(xy_m, resid, noise, xy_u, s, report, cancel)
+    disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
+    cov = tcov[u_obj].copy()
+    nug_h = fh.cov.nugget if fh.cov is not None else np.nan
+    nug_v = fv.cov.nugget if fv.cov is not None else np.nan
+    cov[:, 0, 0] += fh.var + nug_h
+    cov[:, 1, 1] += fh.var + nug_h
+    cov[:, 2, 2] += fv.var + nug_v
+    mean = np.where(covered, 0.0, t[0] if len(t) else 0.0)
+    mean_var = np.where(covered, 0.0, tcov[0].diagonal() if len(t) else 0.0)
+    model = FieldModel(xy_m, resid, noise, fh.cov, fv.cov, rec, mean, mean_var, s.k)
+    info = {"trend": {"offset": rec.get("kind") if rec else None,
+                      "axes_from_offset": [a for a, c in zip("XYZ", covered) if c],
+                      "axes_from_mean": [a for a, c in zip("XYZ", covered) if not c],
+                      "mean": [None if c else float(t[0, a]) if len(t) else None
+                               for a, c in enumerate(covered)],
+                      "mean_sigma": [None if c else float(np.sqrt(tcov[0, a, a]))
+                                     if len(t) else None for a, c in enumerate(covered)]},
+            "covariance": {"horizontal": fh.cov.as_dict() if fh.cov else None,
+                           "vertical": fv.cov.as_dict() if fv.cov else None},
+            "cross_validation": {"horizontal": fh.cv, "vertical": fv.cv}}
+    return u_obj, disp, cov, fh, info, model
+
+
+@dataclass
+class FieldModel:
+    """A database's fitted displacement field, to predict it anywhere (maps, rasters).
+
+    Attributes
+    ----------
+    xy : numpy.ndarray, shape (m, 2)
+        Measured object points.
+    resid : numpy.ndarray, shape (m, 3)
+        Their displacement less the trend (NaN where the images say too little).
+    noise : numpy.ndarray, shape (m, 3)
+        Their known noise variance per axis.
+    cov_h, cov_v : CovarianceModel or None
+    rec : dict or None
+        The offset record (trend ``-G T``).
+    mean : numpy.ndarray, shape (3,)
+        Trend value of the axes the offset does not cover (0 on the others) ...
+    mean_var : numpy.ndarray, shape (3,)
+        ... and its variance.
+    k : int
+    """
+
+    xy: np.ndarray
+    resid: np.ndarray
+    noise: np.ndarray
+    cov_h: Optional[CovarianceModel]
+    cov_v: Optional[CovarianceModel]
+    rec: Optional[dict]
+    mean: np.ndarray
+    mean_var: np.ndarray
+    k: int
+
+    def predict(self, xy: np.ndarray):
+        """Displacement (n, 3) and its variance per axis (n, 3) at ``xy`` (n, 2).
+
+        The same prediction as the vertices get (trend + collocation, with the
+        database's white noise), NaN where a component has no field.
+        """
+        xyz = np.column_stack([xy, np.zeros(len(xy))])
+        dm = np.broadcast_to(self.mean, (1, 3)).copy()
+        t, tcov, _ = _trend(self.rec, xyz, dm, self.mean_var)
+        disp = t.copy()
+        var = np.einsum("nii->ni", tcov).copy()
+        for cols, cov in (((0, 1), self.cov_h), ((2,), self.cov_v)):
+            c = list(cols)
+            if cov is None:
+                disp[:, c] = np.nan
+                var[:, c] = np.nan
+                continue
+            ok = np.isfinite(self.resid[:, c]).all(axis=1)
+            pred, kv, _ = krige(cov, self.xy[ok], self.resid[ok][:, c],
+                                self.noise[ok][:, c].mean(axis=1), xy, self.k)
+            disp[:, c] += pred
+            var[:, c] += (kv + cov.nugget)[:, None]
+        return disp, var
+
+
+def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
+                      report: Optional[Callable[[float], None]] = None,
+                      cancel: Optional[Callable[[], bool]] = None) -> dict:
+    """Correct every unmeasured vertex of one database (``d.vertices`` etc. in place).
+
+    Parameters
+    ----------
+    out : AdjustmentRun
+        With ``result`` (points and covariances) and ``d.vertices`` tabulated.
+    d : DatabaseResult
+    rec : dict or None
+        The database's estimated offset (``Solution.offsets[name]``), None without.
+    s : ConflationSettings
+    report, cancel : callable, optional
+        ``report(fraction)``; ``cancel()`` true raises ``CancelledError``.
+
+    Returns
+    -------
+    dict
+        summary.json's entry: status, vertices per source, trend, covariance functions,
+        leave-one-out cross-validation and (simulations) the comparison with the truth.
+    """
+    report = report or (lambda f: None)
+    obj_pt, meas_v = _measured_objects(d)
+    n_meas = int((obj_pt >= 0).sum())
+    source = np.where(meas_v, "measured", "unchanged").astype(object)
+    entry: dict = {"name": d.name, "measured_points": n_meas}
+    if not s.enabled or n_meas < s.min_points or meas_v.all():
+        d.vertices["Source"] = source
+        entry["status"] = ("disabled" if not s.enabled else "nothing to predict"
+                           if meas_v.all() else
+                           f"not done: {n_meas} measured points, fewer than min_points = "
+                           f"{s.min_points}")
+        entry["vertices"] = {k: int((source == k).sum()) for k in SOURCES}
+        return entry
+    u_obj, disp, cov, fh, info, d.conflation = _predicted_objects(out, d, rec, s, obj_pt,
+                                                                  report, cancel)
+    nobj = d.shape.n_objects
+    db = d.shape.object_xyz
+    adj_o = np.full((nobj, 3), np.nan)
+    cov_o = np.full((nobj, 3, 3), np.nan)
+    near_o = np.full(nobj, np.inf)
+    adj_o[u_obj] = db[u_obj] + np.where(np.isfinite(disp), disp, 0.0)
+    cov_o[u_obj] = cov
+    near_o[u_obj] = fh.nearest
+    cov_m = fh.cov
+    maxd = s.max_distance or (cov_m.practical_range if cov_m.sill > 0 else
+                              (max(cov_m.fit.get("lags") or [np.inf])))
+    vo = d.shape.vertex_object
+    u = ~meas_v
+    source[u] = np.where(near_o[vo[u]] <= maxd, "interpolated", "extrapolated")
+    _vertex_columns(d, meas_v, adj_o[vo], cov_o[vo], source)
+    if info["covariance"]["vertical"] is None:  # too few heights: Z unchanged
+        d.vertices["Vz"][u] = np.nan
+    entry.update({"status": "conflated", "max_distance": float(maxd), **info,
+                  "vertices": {k: int((source == k).sum()) for k in SOURCES},
+                  "truth": _truth_check(out, d, meas_v, source)})
+    return entry
+
+
+def conflate_run(out, offsets: Optional[dict], settings: ConflationSettings,
+                 progress: Optional[Callable[[float, str], None]] = None,
+                 is_cancelled: Optional[Callable[[], bool]] = None) -> dict:
+    """Conflate every database of a run; returns summary.json's ``conflation``.
+
+    Parameters
+    ----------
+    out : AdjustmentRun
+    offsets : dict or None
+        ``Solution.offsets`` (per database name).
+    settings : ConflationSettings
+    progress : callable, optional
+        ``progress(fraction, message)``.
+    is_cancelled : callable, optional
+
+    Returns
+    -------
+    dict
+        The settings and one entry per database (:func:`conflate_database`).
+    """
+    entries = []
+    n = max(len(out.databases), 1)
+    for i, d in enumerate(out.databases):
+        msg = f"conflation of {d.name}"
+
+        def report(f, i=i, msg=msg):
+            if progress is not None:
+                progress((i + f) / n, msg)
+
+        entries.append(conflate_database(out, d, (offsets or {}).get(d.name), settings,
+                                         report, is_cancelled))
+    return {"enabled": settings.enabled, "k": settings.k, "model": settings.model,
+            "max_distance": settings.max_distance, "min_points": settings.min_points,
+            "databases": entries}
+
+
+def field_grid(d, cell: Optional[float] = None, max_cells: int = 40000) -> Optional[dict]:
+    """The displacement field of a conflated database on a regular grid.
+
+    Parameters
+    ----------
+    d : DatabaseResult
+        Conflated (``d.conflation`` set).
+    cell : float, optional
+        Cell size (m); default: the extent over ``sqrt(max_cells)``, rounded up to 1-2-5.
+    max_cells : int
+        At most this many cells (the cell grows when needed).
+
+    Returns
+    -------
+    dict or None
+        ``x0``, ``y0`` (upper left corner), ``cell``, ``dx``, ``dy``, ``dz`` and
+        ``ce90``, ``le90`` arrays (rows from north to south); None without a field.
+    """
+    model = getattr(d, "conflation", None)
+    xy = np.asarray(d.shape.layer.coords, float)[:, :2] if len(d.shape.layer.coords) else None
+    if model is None or xy is None:
+        return None
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    ext = float(max((hi - lo).max(), 1.0))
+    need = ext / np.sqrt(max_cells)
+    if cell is None or cell < need:
+        e = 10.0 ** np.floor(np.log10(need))
+        cell = float(next(m * e for m in (1.0, 2.0, 5.0, 10.0) if m * e >= need))
+    nx = int(np.ceil((hi[0] - lo[0]) / cell)) + 1
+    ny = int(np.ceil((hi[1] - lo[1]) / cell)) + 1
+    x0, y0 = float(lo[0] - cell / 2), float(hi[1] + cell / 2)
+    gx = x0 + cell * (np.arange(nx) + 0.5)
+    gy = y0 - cell * (np.arange(ny) + 0.5)
+    xx, yy = np.meshgrid(gx, gy)
+    disp, var = model.predict(np.column_stack([xx.ravel(), yy.ravel()]))
+    sig_h = np.sqrt(np.maximum(var[:, :2].mean(axis=1), 0.0))
+    shape = (ny, nx)
+    return {"x0": x0, "y0": y0, "cell": cell, "dx": disp[:, 0].reshape(shape),
+            "dy": disp[:, 1].reshape(shape), "dz": disp[:, 2].reshape(shape),
+            "ce90": (CE90_CIRCULAR * sig_h).reshape(shape),
+            "le90": (LE90 * np.sqrt(np.maximum(var[:, 2], 0.0))).reshape(shape)}

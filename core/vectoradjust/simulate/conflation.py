@@ -1,0 +1,103 @@
+"""Scenarios for the conflation (correcting every vertex): a database whose error is a
+constant shift plus a smooth spatial field plus white noise, of which only a subset of
+vertices is measured on the images.
+
+The database of :func:`make_scenario` is rebuilt from the truth: ``X_db = X_true + bias +
+s(X_true) + e``, with ``s`` a sum of random plane waves (a stationary field with a
+Gaussian-like covariance of correlation length ``length``) and ``e`` white noise drawn
+once per object point, so that vertices at the same place (intersections, closed
+rings) stay at the same place. The images measure the true points, so the measurements
+of the scenario stay valid; those of the vertices not in the measured subset are
+dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from vectoradjust.adjust.shapepoints import extract_shape_points, lookup
+from vectoradjust.model import ProjectData
+from vectoradjust.simulate.roads import DatabaseModel
+from vectoradjust.simulate.scenario import make_scenario
+
+__all__ = ["smooth_field", "conflation_scenario"]
+
+
+def smooth_field(xy: np.ndarray, amplitude: float, length: float, seed: int,
+                 n_waves: int = 64) -> np.ndarray:
+    """A smooth random 2D displacement field at ``xy`` (n, 2).
+
+    ``sum_j a_j cos(w_j . x + phi_j)`` per component with wave vectors ``w ~ N(0, 1/L^2)``:
+    a stationary field of standard deviation ``amplitude`` per component and covariance
+    ``amplitude^2 exp(-r^2 / (2 L^2))`` (in the limit of many waves).
+    """
+    rng = np.random.default_rng(seed)
+    out = np.zeros((len(xy), 2))
+    for c in range(2):
+        w = rng.normal(0.0, 1.0 / length, (n_waves, 2))
+        phi = rng.uniform(0.0, 2 * np.pi, n_waves)
+        out[:, c] = amplitude * np.sqrt(2.0 / n_waves) * np.cos(xy @ w.T + phi).sum(axis=1)
+    return out
+
+
+def conflation_scenario(seed: int = 1, *, bias=(3.0, -2.0), amplitude: float = 2.0,
+                        length: float = 150.0, noise: float = 0.3,
+                        measured_fraction: float = 0.3, true_roads=None,
+                        spacing: float = 20.0, identification_sigma=(0.3, 0.1),
+                        conflation: dict | None = None) -> ProjectData:
+    """Project data of one database ``OSM`` with a smooth error field, partly measured.
+
+    Parameters
+    ----------
+    seed : int
+    bias : (float, float)
+        Constant shift of the database (m).
+    amplitude, length : float
+        Standard deviation per component (m) and correlation length (m) of the smooth
+        field; ``amplitude = 0``: a constant shift only.
+    noise : float
+        White noise per component and object point (m).
+    measured_fraction : float
+        Share of the object points measured on the images (random, from ``seed``).
+    true_roads : optional
+        Real road geometry (``make_scenario(true_roads=...)``).
+    spacing : float
+        Vertex spacing of the database (m).
+    identification_sigma : (float, float)
+        The analyst's pointing error (horizontal, used as the scenario's
+        ``pointing_sigma``) and the stated identification sigma.
+    conflation : dict, optional
+        The ``[conflation]`` table.
+
+    Returns
+    -------
+    ProjectData
+        With ``truth`` of every vertex; ``offset = "shift"``.
+    """
+    model = DatabaseModel("OSM", "osm_id", "osm", spacing, 0.5, (0.0, 0.0), 0.0, 0.0, 0.0)
+    sc = make_scenario(seed, databases=(model,), pointing_sigma=identification_sigma[0],
+                       shape_sigma=(3.0, 3.0, 3.0), true_roads=true_roads)
+    data = sc.to_project_data()
+    spec, layer = data.vectors[0]
+    tid, txyz = data.truth["OSM"]
+    sp = extract_shape_points(layer)
+    ti = lookup(tid, sp.vertex_ids)
+    true_obj = np.asarray(txyz, float)[ti[sp.object_vertex], :2]
+    rng = np.random.default_rng(seed + 1000)
+    err = (np.asarray(bias, float) + smooth_field(true_obj, amplitude, length, seed + 2000)
+           + rng.normal(0.0, noise, (len(true_obj), 2)))
+    coords = layer.coords.copy()
+    coords[:, :2] = true_obj[sp.vertex_object] + err[sp.vertex_object]
+    measured_obj = rng.random(len(true_obj)) < measured_fraction
+    drop = sp.vertex_ids[~measured_obj[sp.vertex_object]]
+    meas = data.measurements
+    keep = ~np.isin(meas.point_id, drop)
+    meas = replace(meas, point_id=meas.point_id[keep], image_id=meas.image_id[keep],
+                   xy=meas.xy[keep], sigma=meas.sigma[keep],
+                   rows=None if meas.rows is None else meas.rows[keep])
+    spec = replace(spec, sigma=(max(noise, 0.1), max(noise, 0.1), 3.0), offset="shift",
+                   identification_sigma=tuple(identification_sigma))
+    return replace(data, vectors=[(spec, replace(layer, coords=coords))], measurements=meas,
+                   conflation=conflation)
