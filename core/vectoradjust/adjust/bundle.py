@@ -439,6 +439,9 @@ class _Block:
     xy: np.ndarray  # (c, 2, g) observed photo coordinates
     sw: np.ndarray  # (c, 2, g) square roots of the weights
     repeated: bool  # an image occurs twice in the set (a point measured twice on it)
+    pw: np.ndarray  # (3, 3, g) prior weights of the points
+    prior: np.ndarray  # (3, g) prior coordinates (0 where there is no prior)
+    has: np.ndarray  # (g,) whether the point has a prior
 
 
 @dataclass
@@ -455,6 +458,7 @@ def _layout(prob: BundleProblem, groups: _Groups) -> _Layout:
     blocks = []
     six = np.arange(6)
     sw_all = 1.0 / prob.obs_sigma
+    has = prob.has_prior
     for imgs, pts, obs in zip(groups.images, groups.points, groups.obs):
         c = len(imgs)
         step = max(1, _CHUNK_OBS // c)
@@ -462,12 +466,15 @@ def _layout(prob: BundleProblem, groups: _Groups) -> _Layout:
         repeated = len(np.unique(imgs)) < c
         for lo in range(0, len(pts), step):
             o = np.ascontiguousarray(obs[lo:lo + step].T)  # (c, g)
+            p = pts[lo:lo + step]
             blocks.append(_Block(
-                images=np.asarray(imgs, np.int64), idx6=idx6, points=pts[lo:lo + step], obs=o,
+                images=np.asarray(imgs, np.int64), idx6=idx6, points=p, obs=o,
                 xy=np.ascontiguousarray(prob.obs_xy[o].transpose(0, 2, 1)),
-                sw=np.ascontiguousarray(sw_all[o].transpose(0, 2, 1)), repeated=repeated))
+                sw=np.ascontiguousarray(sw_all[o].transpose(0, 2, 1)), repeated=repeated,
+                pw=np.ascontiguousarray(prob.prior_weight[p].transpose(1, 2, 0)),
+                prior=np.where(has[p], prob.prior_xyz[p].T, 0.0), has=has[p]))
     counts = np.bincount(prob.obs_point, minlength=prob.n_points)
-    return _Layout(blocks, np.flatnonzero(counts == 0), prob.has_prior)
+    return _Layout(blocks, np.flatnonzero(counts == 0), has)
 
 
 def _cameras(eo: np.ndarray):
@@ -479,20 +486,22 @@ def _cameras(eo: np.ndarray):
 
 
 def _rays(blk: _Block, cams, xyz: np.ndarray, rows: int = 9) -> np.ndarray:
-    """``r, s, q`` (and their omega, phi derivatives with ``rows = 9``), ``(c, rows, g)``."""
+    """``r, s, q`` (and their omega, phi derivatives with ``rows = 9``), ``(c, rows, g)``,
+    and the block's points ``(3, g)``."""
     centre, mats = cams
-    d = xyz[blk.points].T[None, :, :] - centre[blk.images][:, :, None]  # (c, 3, g)
-    return mats[blk.images, :rows] @ d
+    xg = xyz[blk.points].T
+    d = xg[None, :, :] - centre[blk.images][:, :, None]  # (c, 3, g)
+    return mats[blk.images, :rows] @ d, xg
 
 
 def _linearise(blk: _Block, cams, xyz: np.ndarray, f: float, pp: np.ndarray):
-    """Misclosures ``(c, 2, g)`` (observed minus computed) and the design rows.
+    """Misclosures ``(c, 2, g)`` (observed minus computed), the design rows, the points.
 
     The rows ``(c, 2, 9, g)`` are the partials of ``x, y`` with respect to
     ``XL, YL, ZL, omega, phi, kappa, XA, YA, ZA`` (DESIGN section 2; with
     ``a = f/q``: ``dx/dtheta = a (r/q dq/dtheta - dr/dtheta)``, ``dx/dXA = a (r/q m3 - m1)``).
     """
-    rr = _rays(blk, cams, xyz)
+    rr, xg = _rays(blk, cams, xyz)
     r, s, q = rr[:, 0], rr[:, 1], rr[:, 2]
     a = f / q
     xr = r / q
@@ -512,7 +521,7 @@ def _linearise(blk: _Block, cams, xyz: np.ndarray, f: float, pp: np.ndarray):
     ell = np.empty((c, 2, g))
     ell[:, 0] = blk.xy[:, 0] - (pp[0] - f * xr)
     ell[:, 1] = blk.xy[:, 1] - (pp[1] - f * ys)
-    return ell, b
+    return ell, b, xg
 
 
 def _block_normals(blk: _Block, ell: np.ndarray, b: np.ndarray):
@@ -530,20 +539,18 @@ def _block_normals(blk: _Block, ell: np.ndarray, b: np.ndarray):
     nee = e @ e.transpose(0, 2, 1)
     te = (e @ lw[:, :, None])[:, :, 0]
     p = b[:, :, 6:].transpose(2, 0, 1, 3).reshape(3, 2 * c, g)
-    npp = (p[:, None] * p[None, :]).sum(axis=2)
     tp = (p * lw.reshape(1, 2 * c, g)).sum(axis=1)
     nep = b[:, 0, :6, None, :] * b[:, 0, None, 6:, :]
     nep += b[:, 1, :6, None, :] * b[:, 1, None, 6:, :]
+    npp = -nep[:, :3].sum(axis=0)  # the position rows are minus the point rows
     return nee, te, npp, tp, nep, float((lw * lw).sum())
 
 
-def _add_point_priors(prob: BundleProblem, has: np.ndarray, pts: np.ndarray, xyz: np.ndarray,
-                      npp: np.ndarray, tp: np.ndarray) -> None:
-    """Add the coordinate priors of ``pts`` to ``npp (3, 3, g)`` and ``tp (3, g)``."""
-    pw = prob.prior_weight[pts]
-    npp += pw.transpose(1, 2, 0)
-    d = np.where(has[pts, None], prob.prior_xyz[pts] - xyz[pts], 0.0)
-    tp += (pw * d[:, None, :]).sum(axis=2).T
+def _add_point_priors(blk: _Block, xg: np.ndarray, npp: np.ndarray, tp: np.ndarray) -> None:
+    """Add the coordinate priors of the block's points to ``npp (3, 3, g)``, ``tp (3, g)``."""
+    npp += blk.pw
+    d = np.where(blk.has, blk.prior - xg, 0.0)
+    tp += (blk.pw * d[None, :, :]).sum(axis=1)
 
 
 def _inv_sym3(a: np.ndarray):
@@ -572,6 +579,23 @@ def _undetermined(det: np.ndarray, trace: np.ndarray) -> np.ndarray:
     """Positions of numerically singular point blocks (same test as the dense check)."""
     scale = trace**3
     return np.flatnonzero(~(np.abs(det) > 1e-12 * np.maximum(scale, 1e-300)))
+
+
+def _times_cholesky(nep: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """``U = N_ep L`` per observation with ``N_pp^-1 = L L'`` (closed form), so that
+    ``N_ep N_pp^-1 N_pe = U U'`` (one symmetric product per block)."""
+    l00 = np.sqrt(inv[0, 0])
+    l10 = inv[1, 0] / l00
+    l20 = inv[2, 0] / l00
+    l11 = np.sqrt(inv[1, 1] - l10 * l10)
+    l21 = (inv[2, 1] - l20 * l10) / l11
+    l22 = np.sqrt(inv[2, 2] - l20 * l20 - l21 * l21)
+    n0, n1, n2 = nep[:, :, 0], nep[:, :, 1], nep[:, :, 2]
+    u = np.empty_like(nep)
+    u[:, :, 0] = n0 * l00 + n1 * l10 + n2 * l20
+    u[:, :, 1] = n1 * l11 + n2 * l21
+    u[:, :, 2] = n2 * l22
+    return u
 
 
 def _times_inverse(nep: np.ndarray, inv: np.ndarray) -> np.ndarray:
@@ -618,20 +642,21 @@ def _eliminate_points(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np
     parts, tps, bad = [], [], []
     vtpv = 0.0
     for blk in lay.blocks:
-        ell, b = _linearise(blk, cams, xyz, f, pp)
+        ell, b, xg = _linearise(blk, cams, xyz, f, pp)
         nee, te, npp, tp, nep, vv = _block_normals(blk, ell, b)
         vtpv += vv
-        _add_point_priors(prob, lay.has_prior, blk.points, xyz, npp, tp)
+        _add_point_priors(blk, xg, npp, tp)
         inv, det = _inv_sym3(npp)
         if check_points:
             bad.append(blk.points[_undetermined(det, npp[0, 0] + npp[1, 1] + npp[2, 2])])
-        y = _times_inverse(nep, inv)
         c, g = len(blk.images), len(blk.points)
-        yr = y.reshape(6 * c, 3 * g)
-        loc = -(yr @ nep.reshape(6 * c, 3 * g).T)
+        with np.errstate(invalid="ignore"):  # undetermined points: raised below
+            ur = _times_cholesky(nep, inv).reshape(6 * c, 3 * g)
+            loc = -(ur @ ur.T)
         diag = loc.reshape(c, 6, c, 6)
         diag[np.arange(c), :, np.arange(c), :] += nee
-        _add_block(s, rhs, blk, loc, te.ravel() - yr @ tp.ravel())
+        itp = (inv * tp[None]).sum(axis=1)  # N_pp^-1 t_p
+        _add_block(s, rhs, blk, loc, te.ravel() - nep.reshape(6 * c, 3 * g) @ itp.ravel())
         parts.append((nep, inv))
         tps.append(tp)
     lonely_npp = prob.prior_weight[lay.lonely]
@@ -727,7 +752,7 @@ def _final_residuals(prob: BundleProblem, lay: _Layout, eo: np.ndarray,
     v = np.empty((len(prob.obs_point), 2))
     behind = len(prob.obs_point)
     for blk in lay.blocks:
-        rr = _rays(blk, cams, xyz, rows=3)
+        rr, _ = _rays(blk, cams, xyz, rows=3)
         q = rr[:, 2]
         if np.any(q >= 0):
             behind = min(behind, int(blk.obs[q >= 0].min()))
@@ -761,7 +786,7 @@ def _kept_arrays(prob: BundleProblem, lay: _Layout, step: _Step, s_inv: np.ndarr
     nep2, npp_inv2 = nep_obs.reshape(k, 18), npp_inv.reshape(m, 9)
     for i, blk in enumerate(lay.blocks):
         nep, inv = step.parts[i]
-        _, b = _linearise(blk, cams, step.xyz, f, pp)
+        _, b, _ = _linearise(blk, cams, step.xyz, f, pp)
         c, g = len(blk.images), len(blk.points)
         rows = blk.obs.ravel()
         bt = b.reshape(c, 18, g).transpose(0, 2, 1).reshape(c * g, 2, 9)
