@@ -524,12 +524,12 @@ def _linearise(blk: _Block, cams, xyz: np.ndarray, f: float, pp: np.ndarray):
     return ell, b, xg
 
 
-def _block_normals(blk: _Block, ell: np.ndarray, b: np.ndarray):
+def _block_normals(blk: _Block, ell: np.ndarray, b: np.ndarray, nep: np.ndarray):
     """Normal-equation pieces of a block from its weighted design rows.
 
     Returns ``nee (c, 6, 6)``, ``te (c, 6)`` per image, ``npp (3, 3, g)``, ``tp (3, g)``
-    per point (image observations only), ``nep (c, 6, 3, g)`` per observation and the
-    block's ``v'Pv``.
+    per point (image observations only) and the block's ``v'Pv``; fills ``nep
+    (c, 6, 3, g)`` per observation.
     """
     b *= blk.sw[:, :, None, :]
     ell *= blk.sw
@@ -540,10 +540,10 @@ def _block_normals(blk: _Block, ell: np.ndarray, b: np.ndarray):
     te = (e @ lw[:, :, None])[:, :, 0]
     p = b[:, :, 6:].transpose(2, 0, 1, 3).reshape(3, 2 * c, g)
     tp = (p * lw.reshape(1, 2 * c, g)).sum(axis=1)
-    nep = b[:, 0, :6, None, :] * b[:, 0, None, 6:, :]
+    np.multiply(b[:, 0, :6, None, :], b[:, 0, None, 6:, :], out=nep)
     nep += b[:, 1, :6, None, :] * b[:, 1, None, 6:, :]
     npp = -nep[:, :3].sum(axis=0)  # the position rows are minus the point rows
-    return nee, te, npp, tp, nep, float((lw * lw).sum())
+    return nee, te, npp, tp, float((lw * lw).sum())
 
 
 def _add_point_priors(blk: _Block, xg: np.ndarray, npp: np.ndarray, tp: np.ndarray) -> None:
@@ -641,15 +641,20 @@ def _eliminate_points(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np
     rhs = np.zeros(6 * n)
     parts, tps, bad = [], [], []
     vtpv = 0.0
+    # every block's N_ep in one buffer: freed in one piece (memory back to the system)
+    buf = np.empty(18 * len(prob.obs_point))
+    at = 0
     for blk in lay.blocks:
         ell, b, xg = _linearise(blk, cams, xyz, f, pp)
-        nee, te, npp, tp, nep, vv = _block_normals(blk, ell, b)
+        c, g = len(blk.images), len(blk.points)
+        nep = buf[at:at + 18 * c * g].reshape(c, 6, 3, g)
+        at += 18 * c * g
+        nee, te, npp, tp, vv = _block_normals(blk, ell, b, nep)
         vtpv += vv
         _add_point_priors(blk, xg, npp, tp)
         inv, det = _inv_sym3(npp)
         if check_points:
             bad.append(blk.points[_undetermined(det, npp[0, 0] + npp[1, 1] + npp[2, 2])])
-        c, g = len(blk.images), len(blk.points)
         with np.errstate(invalid="ignore"):  # undetermined points: raised below
             ur = _times_cholesky(nep, inv).reshape(6 * c, 3 * g)
             loc = -(ur @ ur.T)
@@ -775,24 +780,16 @@ def _kept_arrays(prob: BundleProblem, lay: _Layout, step: _Step, s_inv: np.ndarr
     Returns ``a_eo (k, 2, 6)``, ``a_pt (k, 2, 3)``, ``nep (k, 6, 3)``, ``npp_inv (m, 3, 3)``
     and ``N_pp^-1 + N_pp^-1 N_pe S^-1 N_ep N_pp^-1`` per point (None without covariances):
     the exact 3x3 blocks of ``N^-1``, from ``S^-1`` restricted to each block's images.
+    The step's blocks are released before the partials are recomputed (peak memory).
     """
     k, m = len(prob.obs_point), prob.n_points
-    f, pp = float(prob.focal_length), prob.principal_point
-    a_eo, a_pt, nep_obs = np.empty((k, 2, 6)), np.empty((k, 2, 3)), np.empty((k, 6, 3))
-    npp_inv = np.empty((m, 3, 3))
+    nep_obs, npp_inv = np.empty((k, 6, 3)), np.empty((m, 3, 3))
     q = np.empty((m, 3, 3)) if compute_covariance else None
-    cams = _cameras(step.eo)
-    a_eo2, a_pt2 = a_eo.reshape(k, 12), a_pt.reshape(k, 6)
     nep2, npp_inv2 = nep_obs.reshape(k, 18), npp_inv.reshape(m, 9)
     for i, blk in enumerate(lay.blocks):
         nep, inv = step.parts[i]
-        _, b, _ = _linearise(blk, cams, step.xyz, f, pp)
         c, g = len(blk.images), len(blk.points)
-        rows = blk.obs.ravel()
-        bt = b.reshape(c, 18, g).transpose(0, 2, 1).reshape(c * g, 2, 9)
-        a_eo2[rows] = bt[:, :, :6].reshape(c * g, 12)
-        a_pt2[rows] = bt[:, :, 6:].reshape(c * g, 6)
-        nep2[rows] = nep.reshape(c, 18, g).transpose(0, 2, 1).reshape(c * g, 18)
+        nep2[blk.obs.ravel()] = nep.reshape(c, 18, g).transpose(0, 2, 1).reshape(c * g, 18)
         npp_inv2[blk.points] = inv.reshape(9, g).T
         if compute_covariance:
             y = _times_inverse(nep, inv).reshape(6 * c, 3, g)
@@ -800,11 +797,30 @@ def _kept_arrays(prob: BundleProblem, lay: _Layout, step: _Step, s_inv: np.ndarr
             t = np.einsum("ab,bmg->amg", s_inv[np.ix_(blk.idx6, blk.idx6)], y)
             qb = inv + (y[:, :, None, :] * t[:, None, :, :]).sum(axis=0)
             q[blk.points] = (0.5 * (qb + qb.transpose(1, 0, 2))).transpose(2, 0, 1)
-        step.parts[i] = None  # free the step's copy as the observation-order one fills
+    step.parts = []  # the one N_ep buffer goes back to the system here ...
+    nep = inv = y = t = None  # ... once no view of it is left
     npp_inv[lay.lonely] = step.lonely_inv
     if compute_covariance:
         q[lay.lonely] = 0.5 * (step.lonely_inv + step.lonely_inv.transpose(0, 2, 1))
+    a_eo, a_pt = _kept_partials(prob, lay, step)
     return a_eo, a_pt, nep_obs, npp_inv, q
+
+
+def _kept_partials(prob: BundleProblem, lay: _Layout, step: _Step):
+    """Unweighted partials ``a_eo (k, 2, 6)``, ``a_pt (k, 2, 3)`` at the last step's point."""
+    k = len(prob.obs_point)
+    f, pp = float(prob.focal_length), prob.principal_point
+    a_eo, a_pt = np.empty((k, 2, 6)), np.empty((k, 2, 3))
+    a_eo2, a_pt2 = a_eo.reshape(k, 12), a_pt.reshape(k, 6)
+    cams = _cameras(step.eo)
+    for blk in lay.blocks:
+        _, b, _ = _linearise(blk, cams, step.xyz, f, pp)
+        c, g = len(blk.images), len(blk.points)
+        rows = blk.obs.ravel()
+        bt = b.reshape(c, 18, g).transpose(0, 2, 1).reshape(c * g, 2, 9)
+        a_eo2[rows] = bt[:, :, :6].reshape(c * g, 12)
+        a_pt2[rows] = bt[:, :, 6:].reshape(c * g, 6)
+    return a_eo, a_pt
 
 
 def _converged_result(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np.ndarray,
