@@ -8,9 +8,19 @@ equations ``N dx = t`` with ``N = [[N_ee, N_ep], [N_pe, N_pp]]``; the point bloc
 eliminated (Schur complement) so that only the small reduced camera system
 ``S = N_ee - N_ep N_pp^-1 N_pe`` is solved (``DESIGN.md`` section 3).
 
-Nothing here loops over points: observations are processed as arrays, and points that
-are seen by the same set of images form a group whose Schur update is one matrix
-product.
+Nothing here loops over points. Points seen by the same set of ``c`` images form a
+group, cut into cache-sized blocks (:data:`_CHUNK_OBS` observations) whose arrays are
+laid out ``(c, ..., g)``: the rotation matrix of an image and its derivatives are
+computed once per image and broadcast over the block's points (no matrix per
+observation), a point's sums over its images are sums over the first axis (no
+``np.add.at``), an image's sums over its points are matrix products, the 3x3 point
+blocks are inverted (and Cholesky-factored) in closed form, and a block's share of the
+reduced system is one symmetric product ``U U'`` with ``U = N_ep L``, ``L L' = N_pp^-1``.
+The exact point covariances are the 3x3 blocks of ``N^-1``,
+``N_pp^-1 + N_pp^-1 N_pe S^-1 N_ep N_pp^-1``, from ``S^-1`` restricted to each block's
+images (no dense matrix over the points). The adjustment runs with one OpenBLAS thread
+(:func:`_single_blas_thread`). ``benchmarks/run.py`` times it; ``tests/test_solver_dense.py``
+checks it against a dense Gauss-Newton.
 """
 
 from __future__ import annotations
