@@ -548,8 +548,7 @@ def _block_normals(blk: _Block, ell: np.ndarray, b: np.ndarray, nep: np.ndarray)
     lw = ell.reshape(c, 2 * g)
     nee = e @ e.transpose(0, 2, 1)
     te = (e @ lw[:, :, None])[:, :, 0]
-    p = b[:, :, 6:].transpose(2, 0, 1, 3).reshape(3, 2 * c, g)
-    tp = (p * lw.reshape(1, 2 * c, g)).sum(axis=1)
+    tp = (b[:, :, 6:] * ell[:, :, None, :]).sum(axis=(0, 1))
     np.multiply(b[:, 0, :6, None, :], b[:, 0, None, 6:, :], out=nep)
     nep += b[:, 1, :6, None, :] * b[:, 1, None, 6:, :]
     npp = -nep[:, :3].sum(axis=0)  # the position rows are minus the point rows
