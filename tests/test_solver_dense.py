@@ -194,3 +194,28 @@ def test_stereo_pair_matches_the_dense_solution_with_a_point_seen_twice_on_one_i
     n, m = prob.n_images, prob.n_points
     qp = q[6 * n:, 6 * n:].reshape(m, 3, m, 3)[np.arange(m), :, np.arange(m), :]
     np.testing.assert_allclose(res.point_cov, s0sq * qp, rtol=1e-9, atol=0)
+
+
+def test_one_blas_thread_inside_the_adjustment_and_restored_after():
+    controls = bundle._openblas_controls()
+    before = [int(get()) for _, get in controls]
+    with bundle._single_blas_thread():
+        assert all(int(get()) == 1 for _, get in controls)
+    assert [int(get()) for _, get in controls] == before
+
+
+def test_simulated_block_layout_overlaps_and_truth():
+    blk = make_block(2, 4, n_shape_points=400, n_control=8, n_tie=20, seed=3)
+    prob = blk.problem
+    counts = np.bincount(prob.obs_point, minlength=prob.n_points)
+    assert counts.min() >= 2  # every point is seen on two images at least
+    strips = blk.strip[prob.obs_image]
+    per_point = np.zeros((prob.n_points, 2), bool)
+    per_point[prob.obs_point, strips] = True
+    assert per_point.all(axis=1).any()  # the 30 % side overlap: points on both strips
+    # image coordinates are the truth projected plus noise of the stated sigma
+    pred = project(blk.true_eo[prob.obs_image], blk.true_xyz[prob.obs_point],
+                   prob.focal_length)
+    noise = prob.obs_xy - pred
+    assert 0.8 * 0.015 < noise.std() < 1.2 * 0.015
+    assert np.all(np.abs(prob.obs_xy) < 115.0)
