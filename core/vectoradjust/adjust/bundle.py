@@ -8,13 +8,27 @@ equations ``N dx = t`` with ``N = [[N_ee, N_ep], [N_pe, N_pp]]``; the point bloc
 eliminated (Schur complement) so that only the small reduced camera system
 ``S = N_ee - N_ep N_pp^-1 N_pe`` is solved (``DESIGN.md`` section 3).
 
-Nothing here loops over points: observations are processed as arrays, and points that
-are seen by the same set of images form a group whose Schur update is one matrix
-product.
+Nothing here loops over points. Points seen by the same set of ``c`` images form a
+group, cut into cache-sized blocks (:data:`_CHUNK_OBS` observations) whose arrays are
+laid out ``(c, ..., g)``: the rotation matrix of an image and its derivatives are
+computed once per image and broadcast over the block's points (no matrix per
+observation), a point's sums over its images are sums over the first axis (no
+``np.add.at``), an image's sums over its points are matrix products, the 3x3 point
+blocks are inverted (and Cholesky-factored) in closed form, and a block's share of the
+reduced system is one symmetric product ``U U'`` with ``U = N_ep L``, ``L L' = N_pp^-1``.
+The exact point covariances are the 3x3 blocks of ``N^-1``,
+``N_pp^-1 + N_pp^-1 N_pe S^-1 N_ep N_pp^-1``, from ``S^-1`` restricted to each block's
+images (no dense matrix over the points). The adjustment runs with one OpenBLAS thread
+(:func:`_single_blas_thread`). ``benchmarks/run.py`` times it; ``tests/test_solver_dense.py``
+checks it against a dense Gauss-Newton.
 """
 
 from __future__ import annotations
 
+import ctypes
+import os
+import sys
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
@@ -22,7 +36,12 @@ import numpy as np
 import scipy.linalg
 
 from vectoradjust.errors import CancelledError, NonConvergenceError, SingularityError
-from vectoradjust.sensor.collinearity import partials, project, rotation_matrix
+from vectoradjust.sensor.collinearity import (
+    partials,
+    project,
+    rotation_derivatives,
+    rotation_matrix,
+)
 
 __all__ = [
     "BundleProblem",
@@ -34,6 +53,60 @@ __all__ = [
 ]
 
 ProgressCallback = Callable[[float, str], None]
+
+
+#: (set, get) symbol pairs of the OpenBLAS builds numpy and scipy ship or link
+_BLAS_THREAD_SYMBOLS = (
+    ("openblas_set_num_threads", "openblas_get_num_threads"),
+    ("scipy_openblas_set_num_threads", "scipy_openblas_get_num_threads"),
+    ("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
+    ("openblas_set_num_threads64_", "openblas_get_num_threads64_"),
+)
+
+
+def _openblas_controls() -> list:
+    """``(set, get)`` thread functions of every OpenBLAS loaded in this process (Linux)."""
+    if not sys.platform.startswith("linux") or os.environ.get("VECTORADJUST_BLAS_THREADS"):
+        return []
+    try:
+        with open("/proc/self/maps", encoding="utf-8") as fh:
+            paths = sorted({ln.split()[-1] for ln in fh if "openblas" in ln.lower()
+                            and ln.split()[-1].startswith("/")})
+    except OSError:
+        return []
+    controls = []
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for set_name, get_name in _BLAS_THREAD_SYMBOLS:
+            if hasattr(lib, set_name) and hasattr(lib, get_name):
+                controls.append((getattr(lib, set_name), getattr(lib, get_name)))
+                break
+    return controls
+
+
+@contextmanager
+def _single_blas_thread():
+    """Run the adjustment with one OpenBLAS thread, then restore the previous setting.
+
+    Its matrix products are small (a block's images) or many; a threaded BLAS splits
+    them across cores that other work (or other processes on a shared machine) holds,
+    and waits: on a loaded 2-core machine that made a 1200 x 1200 Cholesky take seconds.
+    Set the environment variable ``VECTORADJUST_BLAS_THREADS`` (any value) to leave the
+    BLAS threads alone. Without OpenBLAS (or off Linux) this does nothing.
+    """
+    controls = _openblas_controls()
+    old = []
+    try:
+        for set_fn, get_fn in controls:
+            old.append((set_fn, int(get_fn())))
+            set_fn(1)
+        yield
+    finally:
+        for set_fn, n in old:
+            set_fn(n)
 
 
 def inv3x3(a: np.ndarray) -> np.ndarray:
@@ -167,8 +240,31 @@ class _Groups:
     obs: list  # per group: (g, c) observation indices
 
 
+def _observation_order(obs_point: np.ndarray, obs_image: np.ndarray) -> np.ndarray:
+    """Observations sorted by point, then image (no sort when they already are)."""
+    n_img = int(obs_image.max(initial=-1)) + 1
+    key = obs_point * max(n_img, 1) + obs_image
+    if len(key) < 2 or bool(np.all(key[1:] >= key[:-1])):
+        return np.arange(len(key))
+    return np.argsort(key, kind="stable")
+
+
+def _image_set_keys(img_mat: np.ndarray):
+    """Distinct rows of ``img_mat (g, c)`` (sorted) and each row's position among them."""
+    g, c = img_mat.shape
+    base = int(img_mat.max(initial=0)) + 1
+    if c * np.log2(max(base, 2)) < 62:  # one int64 key per row, in lexicographic order
+        key = np.zeros(g, np.int64)
+        for j in range(c):
+            key = key * base + img_mat[:, j]
+        uniq, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+        return img_mat[first], np.asarray(inverse).reshape(-1)
+    keys, inverse = np.unique(img_mat, axis=0, return_inverse=True)
+    return keys, np.asarray(inverse).reshape(-1)
+
+
 def _group_observations(obs_point: np.ndarray, obs_image: np.ndarray, n_points: int) -> _Groups:
-    order = np.lexsort((obs_image, obs_point))
+    order = _observation_order(obs_point, obs_image)
     counts = np.bincount(obs_point, minlength=n_points)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     groups = _Groups([], [], [])
@@ -176,8 +272,7 @@ def _group_observations(obs_point: np.ndarray, obs_image: np.ndarray, n_points: 
         pts = np.flatnonzero(counts == c)
         obs_mat = order[starts[pts][:, None] + np.arange(c)[None, :]]
         img_mat = obs_image[obs_mat]
-        keys, inverse = np.unique(img_mat, axis=0, return_inverse=True)
-        inverse = np.asarray(inverse).reshape(-1)
+        keys, inverse = _image_set_keys(img_mat)
         sort = np.argsort(inverse, kind="stable")
         bounds = np.searchsorted(inverse[sort], np.arange(len(keys) + 1))
         for g in range(len(keys)):
@@ -338,63 +433,203 @@ class BundleResult:
         return self.variance_factor * (d + cov)
 
 
-def _assemble(prob: BundleProblem, eo: np.ndarray, xyz: np.ndarray):
-    """Normal-equation pieces at the current estimate."""
-    f = prob.focal_length
-    e = eo[prob.obs_image]
-    p = xyz[prob.obs_point]
-    pred = project(e, p, f, prob.principal_point)
-    ell = prob.obs_xy - pred  # misclosure, observed minus computed
-    a_eo, a_pt = partials(e, p, f)
-    w = 1.0 / prob.obs_sigma**2
-    wae = a_eo * w[:, :, None]
-    wap = a_pt * w[:, :, None]
-    n_img, n_pts = prob.n_images, prob.n_points
-    nee = _block_sum(prob.obs_image, np.einsum("kri,krj->kij", a_eo, wae), n_img)
-    npp = _block_sum(prob.obs_point, np.einsum("kri,krj->kij", a_pt, wap), n_pts)
-    nep = np.einsum("kri,krj->kij", wae, a_pt)
-    te = _block_sum(prob.obs_image, np.einsum("kri,kr->ki", wae, ell), n_img)
-    tp = _block_sum(prob.obs_point, np.einsum("kri,kr->ki", wap, ell), n_pts)
-    # point priors
-    npp += prob.prior_weight
-    dprior = np.where(prob.has_prior[:, None], prob.prior_xyz - xyz, 0.0)
-    tp += np.einsum("mij,mj->mi", prob.prior_weight, dprior)
-    # EO priors
-    we = prob.eo_weight
-    idx = np.arange(6)
-    nee[:, idx, idx] += we
-    te += we * np.where(we > 0, prob.eo0 - eo, 0.0)
-    return pred, ell, a_eo, a_pt, nee, npp, nep, te, tp
+# --------------------------------------------------------------------------- the kernel
+#: observations per block: the kernel's temporaries (a few dozen floats per observation)
+#: stay in the cache, and the number of numpy calls stays small
+_CHUNK_OBS = 2048
 
 
-def _reduced_system(prob, groups, nee, npp_inv, nep, te, tp):
-    n = prob.n_images
-    s = np.zeros((n, 6, n, 6))
-    s[np.arange(n), :, np.arange(n), :] = nee
-    rhs = te.copy()
-    ynep = np.einsum("kij,kjl->kil", nep, npp_inv[prob.obs_point])  # Y_k = Nep_k Npp^-1
-    rhs -= _block_sum(prob.obs_image, np.einsum("kij,kj->ki", ynep, tp[prob.obs_point]), n)
-    for imgs, obs in zip(groups.images, groups.obs):
+@dataclass
+class _Block:
+    """``g`` points seen by the same ``c`` images, observations laid out by image.
+
+    Every array is ``(c, ..., g)``: the camera values of a column are scalars that
+    broadcast over the points, sums over a point's images are sums over axis 0, sums
+    over an image's points are matrix products.
+    """
+
+    images: np.ndarray  # (c,)
+    idx6: np.ndarray  # (6c,) rows of these images' EO in the reduced system
+    points: np.ndarray  # (g,)
+    obs: np.ndarray  # (c, g) observation indices
+    xy: np.ndarray  # (c, 2, g) observed photo coordinates
+    sw: np.ndarray  # (c, 2, g) square roots of the weights
+    repeated: bool  # an image occurs twice in the set (a point measured twice on it)
+    pw: np.ndarray  # (3, 3, g) prior weights of the points
+    prior: np.ndarray  # (3, g) prior coordinates (0 where there is no prior)
+    has: np.ndarray  # (g,) whether the point has a prior
+
+
+@dataclass
+class _Layout:
+    """The observations in blocks, and the points without image observations."""
+
+    blocks: list
+    lonely: np.ndarray
+    has_prior: np.ndarray
+
+
+def _layout(prob: BundleProblem, groups: _Groups) -> _Layout:
+    """Cut the image-set groups into cache-sized blocks (done once per adjustment)."""
+    blocks = []
+    six = np.arange(6)
+    sw_all = 1.0 / prob.obs_sigma
+    has = prob.has_prior
+    for imgs, pts, obs in zip(groups.images, groups.points, groups.obs):
         c = len(imgs)
-        g = obs.shape[0]
-        yr = ynep[obs].transpose(1, 2, 0, 3).reshape(c * 6, g * 3)
-        er = nep[obs].transpose(1, 2, 0, 3).reshape(c * 6, g * 3)
-        block = (yr @ er.T).reshape(c, 6, c, 6)
-        s[np.ix_(imgs, np.arange(6), imgs, np.arange(6))] -= block
-    return s.reshape(6 * n, 6 * n), rhs.reshape(6 * n), ynep
+        step = max(1, _CHUNK_OBS // c)
+        idx6 = (6 * np.asarray(imgs, np.int64)[:, None] + six).ravel()
+        repeated = len(np.unique(imgs)) < c
+        for lo in range(0, len(pts), step):
+            o = np.ascontiguousarray(obs[lo:lo + step].T)  # (c, g)
+            p = pts[lo:lo + step]
+            blocks.append(_Block(
+                images=np.asarray(imgs, np.int64), idx6=idx6, points=p, obs=o,
+                xy=np.ascontiguousarray(prob.obs_xy[o].transpose(0, 2, 1)),
+                sw=np.ascontiguousarray(sw_all[o].transpose(0, 2, 1)), repeated=repeated,
+                pw=np.ascontiguousarray(prob.prior_weight[p].transpose(1, 2, 0)),
+                prior=np.where(has[p], prob.prior_xyz[p].T, 0.0), has=has[p]))
+    counts = np.bincount(prob.obs_point, minlength=prob.n_points)
+    return _Layout(blocks, np.flatnonzero(counts == 0), has)
 
 
-def _check_points_determined(prob: BundleProblem, npp: np.ndarray) -> None:
-    det = np.linalg.det(npp)
-    scale = np.einsum("mii->m", npp) ** 3
-    bad = np.flatnonzero(~(np.abs(det) > 1e-12 * np.maximum(scale, 1e-300)))
-    if bad.size:
-        raise SingularityError(
-            f"{bad.size} object point(s) cannot be determined (e.g. point index {bad[0]}): "
-            "a point without a coordinate prior must be measured on at least two images",
-            "Measure tie points on two or more images, or remove them from the measurements",
-            details={"points": bad.tolist()},
-        )
+def _cameras(eo: np.ndarray):
+    """Per image (once, not per observation): projection centre ``(n, 3)`` and
+    ``[M; dM/domega; dM/dphi]`` stacked ``(n, 9, 3)``."""
+    m = rotation_matrix(eo[:, 3], eo[:, 4], eo[:, 5])
+    d = rotation_derivatives(eo[:, 3], eo[:, 4], eo[:, 5])
+    return np.ascontiguousarray(eo[:, :3]), np.concatenate([m, d[:, 0], d[:, 1]], axis=1)
+
+
+def _rays(blk: _Block, cams, xyz: np.ndarray, rows: int = 9) -> np.ndarray:
+    """``r, s, q`` (and their omega, phi derivatives with ``rows = 9``), ``(c, rows, g)``,
+    and the block's points ``(3, g)``."""
+    centre, mats = cams
+    xg = xyz[blk.points].T
+    d = xg[None, :, :] - centre[blk.images][:, :, None]  # (c, 3, g)
+    return mats[blk.images, :rows] @ d, xg
+
+
+def _linearise(blk: _Block, cams, xyz: np.ndarray, f: float, pp: np.ndarray):
+    """Misclosures ``(c, 2, g)`` (observed minus computed), the design rows, the points.
+
+    The rows ``(c, 2, 9, g)`` are the partials of ``x, y`` with respect to
+    ``XL, YL, ZL, omega, phi, kappa, XA, YA, ZA`` (DESIGN section 2; with
+    ``a = f/q``: ``dx/dtheta = a (r/q dq/dtheta - dr/dtheta)``, ``dx/dXA = a (r/q m3 - m1)``).
+    """
+    rr, xg = _rays(blk, cams, xyz)
+    r, s, q = rr[:, 0], rr[:, 1], rr[:, 2]
+    a = f / q
+    xr = r / q
+    ys = s / q
+    m = cams[1][blk.images]  # (c, 9, 3): rows m1, m2, m3 first
+    c, g = r.shape
+    b = np.empty((c, 2, 9, g))
+    b[:, 0, 6:] = a[:, None] * (xr[:, None] * m[:, 2, :, None] - m[:, 0, :, None])
+    b[:, 1, 6:] = a[:, None] * (ys[:, None] * m[:, 2, :, None] - m[:, 1, :, None])
+    np.negative(b[:, :, 6:], out=b[:, :, :3])
+    b[:, 0, 3] = a * (xr * rr[:, 5] - rr[:, 3])
+    b[:, 0, 4] = a * (xr * rr[:, 8] - rr[:, 6])
+    b[:, 0, 5] = -a * s
+    b[:, 1, 3] = a * (ys * rr[:, 5] - rr[:, 4])
+    b[:, 1, 4] = a * (ys * rr[:, 8] - rr[:, 7])
+    b[:, 1, 5] = a * r
+    ell = np.empty((c, 2, g))
+    ell[:, 0] = blk.xy[:, 0] - (pp[0] - f * xr)
+    ell[:, 1] = blk.xy[:, 1] - (pp[1] - f * ys)
+    return ell, b, xg
+
+
+def _block_normals(blk: _Block, ell: np.ndarray, b: np.ndarray, nep: np.ndarray):
+    """Normal-equation pieces of a block from its weighted design rows.
+
+    Returns ``nee (c, 6, 6)``, ``te (c, 6)`` per image, ``npp (3, 3, g)``, ``tp (3, g)``
+    per point (image observations only) and the block's ``v'Pv``; fills ``nep
+    (c, 6, 3, g)`` per observation.
+    """
+    b *= blk.sw[:, :, None, :]
+    ell *= blk.sw
+    c, _, _, g = b.shape
+    e = b[:, :, :6].transpose(0, 2, 1, 3).reshape(c, 6, 2 * g)
+    lw = ell.reshape(c, 2 * g)
+    nee = e @ e.transpose(0, 2, 1)
+    te = (e @ lw[:, :, None])[:, :, 0]
+    tp = (b[:, :, 6:] * ell[:, :, None, :]).sum(axis=(0, 1))
+    np.multiply(b[:, 0, :6, None, :], b[:, 0, None, 6:, :], out=nep)
+    nep += b[:, 1, :6, None, :] * b[:, 1, None, 6:, :]
+    npp = -nep[:, :3].sum(axis=0)  # the position rows are minus the point rows
+    return nee, te, npp, tp, float((lw * lw).sum())
+
+
+def _add_point_priors(blk: _Block, xg: np.ndarray, npp: np.ndarray, tp: np.ndarray) -> None:
+    """Add the coordinate priors of the block's points to ``npp (3, 3, g)``, ``tp (3, g)``."""
+    npp += blk.pw
+    d = np.where(blk.has, blk.prior - xg, 0.0)
+    tp += (blk.pw * d[None, :, :]).sum(axis=1)
+
+
+def _inv_sym3(a: np.ndarray):
+    """Inverse and determinant of symmetric 3x3 blocks laid out ``(3, 3, g)``."""
+    a00, a01, a02, a11, a12, a22 = a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2]
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a02 * a01 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = 1.0 / det
+    inv = np.empty_like(a)
+    inv[0, 0] = c00 * r
+    inv[1, 1] = c11 * r
+    inv[2, 2] = c22 * r
+    inv[0, 1] = inv[1, 0] = c01 * r
+    inv[0, 2] = inv[2, 0] = c02 * r
+    inv[1, 2] = inv[2, 1] = c12 * r
+    return inv, det
+
+
+def _undetermined(det: np.ndarray, trace: np.ndarray) -> np.ndarray:
+    """Positions of numerically singular point blocks (same test as the dense check)."""
+    scale = trace**3
+    return np.flatnonzero(~(np.abs(det) > 1e-12 * np.maximum(scale, 1e-300)))
+
+
+def _times_cholesky(nep: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """``U = N_ep L`` per observation with ``N_pp^-1 = L L'`` (closed form), so that
+    ``N_ep N_pp^-1 N_pe = U U'`` (one symmetric product per block)."""
+    l00 = np.sqrt(inv[0, 0])
+    l10 = inv[1, 0] / l00
+    l20 = inv[2, 0] / l00
+    l11 = np.sqrt(inv[1, 1] - l10 * l10)
+    l21 = (inv[2, 1] - l20 * l10) / l11
+    l22 = np.sqrt(inv[2, 2] - l20 * l20 - l21 * l21)
+    n0, n1, n2 = nep[:, :, 0], nep[:, :, 1], nep[:, :, 2]
+    u = np.empty_like(nep)
+    u[:, :, 0] = n0 * l00 + n1 * l10 + n2 * l20
+    u[:, :, 1] = n1 * l11 + n2 * l21
+    u[:, :, 2] = n2 * l22
+    return u
+
+
+def _times_inverse(nep: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """``Y = N_ep N_pp^-1`` per observation, ``(c, 6, 3, g)``, explicit products."""
+    y = nep[:, :, 0:1] * inv[0]
+    y += nep[:, :, 1:2] * inv[1]
+    y += nep[:, :, 2:3] * inv[2]
+    return y
+
+
+def _add_block(s: np.ndarray, rhs: np.ndarray, blk: _Block, loc: np.ndarray,
+               r6: np.ndarray) -> None:
+    """Scatter a block's ``(6c, 6c)`` reduced-system share and right-hand side."""
+    if blk.repeated:
+        np.add.at(s, np.ix_(blk.idx6, blk.idx6), loc)
+        np.add.at(rhs, blk.idx6, r6)
+    else:
+        s[np.ix_(blk.idx6, blk.idx6)] += loc
+        rhs[blk.idx6] += r6
 
 
 @dataclass
@@ -403,13 +638,69 @@ class _Step:
 
     dx_e: np.ndarray
     dx_p: np.ndarray
-    ell: np.ndarray
-    a_eo: np.ndarray
-    a_pt: np.ndarray
-    nep: np.ndarray
-    npp_inv: np.ndarray
-    ynep: np.ndarray
+    vtpv_image: float
+    parts: list  # per block: (nep (c, 6, 3, g), npp^-1 (3, 3, g))
+    lonely_inv: np.ndarray  # npp^-1 of the points without image observations
     factor: tuple
+    eo: np.ndarray  # the linearisation point
+    xyz: np.ndarray
+
+
+def _eliminate_points(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np.ndarray,
+                      check_points: bool):
+    """Reduced camera system ``S dx_e = rhs`` with the points eliminated, block by block."""
+    n = prob.n_images
+    f, pp = float(prob.focal_length), prob.principal_point
+    cams = _cameras(eo)
+    s = np.zeros((6 * n, 6 * n))
+    rhs = np.zeros(6 * n)
+    parts, tps, bad = [], [], []
+    vtpv = 0.0
+    # every block's N_ep in one buffer: freed in one piece (memory back to the system)
+    buf = np.empty(18 * len(prob.obs_point))
+    at = 0
+    for blk in lay.blocks:
+        ell, b, xg = _linearise(blk, cams, xyz, f, pp)
+        c, g = len(blk.images), len(blk.points)
+        nep = buf[at:at + 18 * c * g].reshape(c, 6, 3, g)
+        at += 18 * c * g
+        nee, te, npp, tp, vv = _block_normals(blk, ell, b, nep)
+        vtpv += vv
+        _add_point_priors(blk, xg, npp, tp)
+        inv, det = _inv_sym3(npp)
+        if check_points:
+            bad.append(blk.points[_undetermined(det, npp[0, 0] + npp[1, 1] + npp[2, 2])])
+        with np.errstate(invalid="ignore"):  # undetermined points: raised below
+            ur = _times_cholesky(nep, inv).reshape(6 * c, 3 * g)
+            loc = -(ur @ ur.T)
+        diag = loc.reshape(c, 6, c, 6)
+        diag[np.arange(c), :, np.arange(c), :] += nee
+        itp = (inv * tp[None]).sum(axis=1)  # N_pp^-1 t_p
+        _add_block(s, rhs, blk, loc, te.ravel() - nep.reshape(6 * c, 3 * g) @ itp.ravel())
+        parts.append((nep, inv))
+        tps.append(tp)
+    lonely_npp = prob.prior_weight[lay.lonely]
+    if check_points:
+        det = np.linalg.det(lonely_npp) if len(lay.lonely) else np.zeros(0)
+        bad.append(lay.lonely[_undetermined(det, np.einsum("mii->m", lonely_npp))])
+        _raise_undetermined(np.concatenate(bad))
+    # EO priors
+    we = prob.eo_weight
+    s[np.arange(6 * n), np.arange(6 * n)] += we.ravel()
+    rhs += (we * np.where(we > 0, prob.eo0 - eo, 0.0)).ravel()
+    return s, rhs, parts, tps, inv3x3(lonely_npp), vtpv
+
+
+def _raise_undetermined(bad: np.ndarray) -> None:
+    """Raise :class:`SingularityError` naming the points that cannot be determined."""
+    if bad.size:
+        bad = np.sort(bad)
+        raise SingularityError(
+            f"{bad.size} object point(s) cannot be determined (e.g. point index {bad[0]}): "
+            "a point without a coordinate prior must be measured on at least two images",
+            "Measure tie points on two or more images, or remove them from the measurements",
+            details={"points": bad.tolist()},
+        )
 
 
 def _solve_reduced(s: np.ndarray, rhs: np.ndarray):
@@ -427,21 +718,24 @@ def _solve_reduced(s: np.ndarray, rhs: np.ndarray):
     return factor, dx_e
 
 
-def _gauss_newton_step(prob: BundleProblem, groups: _Groups, eo: np.ndarray, xyz: np.ndarray,
+def _gauss_newton_step(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np.ndarray,
                        check_points: bool) -> _Step:
     """Corrections of one iteration: reduced camera system, then point back-substitution."""
-    pred, ell, a_eo, a_pt, nee, npp, nep, te, tp = _assemble(prob, eo, xyz)
-    if check_points:
-        _check_points_determined(prob, npp)
-    npp_inv = inv3x3(npp)
-    s, rhs, ynep = _reduced_system(prob, groups, nee, npp_inv, nep, te, tp)
+    s, rhs, parts, tps, lonely_inv, vtpv = _eliminate_points(prob, lay, eo, xyz, check_points)
     factor, dx_e = _solve_reduced(s, rhs)
-    back = _block_sum(
-        prob.obs_point, np.einsum("kji,kj->ki", nep, dx_e[prob.obs_image]), prob.n_points
-    )
-    dx_p = np.einsum("mij,mj->mi", npp_inv, tp - back)
-    return _Step(dx_e=dx_e, dx_p=dx_p, ell=ell, a_eo=a_eo, a_pt=a_pt, nep=nep,
-                 npp_inv=npp_inv, ynep=ynep, factor=factor)
+    dx_p = np.zeros((prob.n_points, 3))
+    flat = dx_e.ravel()
+    for blk, (nep, inv), tp in zip(lay.blocks, parts, tps):
+        c, g = len(blk.images), len(blk.points)
+        v = tp - (flat[blk.idx6] @ nep.reshape(6 * c, 3 * g)).reshape(3, g)
+        dx_p[blk.points] = (inv * v[None]).sum(axis=1).T
+    if len(lay.lonely):
+        lo = lay.lonely
+        d = np.where(lay.has_prior[lo, None], prob.prior_xyz[lo] - xyz[lo], 0.0)
+        tp = np.einsum("mij,mj->mi", prob.prior_weight[lo], d)
+        dx_p[lo] = np.einsum("mij,mj->mi", lonely_inv, tp)
+    return _Step(dx_e=dx_e, dx_p=dx_p, vtpv_image=vtpv, parts=parts, lonely_inv=lonely_inv,
+                 factor=factor, eo=eo.copy(), xyz=xyz.copy())
 
 
 def _check_diverged(it: int, max_pos: float, max_ang: float, history: list) -> None:
@@ -469,43 +763,106 @@ def _raise_not_converged(max_iterations: int, history: list) -> None:
     )
 
 
-def _covariances(prob: BundleProblem, groups: _Groups, step: _Step, s0sq: float,
+def _final_residuals(prob: BundleProblem, lay: _Layout, eo: np.ndarray,
+                     xyz: np.ndarray) -> np.ndarray:
+    """Image residuals (adjusted minus observed, ``(k, 2)``) at the estimate; raises if a
+    point ends up behind a camera."""
+    cams = _cameras(eo)
+    f, pp = float(prob.focal_length), prob.principal_point
+    v = np.empty((len(prob.obs_point), 2))
+    behind = len(prob.obs_point)
+    for blk in lay.blocks:
+        rr, _ = _rays(blk, cams, xyz, rows=3)
+        q = rr[:, 2]
+        if np.any(q >= 0):
+            behind = min(behind, int(blk.obs[q >= 0].min()))
+        v[blk.obs, 0] = (pp[0] - f * (rr[:, 0] / q)) - blk.xy[:, 0]
+        v[blk.obs, 1] = (pp[1] - f * (rr[:, 1] / q)) - blk.xy[:, 1]
+    if behind < len(prob.obs_point):
+        raise NonConvergenceError(
+            f"The adjustment converged to a solution with object points behind the camera "
+            f"(observation {behind})",
+            "Check the approximate exterior orientation and the sign of the photo coordinates "
+            "(x right, y up, mm)",
+        )
+    return v
+
+
+def _kept_arrays(prob: BundleProblem, lay: _Layout, step: _Step, s_inv: np.ndarray,
                  compute_covariance: bool):
-    """``S^-1``, the EO covariances and (optionally) the point covariances."""
+    """The last step's factorisation in observation order, and the point cofactors.
+
+    Returns ``a_eo (k, 2, 6)``, ``a_pt (k, 2, 3)``, ``nep (k, 6, 3)``, ``npp_inv (m, 3, 3)``
+    and ``N_pp^-1 + N_pp^-1 N_pe S^-1 N_ep N_pp^-1`` per point (None without covariances):
+    the exact 3x3 blocks of ``N^-1``, from ``S^-1`` restricted to each block's images.
+    The step's blocks are released before the partials are recomputed (peak memory).
+    """
+    k, m = len(prob.obs_point), prob.n_points
+    nep_obs, npp_inv = np.empty((k, 6, 3)), np.empty((m, 3, 3))
+    q = np.empty((m, 3, 3)) if compute_covariance else None
+    nep2, npp_inv2 = nep_obs.reshape(k, 18), npp_inv.reshape(m, 9)
+    for i, blk in enumerate(lay.blocks):
+        nep, inv = step.parts[i]
+        c, g = len(blk.images), len(blk.points)
+        nep2[blk.obs.ravel()] = nep.reshape(c, 18, g).transpose(0, 2, 1).reshape(c * g, 18)
+        npp_inv2[blk.points] = inv.reshape(9, g).T
+        if compute_covariance:
+            y = _times_inverse(nep, inv).reshape(6 * c, 3, g)
+            # einsum, not BLAS: a wide product that a threaded BLAS splits badly on a busy machine
+            t = np.einsum("ab,bmg->amg", s_inv[np.ix_(blk.idx6, blk.idx6)], y)
+            qb = inv + (y[:, :, None, :] * t[:, None, :, :]).sum(axis=0)
+            q[blk.points] = (0.5 * (qb + qb.transpose(1, 0, 2))).transpose(2, 0, 1)
+    step.parts = []  # the one N_ep buffer goes back to the system here ...
+    nep = inv = y = t = None  # ... once no view of it is left
+    npp_inv[lay.lonely] = step.lonely_inv
+    if compute_covariance:
+        q[lay.lonely] = 0.5 * (step.lonely_inv + step.lonely_inv.transpose(0, 2, 1))
+    a_eo, a_pt = _kept_partials(prob, lay, step)
+    return a_eo, a_pt, nep_obs, npp_inv, q
+
+
+def _kept_partials(prob: BundleProblem, lay: _Layout, step: _Step):
+    """Unweighted partials ``a_eo (k, 2, 6)``, ``a_pt (k, 2, 3)`` at the last step's point."""
+    k = len(prob.obs_point)
+    f, pp = float(prob.focal_length), prob.principal_point
+    a_eo, a_pt = np.empty((k, 2, 6)), np.empty((k, 2, 3))
+    a_eo2, a_pt2 = a_eo.reshape(k, 12), a_pt.reshape(k, 6)
+    cams = _cameras(step.eo)
+    for blk in lay.blocks:
+        _, b, _ = _linearise(blk, cams, step.xyz, f, pp)
+        c, g = len(blk.images), len(blk.points)
+        rows = blk.obs.ravel()
+        bt = b.reshape(c, 18, g).transpose(0, 2, 1).reshape(c * g, 2, 9)
+        a_eo2[rows] = bt[:, :, :6].reshape(c * g, 12)
+        a_pt2[rows] = bt[:, :, 6:].reshape(c * g, 6)
+    return a_eo, a_pt
+
+
+def _converged_result(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np.ndarray,
+                      step: _Step, it: int, history: list,
+                      compute_covariance: bool) -> BundleResult:
+    """Residuals, sigma0 and covariances at the converged estimate, as a BundleResult."""
+    v_image = _final_residuals(prob, lay, eo, xyz)
+    vtpv = _vtpv(prob, v_image, xyz, eo)
+    n_obs, n_unk = prob.counts()
+    dof = n_obs - n_unk
+    s0sq = vtpv / dof if dof > 0 else float("nan")
     n = prob.n_images
     s_inv = scipy.linalg.cho_solve(step.factor, np.eye(6 * n))
     s_inv = 0.5 * (s_inv + s_inv.T)
     vf = s0sq if np.isfinite(s0sq) else 1.0
     eo_cov = vf * s_inv.reshape(n, 6, n, 6)[np.arange(n), :, np.arange(n), :]
-    point_cov = None
-    if compute_covariance:
-        point_cov = vf * _point_cofactors(prob, groups, step.npp_inv, step.ynep, s_inv)
-    return s_inv, eo_cov, point_cov
-
-
-def _converged_result(prob: BundleProblem, groups: _Groups, eo: np.ndarray, xyz: np.ndarray,
-                      step: _Step, it: int, history: list,
-                      compute_covariance: bool) -> BundleResult:
-    """Residuals, sigma0 and covariances at the converged estimate, as a BundleResult."""
-    pred_final = project(eo[prob.obs_image], xyz[prob.obs_point], prob.focal_length,
-                         prob.principal_point)
-    ell_final = prob.obs_xy - pred_final
-    _check_in_front(prob, eo, xyz)
-    vtpv = _vtpv(prob, ell_final, xyz, eo)
-    n_obs, n_unk = prob.counts()
-    dof = n_obs - n_unk
-    s0sq = vtpv / dof if dof > 0 else float("nan")
-    s_inv, eo_cov, point_cov = _covariances(prob, groups, step, s0sq, compute_covariance)
-    has_prior = prob.has_prior
+    a_eo, a_pt, nep, npp_inv, q = _kept_arrays(prob, lay, step, s_inv, compute_covariance)
+    point_cov = None if q is None else vf * q
+    has_prior = lay.has_prior
     v_point = np.where(has_prior[:, None], xyz - prob.prior_xyz, np.nan)
     we = prob.eo_weight
     v_eo = np.where(we > 0, eo - prob.eo0, np.nan)
     return BundleResult(
-        eo=eo, xyz=xyz, eo_cov=eo_cov, point_cov=point_cov, v_image=-ell_final,
+        eo=eo, xyz=xyz, eo_cov=eo_cov, point_cov=point_cov, v_image=v_image,
         v_point=v_point, v_eo=v_eo, vtpv=float(vtpv), n_obs=n_obs, n_unknowns=n_unk, dof=dof,
         sigma0_squared=float(s0sq), iterations=it, converged=True, history=history,
-        s_inv=s_inv, npp_inv=step.npp_inv, nep_obs=step.nep, a_eo=step.a_eo, a_pt=step.a_pt,
-        problem=prob,
+        s_inv=s_inv, npp_inv=npp_inv, nep_obs=nep, a_eo=a_eo, a_pt=a_pt, problem=prob,
     )
 
 
@@ -547,9 +904,19 @@ def adjust(
     SingularityError
         If the normal equations are singular (datum defect, undetermined points).
     """
+    with _single_blas_thread():
+        return _iterate(prob, max_iterations, tolerance_position, tolerance_angle, progress,
+                        is_cancelled, compute_covariance)
+
+
+def _iterate(prob: BundleProblem, max_iterations: int, tolerance_position: float,
+             tolerance_angle: float, progress: Optional[ProgressCallback],
+             is_cancelled: Optional[Callable[[], bool]],
+             compute_covariance: bool) -> BundleResult:
+    """The Gauss-Newton iteration of :func:`adjust` and its converged result."""
     eo = (prob.eo0 if prob.eo_start is None else np.asarray(prob.eo_start, float)).copy()
     xyz = prob.xyz0.copy()
-    groups = _group_observations(prob.obs_point, prob.obs_image, prob.n_points)
+    lay = _layout(prob, _group_observations(prob.obs_point, prob.obs_image, prob.n_points))
     history: list = []
     converged = False
     best = np.inf
@@ -557,8 +924,9 @@ def adjust(
     for it in range(1, max_iterations + 1):
         if is_cancelled is not None and is_cancelled():
             raise CancelledError("The adjustment was cancelled", "Run it again when ready")
-        step = _gauss_newton_step(prob, groups, eo, xyz, check_points=it == 1)
-        vtpv_now = _vtpv(prob, step.ell, xyz, eo)
+        step = None  # free the previous step's blocks before building the next
+        step = _gauss_newton_step(prob, lay, eo, xyz, check_points=it == 1)
+        vtpv_now = step.vtpv_image + _prior_vtpv(prob, lay.has_prior, xyz, eo)
         max_pos = max(np.abs(step.dx_e[:, :3]).max(initial=0.0),
                       np.abs(step.dx_p).max(initial=0.0))
         max_ang = np.abs(step.dx_e[:, 3:]).max(initial=0.0)
@@ -575,23 +943,19 @@ def adjust(
             break
     if not converged:
         _raise_not_converged(max_iterations, history)
-    result = _converged_result(prob, groups, eo, xyz, step, it, history, compute_covariance)
+    result = _converged_result(prob, lay, eo, xyz, step, it, history, compute_covariance)
     if progress is not None:
         progress(1.0, f"converged after {it} iterations")
     return result
 
 
-def _point_cofactors(prob, groups, npp_inv, ynep, s_inv) -> np.ndarray:
-    """``N_pp^-1 + N_pp^-1 N_pe S^-1 N_ep N_pp^-1`` per point, by image-set groups."""
-    n = prob.n_images
-    sinv4 = s_inv.reshape(n, 6, n, 6)
-    q = npp_inv.copy()
-    for imgs, pts, obs in zip(groups.images, groups.points, groups.obs):
-        y = ynep[obs]  # (g, c, 6, 3)
-        sg = sinv4[np.ix_(imgs, np.arange(6), imgs, np.arange(6))]  # (c, 6, c, 6)
-        t = np.einsum("jaik,aibl->jkbl", y, sg, optimize=True)
-        q[pts] += np.einsum("jkbl,jblm->jkm", t, y, optimize=True)
-    return 0.5 * (q + np.transpose(q, (0, 2, 1)))
+def _prior_vtpv(prob: BundleProblem, has: np.ndarray, xyz: np.ndarray, eo: np.ndarray) -> float:
+    """``v'Pv`` of the point and EO priors."""
+    d = np.where(has[:, None], xyz - prob.prior_xyz, 0.0)
+    total = float(np.einsum("mi,mij,mj->", d, prob.prior_weight, d))
+    we = prob.eo_weight
+    de = np.where(we > 0, eo - prob.eo0, 0.0)
+    return total + float(np.sum(we * de * de))
 
 
 def _vtpv(prob: BundleProblem, ell: np.ndarray, xyz: np.ndarray, eo: np.ndarray) -> float:
@@ -603,20 +967,6 @@ def _vtpv(prob: BundleProblem, ell: np.ndarray, xyz: np.ndarray, eo: np.ndarray)
     de = np.where(we > 0, eo - prob.eo0, 0.0)
     total += float(np.sum(we * de * de))
     return total
-
-
-def _check_in_front(prob: BundleProblem, eo: np.ndarray, xyz: np.ndarray) -> None:
-    m = rotation_matrix(eo[prob.obs_image, 3], eo[prob.obs_image, 4], eo[prob.obs_image, 5])
-    d = xyz[prob.obs_point] - eo[prob.obs_image, :3]
-    q = np.einsum("kj,kj->k", m[:, 2, :], d)
-    if np.any(q >= 0):
-        k = int(np.flatnonzero(q >= 0)[0])
-        raise NonConvergenceError(
-            f"The adjustment converged to a solution with object points behind the camera "
-            f"(observation {k})",
-            "Check the approximate exterior orientation and the sign of the photo coordinates "
-            "(x right, y up, mm)",
-        )
 
 
 def ray_intersection(

@@ -48,6 +48,7 @@ from vectoradjust.adjust.bundle import (
     BundleProblem,
     BundleResult,
     _group_observations,
+    _times_inverse,
     adjust,
     inv3x3,
 )
@@ -68,7 +69,7 @@ __all__ = [
 ]
 
 EO_NAMES = ("XL", "YL", "ZL", "omega", "phi", "kappa")
-_CHUNK = 8192  # points per block of the vectorised cofactor computation
+_CHUNK_OBS = 2048  # observations per block of the vectorised cofactor computation
 
 
 def critical_value(alpha0: float = 0.001) -> float:
@@ -221,8 +222,6 @@ def _cofactors(result: BundleResult):
     nep = np.asarray(result.nep_obs, float)
     a_eo = np.asarray(result.a_eo, float)
     a_pt = np.asarray(result.a_pt, float)
-    # Z_j' rows of image i: N_e,pj N_pp,j^-1, one 6x3 block per observation
-    ynep = np.einsum("kij,kjl->kil", nep, npp_inv[prob.obs_point])
     q_point = npp_inv.copy()
     aqa = np.zeros((len(prob.obs_point), 2))
     six = np.arange(6)
@@ -231,27 +230,40 @@ def _cofactors(result: BundleResult):
         c = len(imgs)
         sg = sinv4[np.ix_(imgs, six, imgs, six)].reshape(6 * c, 6 * c)
         sdiag = sinv4[imgs, :, imgs, :]  # (c, 6, 6): Q_ee(i, i)
-        for lo in range(0, len(pts), _CHUNK):
-            p = pts[lo: lo + _CHUNK]
-            o = obs[lo: lo + _CHUNK]  # (g, c)
-            g = len(p)
-            y = ynep[o]  # (g, c, 6, 3)
-            # G = S^-1 Z_j' restricted to the images of the set: (g, c, 6, 3)
-            gm = sg @ y.transpose(1, 2, 0, 3).reshape(6 * c, 3 * g)
-            gm = gm.reshape(c, 6, g, 3).transpose(2, 0, 1, 3)
-            qpp = npp_inv[p] + np.einsum("jaik,jaim->jkm", y, gm)
-            qpp = 0.5 * (qpp + np.transpose(qpp, (0, 2, 1)))
+        step = max(1, _CHUNK_OBS // c)
+        for lo in range(0, len(pts), step):
+            p = pts[lo: lo + step]
+            o = obs[lo: lo + step].T  # (c, g), arrays below laid out (c, ..., g)
+            qpp, aqa_o = _block_cofactors(nep[o], a_eo[o], a_pt[o], npp_inv[p], sg, sdiag)
             q_point[p] = qpp
-            ae = a_eo[o]  # (g, c, 2, 6)
-            ap = a_pt[o]  # (g, c, 2, 3)
-            t_ee = np.einsum("gari,aic,garc->gar", ae, sdiag, ae)
-            # Q_ep(i, j) = -G: cross term -2 a_e G a_p'
-            t_ep = np.einsum("jari,jaim,jarm->jar", ae, gm, ap)
-            t_pp = np.einsum("jark,jkm,jarm->jar", ap, qpp, ap)
-            aqa[o] = t_ee - 2.0 * t_ep + t_pp
+            aqa[o] = aqa_o
     if result.offset_cofactor is not None:
         aqa, q_point = _offset_cofactors(result, aqa, q_point)
     return aqa, q_point
+
+
+def _block_cofactors(nep, ae, ap, inv, sg, sdiag):
+    """``Q_pp`` of ``g`` points seen by the same ``c`` images and ``diag(A Q A')`` of
+    their image rows.
+
+    ``nep (c, g, 6, 3)``, ``ae (c, g, 2, 6)``, ``ap (c, g, 2, 3)`` per observation,
+    ``inv (g, 3, 3)`` = ``N_pp^-1``, ``sg (6c, 6c)`` = ``S^-1`` of the images, ``sdiag``
+    its diagonal 6x6 blocks. Returns ``(g, 3, 3)`` and ``(c, g, 2)``; explicit products
+    on arrays laid out ``(c, ..., g)`` (see :mod:`vectoradjust.adjust.bundle`).
+    """
+    c, g = nep.shape[:2]
+    inv_t = inv.transpose(1, 2, 0)
+    y = _times_inverse(np.ascontiguousarray(nep.transpose(0, 2, 3, 1)), inv_t)  # (c,6,3,g)
+    # G = S^-1 Z' restricted to the images of the set (Q_ep = -G)
+    gm = np.einsum("ab,bmg->amg", sg, y.reshape(6 * c, 3, g)).reshape(c, 6, 3, g)
+    qpp = inv_t + (y.reshape(6 * c, 3, 1, g) * gm.reshape(6 * c, 1, 3, g)).sum(axis=0)
+    qpp = 0.5 * (qpp + qpp.transpose(1, 0, 2))
+    ae = ae.transpose(0, 2, 3, 1)  # (c, 2, 6, g)
+    ap = ap.transpose(0, 2, 3, 1)  # (c, 2, 3, g)
+    t_ee = (np.einsum("arig,aij->arjg", ae, sdiag) * ae).sum(axis=2)
+    t_ep = ((ae[:, :, :, None, :] * gm[:, None]).sum(axis=2) * ap).sum(axis=2)
+    t_pp = ((ap[:, :, :, None, :] * qpp[None, None]).sum(axis=2) * ap).sum(axis=2)
+    return qpp.transpose(2, 0, 1), (t_ee - 2.0 * t_ep + t_pp).transpose(0, 2, 1)
 
 
 def _offset_cofactors(result: BundleResult, aqa: np.ndarray, q_point: np.ndarray):

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["rotation_matrix", "project", "partials", "rotation_to_angles"]
+__all__ = ["rotation_matrix", "rotation_derivatives", "project", "partials",
+           "rotation_to_angles"]
 
 
 def rotation_matrix(omega, phi, kappa) -> np.ndarray:
@@ -42,6 +43,49 @@ def rotation_matrix(omega, phi, kappa) -> np.ndarray:
     m[..., 2, 1] = -so * cp
     m[..., 2, 2] = co * cp
     return m
+
+
+def rotation_derivatives(omega, phi, kappa) -> np.ndarray:
+    """Derivatives of :func:`rotation_matrix` with respect to omega, phi and kappa.
+
+    Parameters
+    ----------
+    omega, phi, kappa : float or array_like
+        Angles in radians, broadcastable to a common shape ``s``.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``s + (3, 3, 3)``: ``[..., 0]`` is ``dM/domega``, ``[..., 1]``
+        ``dM/dphi``, ``[..., 2]`` ``dM/dkappa``, each a 3x3 matrix (the last two axes).
+
+    Notes
+    -----
+    ``dM/domega`` has the columns ``0, -m_i3, m_i2`` and ``dM/dkappa`` the rows
+    ``m_2j, -m_1j, 0``; ``dM/dphi`` is the derivative of the ``cos phi`` / ``sin phi``
+    factors of ``DESIGN.md`` section 2. Computed once per image, they give the angular
+    partials of every observation of that image (:mod:`vectoradjust.adjust.bundle`).
+    """
+    o, p, k = np.broadcast_arrays(
+        np.asarray(omega, float), np.asarray(phi, float), np.asarray(kappa, float)
+    )
+    m = rotation_matrix(o, p, k)
+    so, co, sp, cp, sk, ck = np.sin(o), np.cos(o), np.sin(p), np.cos(p), np.sin(k), np.cos(k)
+    d = np.zeros(o.shape + (3, 3, 3))
+    d[..., 0, :, 1] = -m[..., :, 2]
+    d[..., 0, :, 2] = m[..., :, 1]
+    d[..., 1, 0, 0] = -sp * ck
+    d[..., 1, 0, 1] = so * cp * ck
+    d[..., 1, 0, 2] = -co * cp * ck
+    d[..., 1, 1, 0] = sp * sk
+    d[..., 1, 1, 1] = -so * cp * sk
+    d[..., 1, 1, 2] = co * cp * sk
+    d[..., 1, 2, 0] = cp
+    d[..., 1, 2, 1] = so * sp
+    d[..., 1, 2, 2] = -co * sp
+    d[..., 2, 0, :] = m[..., 1, :]
+    d[..., 2, 1, :] = -m[..., 0, :]
+    return d
 
 
 def rotation_to_angles(m: np.ndarray) -> np.ndarray:
