@@ -13,9 +13,12 @@ import json
 import warnings
 
 import numpy as np
+import pytest
 from measure_pair import rendered_pair
 
 from vectoradjust.cli.commands import main
+
+pytestmark = pytest.mark.io  # writes and reads GeoTIFF images and geodata
 
 
 def _write_project(tmp, pair):

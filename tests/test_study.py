@@ -117,6 +117,7 @@ def test_recovered_shift_is_the_mean_difference():
 
 
 # --------------------------------------------------------------------------- GCP study
+@pytest.mark.io
 def test_held_out_gcps_are_not_in_the_adjustment_and_are_scored_as_check_points(sample):
     _, data = sample
     plan = gcp_plan(data, [], ["3-North"])
@@ -145,6 +146,7 @@ def test_held_out_gcps_are_not_in_the_adjustment_and_are_scored_as_check_points(
     assert row["control_ids"].split() == data.control.point_id[keep].tolist()
 
 
+@pytest.mark.io
 def test_gcp_sweep_fewer_points_are_less_accurate_on_check_points(sample):
     _, data = sample
     plan = gcp_plan(data)
@@ -160,6 +162,7 @@ def test_gcp_sweep_fewer_points_are_less_accurate_on_check_points(sample):
         assert r["OSM_adj_truth"] < 1.0
 
 
+@pytest.mark.io
 def test_random_subsets_summary_has_the_spread(sample):
     _, data = sample
     plan = gcp_plan(data, [], [], [4], repeats=3, seed=2)
@@ -172,6 +175,7 @@ def test_random_subsets_summary_has_the_spread(sample):
     assert summ[0]["check_rmse_h_mean"] == pytest.approx(np.mean(vals))
 
 
+@pytest.mark.io
 def test_collinear_configuration_is_reported_not_raised(sample):
     _, data = sample
     ids = data.control.point_id
@@ -189,6 +193,7 @@ def test_collinear_configuration_is_reported_not_raised(sample):
         ids[rows[:3]].tolist()
 
 
+@pytest.mark.io
 def test_unknown_configuration_and_too_few_points_are_user_errors(sample):
     _, data = sample
     with pytest.raises(ProjectError, match="3-Up"):
@@ -200,6 +205,7 @@ def test_unknown_configuration_and_too_few_points_are_user_errors(sample):
 
 
 # --------------------------------------------------------------------------- shift study
+@pytest.mark.io
 def test_shift_study_recovers_the_shift(sample):
     _, data = sample
     rows, runs = shift_study(data, 15.0, -7.0, ["OSM"])
@@ -214,6 +220,7 @@ def test_shift_study_recovers_the_shift(sample):
     assert r["offset_dx"] == pytest.approx(15.0, abs=3.0)
 
 
+@pytest.mark.io
 def test_shift_study_without_offset_parameters_still_recovers_the_shift(sample):
     _, data = sample
     nooff = replace(data, vectors=[(replace(s, offset="none"), lay) for s, lay in data.vectors])
@@ -222,6 +229,7 @@ def test_shift_study_without_offset_parameters_still_recovers_the_shift(sample):
     assert rows[0]["recovered_dy"] == pytest.approx(10.0, abs=0.3)
 
 
+@pytest.mark.io
 def test_shift_data_moves_only_the_named_database(sample):
     _, data = sample
     moved = shift_data(data, 1.0, 2.0, ["TNM"])
@@ -245,6 +253,7 @@ def test_identification_study_accuracy_follows_the_error():
 
 
 # --------------------------------------------------------------------------- truth tables, RMSE
+@pytest.mark.io
 def test_database_rmse_counts_each_object_point_once(sample_run):
     r = sample_run
     for d, e in zip(r.databases, r.summary["databases"]):
@@ -261,6 +270,7 @@ def test_database_rmse_counts_each_object_point_once(sample_run):
     assert (osm["adjusted_vertices"], osm["points"]) == (211, 183)
 
 
+@pytest.mark.io
 def test_truth_points_table_matches_the_truth_file(sample_run, sample_dir):
     rows = [x for x in truth_point_rows(sample_run) if x["database"] == "OSM"]
     with open(sample_dir / "truth_osm.csv", encoding="utf-8") as fh:
@@ -276,6 +286,7 @@ def test_truth_points_table_matches_the_truth_file(sample_run, sample_dir):
     assert e["truth"]["moved_closer"] == pytest.approx(share)
 
 
+@pytest.mark.io
 def test_truth_line_distances_are_nearest_line_distances(sample_run, sample_dir):
     import shapely
 
@@ -304,6 +315,7 @@ def _copy_of_osm(data):
                    truth={})
 
 
+@pytest.mark.io
 def test_reused_measurements_give_the_same_adjusted_points(sample):
     _, data = sample
     data2 = _copy_of_osm(data)
@@ -324,6 +336,7 @@ def test_reused_measurements_give_the_same_adjusted_points(sample):
     assert all(c["COPY_id"] == "X" + c["OSM_id"] for c in common)
 
 
+@pytest.mark.io
 def test_reuse_needs_the_other_database_out_of_the_run(sample):
     _, data = sample
     data3 = replace(_copy_of_osm(data), settings=replace(data.settings, reuse_tolerance=0.01,
@@ -332,6 +345,7 @@ def test_reuse_needs_the_other_database_out_of_the_run(sample):
         run(data3, vectors=["OSM", "COPY"])
 
 
+@pytest.mark.io
 def test_reuse_at_intersections_measures_the_true_intersection(sample):
     """TNM without measurements of its own: its intersections reuse OSM's (default
     reuse_points = "intersections") and land where the true intersections are."""
@@ -382,6 +396,7 @@ def _write(tmp_path, project, text):
 
 
 # --------------------------------------------------------------------------- CLI
+@pytest.mark.io
 def test_study_commands_write_tables_figures_and_report(sample_dir, tmp_path):
     from vectoradjust.cli.commands import main
 
@@ -411,6 +426,7 @@ def test_study_commands_write_tables_figures_and_report(sample_dir, tmp_path):
                  "--errors", "a,b"]) == 1
 
 
+@pytest.mark.io
 def test_study_reports_progress_and_honours_cancel(sample):
     from vectoradjust.errors import CancelledError
 

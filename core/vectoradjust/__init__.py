@@ -17,7 +17,7 @@ are imported lazily, so that QGIS can use the heart without loading a second GDA
 from vectoradjust import _compat
 from vectoradjust.errors import VectorAdjustError
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 __all__ = ["VectorAdjustError", "__version__"]
 

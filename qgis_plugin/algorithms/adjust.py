@@ -1,5 +1,6 @@
 """Adjust road vectors: the photogrammetric adjustment of one road database."""
 
+import os
 import time
 
 from qgis.core import (
@@ -183,8 +184,12 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
             style_output(context, dest, kind)
             outputs[key] = dest
         summary_path = self.parameterAsFileOutput(parameters, self.SUMMARY, context)
-        if summary_path:
-            results.write_json(summary_path, out.summary)
+        if summary_path:  # per-feature statements beside it, as the command line does
+            from vectoradjust.files.jsonfile import move_feature_statements
+
+            summary, _ = move_feature_statements(out.summary, os.path.dirname(summary_path)
+                                                 or ".")
+            results.write_json(summary_path, summary)
             outputs[self.SUMMARY] = summary_path
         return outputs
 

@@ -283,7 +283,10 @@ class CompareRoadDatabases(VectorAdjustAlgorithm):
                 ("control_points", cfields, QgsWkbTypes.PointZ,
                  results.control_point_features(out, cfields)),
             ], crs, tc, feedback)
-            results.write_json(os.path.join(d, "summary.json"), out.summary)
+            from vectoradjust.files.jsonfile import move_feature_statements
+
+            summary, _ = move_feature_statements(out.summary, d)  # as the command line
+            results.write_json(os.path.join(d, "summary.json"), summary)
             self._load_on_completion(context, gpkg, name)
         with open(os.path.join(folder, "compare.csv"), "w", newline="", encoding="utf-8") as fh:
             w = csv.DictWriter(fh, fieldnames=columns)

@@ -51,8 +51,16 @@ def as_float(values):
     return np.array([np.nan if v is None else float(v) for v in values], float)
 
 
+#: buffer-test shares (``in_1m_before``...): the command line measures them with exact round
+#: buffers (accuracy/buffer.py, shapely), the plugin with QGIS's polygon buffers, which
+#: are narrower on round caps and joins by at most 0.03 % of the width
+BUFFER_ATOL = 1e-6
+
+
 def assert_same_values(a, b, name, atol=ATOL):
     """Equal text/ints, floats within ``atol``, NULL/NaN where the other is NULL/NaN."""
+    if name.rsplit(".", 1)[-1].startswith("in_"):
+        atol = max(atol, BUFFER_ATOL)
     assert len(a) == len(b), f"{name}: {len(a)} values vs {len(b)}"
     numeric = any(isinstance(v, float) for v in list(a) + list(b) if v is not None)
     if numeric:
@@ -105,7 +113,9 @@ def compare_summaries(a, b, path="summary"):
     elif isinstance(a, bool) or a is None or isinstance(a, str):
         assert a == b, f"{path}: {a!r} vs {b!r}"
     else:
-        assert close(a, b, ATOL * max(1.0, abs(float(b)))), f"{path}: {a!r} vs {b!r}"
+        last = path.rsplit(".", 1)[-1]
+        atol = BUFFER_ATOL if (".buffer." in path or last.startswith("in_")) else ATOL
+        assert close(a, b, atol * max(1.0, abs(float(b)))), f"{path}: {a!r} vs {b!r}"
 
 
 def project_copy(sample, path, extra="", drop=()):
