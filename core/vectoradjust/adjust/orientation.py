@@ -34,7 +34,13 @@ from vectoradjust.errors import (
     NonConvergenceError,
     SingularityError,
 )
-from vectoradjust.sensor.collinearity import partials, project, rotation_matrix, rotation_to_angles
+from vectoradjust.sensor.collinearity import (
+    partials,
+    project,
+    rotation_derivatives,
+    rotation_matrix,
+    rotation_to_angles,
+)
 
 __all__ = [
     "rotation_matrix_partials",
@@ -66,32 +72,7 @@ def rotation_matrix_partials(omega, phi, kappa) -> np.ndarray:
         Shape ``s + (3, 3, 3)``: ``[..., k, i, j] = d m_ij / d angle_k`` with
         ``k = 0, 1, 2`` for omega, phi, kappa.
     """
-    o, p, k = np.broadcast_arrays(
-        np.asarray(omega, float), np.asarray(phi, float), np.asarray(kappa, float)
-    )
-    so, co, sp, cp, sk, ck = np.sin(o), np.cos(o), np.sin(p), np.cos(p), np.sin(k), np.cos(k)
-    z = np.zeros_like(o)
-    d_o = [
-        [z, co * sp * ck - so * sk, so * sp * ck + co * sk],
-        [z, -co * sp * sk - so * ck, -so * sp * sk + co * ck],
-        [z, -co * cp, -so * cp],
-    ]
-    d_p = [
-        [-sp * ck, so * cp * ck, -co * cp * ck],
-        [sp * sk, -so * cp * sk, co * cp * sk],
-        [cp, so * sp, -co * sp],
-    ]
-    d_k = [
-        [-cp * sk, -so * sp * sk + co * ck, co * sp * sk + so * ck],
-        [-cp * ck, -so * sp * ck - co * sk, co * sp * ck - so * sk],
-        [z, z, z],
-    ]
-    out = np.empty(o.shape + (3, 3, 3))
-    for a, d in enumerate((d_o, d_p, d_k)):
-        for i in range(3):
-            for j in range(3):
-                out[..., a, i, j] = d[i][j]
-    return out
+    return rotation_derivatives(omega, phi, kappa)
 
 
 def _obs_weights(sigma, n: int, what: str) -> np.ndarray:
