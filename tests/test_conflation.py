@@ -234,8 +234,12 @@ def test_measured_unchanged_and_coincident_vertices_move_together(name):
     _, out, ref = _runs(name)
     d, r = out.databases[0], ref.databases[0]
     m = d.vertices["Adjusted"] == 1
+    # the two runs solve the same problem; under Debian's numpy 1.24 a run's float sums can
+    # differ in the last bits (~1e-13 m, alignment-dependent SIMD reductions), so compare to
+    # a nanometre rather than bit for bit
     for c in ("AdjX", "AdjY", "AdjZ", "Vx", "CE90", "LE90"):
-        assert np.array_equal(d.vertices[c][m], r.vertices[c][m], equal_nan=True), c
+        np.testing.assert_allclose(d.vertices[c][m], r.vertices[c][m], rtol=0, atol=1e-9,
+                                   err_msg=c)
     assert np.all(r.vertices["Source"][~m] == "unchanged")
     assert np.all(np.isnan(r.vertices["Vx"][~m]))
     adj = d.adjusted_coords
