@@ -56,3 +56,20 @@ def test_nothing_moves_without_feature_statements(tmp_path):
     assert move_feature_statements(s, tmp_path) == (s, None)
     assert move_feature_statements({"a": 1}, tmp_path) == ({"a": 1}, None)
     assert not (tmp_path / FEATURE_ACCURACY_CSV).exists()
+
+
+def test_a_rerun_without_statements_removes_the_old_csv(sample_run, tmp_path):
+    write_outputs(sample_run, tmp_path, bands=False)
+    assert (tmp_path / FEATURE_ACCURACY_CSV).is_file()
+    summary = sample_run.summary
+    try:  # the same run without per-feature statements, into the same folder
+        sample_run.summary = {**summary, "accuracy": {**summary["accuracy"], "features": {}}}
+        written = write_outputs(sample_run, tmp_path, bands=False)
+    finally:
+        sample_run.summary = summary
+    assert FEATURE_ACCURACY_CSV not in written
+    assert not (tmp_path / FEATURE_ACCURACY_CSV).exists()
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / FEATURE_ACCURACY_CSV).write_text("old", encoding="utf-8")
+    move_feature_statements({"accuracy": {"features": {}}}, tmp_path / "x")
+    assert not (tmp_path / "x" / FEATURE_ACCURACY_CSV).exists()

@@ -31,6 +31,7 @@ from vectoradjust.files.study import (
     shift_study,
     truth_point_rows,
     with_control,
+    write_csv,
 )
 from vectoradjust.pipeline import run
 
@@ -446,3 +447,24 @@ def test_study_reports_progress_and_honours_cancel(sample):
         gcp_study(data, plan, is_cancelled=cancel_after_first_run)
     with pytest.raises(CancelledError):
         shift_study(data, 1.0, 1.0, ["OSM"], is_cancelled=lambda: True)
+
+
+@pytest.mark.io
+def test_csv_from_columns_equals_csv_from_rows(tmp_path):
+    from vectoradjust.files.study import rows_from_columns
+
+    cols = {"database": np.array(["OSM", "OSM", "TNM"], dtype=object),
+            "point_id": np.array(["a", "b", "c"], dtype=object),
+            "X": np.array([1.25, 506301.123456789, -3e-7]), "Closer": np.array([1, 0, 1]),
+            "D": np.array([0.1, np.nan, 2.0])}
+    rows = rows_from_columns(cols)
+    assert rows[1] == {"database": "OSM", "point_id": "b", "X": 506301.123456789,
+                       "Closer": 0, "D": rows[1]["D"]} and np.isnan(rows[1]["D"])
+    write_csv(cols, tmp_path / "c.csv")
+    rows[1]["D"] = None  # the row writer's empty cell
+    write_csv(rows, tmp_path / "r.csv")
+    with open(tmp_path / "c.csv", newline="", encoding="utf-8") as fa, \
+            open(tmp_path / "r.csv", newline="", encoding="utf-8") as fb:
+        a, b = list(csv.reader(fa)), list(csv.reader(fb))
+    assert a == b and a[0] == list(cols) and a[2][4] == ""
+    assert float(a[2][2]) == 506301.123456789

@@ -60,11 +60,11 @@ def truth_tables(run, spec, out_dir, label: str = "") -> dict:
     dict
         Names of the files written.
     """
-    from vectoradjust.files.study import truth_point_rows, write_csv
+    from vectoradjust.files.study import truth_point_columns, write_csv
 
     out = Path(out_dir)
     written = {}
-    rows = truth_point_rows(run)
+    rows = truth_point_columns(run)
     if rows:
         written[f"{label}truth_points.csv"] = str(write_csv(rows, out / "truth_points.csv"))
     truth = None if spec is None else spec.raw.get("truth")
@@ -73,7 +73,7 @@ def truth_tables(run, spec, out_dir, label: str = "") -> dict:
         from vectoradjust.files.truth import truth_line_distances
 
         path, _ = project_truth(spec)
-        rows = truth_line_distances(run, path)
+        rows = truth_line_distances(run, path, as_columns=True)
         if rows:
             written[f"{label}truth_line_points.csv"] = str(
                 write_csv(rows, out / "truth_line_points.csv"))

@@ -84,6 +84,9 @@ def move_feature_statements(summary: dict, out_dir) -> tuple:
     acc = summary.get("accuracy")
     feats = acc.get("features") if isinstance(acc, dict) else None
     if not isinstance(feats, dict) or not any(isinstance(v, list) for v in feats.values()):
+        stale = Path(out_dir) / FEATURE_ACCURACY_CSV
+        if stale.is_file():  # from an earlier run into the same folder: not this run's
+            stale.unlink()
         return summary, None
     rows = [{"database": db, **_flat(r)} for db, lst in feats.items()
             if isinstance(lst, list) for r in lst]

@@ -19,7 +19,11 @@ from typing import Optional
 import numpy as np
 
 from vectoradjust.errors import CancelledError, InputFileError
-from vectoradjust.files.jsonfile import clean_json, move_feature_statements
+from vectoradjust.files.jsonfile import (
+    FEATURE_ACCURACY_CSV,
+    clean_json,
+    move_feature_statements,
+)
 from vectoradjust.results import AdjustmentRun
 
 __all__ = ["write_outputs", "shape_points_frame", "features_frame", "control_points_frame",
@@ -397,6 +401,9 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
         for n in names:
             os.replace(tmp / n, out / n)
             written[n] = str(out / n)
+        for n in ("flagged_observations.csv", FEATURE_ACCURACY_CSV):
+            if n not in names and (out / n).is_file():  # an earlier run's, not this one's
+                (out / n).unlink()
         if progress is not None:
             progress(1.0, "outputs written")
     finally:

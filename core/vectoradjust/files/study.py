@@ -42,6 +42,7 @@ from vectoradjust.model import ProjectData
 
 __all__ = ["gcp_plan", "with_control", "gcp_study", "gcp_summary", "shift_data",
            "shift_study", "identification_study", "write_csv", "truth_point_rows",
+           "truth_point_columns", "rows_from_columns",
            "default_numbers", "common_points"]
 
 Progress = Optional[Callable[[float, str], None]]
@@ -417,24 +418,54 @@ def identification_study(errors: Sequence[float], *, seed: int = 35, repeats: in
 
 
 # --------------------------------------------------------------------------- tables
-def truth_point_rows(run) -> list:
-    """The per-point truth table of every database of a run (one dict per point)."""
-    rows = []
+def truth_point_columns(run) -> Optional[dict]:
+    """The per-point truth table of every database of a run, as columns.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray or None
+        ``database`` followed by the columns of
+        :func:`vectoradjust.accuracy.tables.truth_points`, all databases one after the
+        other; None when no database has vertex truth.
+    """
+    parts = []
     for d in run.databases:
         cols = truth_points(run, d)
-        if cols is None:
-            continue
-        n = len(cols["point_id"])
-        for i in range(n):
-            rows.append({"database": d.name, **{k: (v[i].item() if hasattr(v[i], "item")
-                                                    else v[i]) for k, v in cols.items()}})
-    return rows
+        if cols is not None:
+            n = len(cols["point_id"])
+            parts.append({"database": np.full(n, d.name, dtype=object), **cols})
+    if not parts:
+        return None
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-def write_csv(rows: list, path) -> Path:
-    """Write dict rows as CSV (the union of their keys as columns, None as empty)."""
+def rows_from_columns(cols: Optional[dict]) -> list:
+    """Columns (equal-length arrays) as a list of dict rows of Python scalars."""
+    if not cols:
+        return []
+    lists = {k: np.asarray(v).tolist() for k, v in cols.items()}
+    return [dict(zip(lists, vals)) for vals in zip(*lists.values())]
+
+
+def truth_point_rows(run) -> list:
+    """The per-point truth table of every database of a run (one dict per point)."""
+    return rows_from_columns(truth_point_columns(run))
+
+
+def write_csv(rows, path) -> Path:
+    """Write a table as CSV: a list of dict rows (the union of their keys as columns) or
+    a dict of equal-length column arrays (written in one vectorised call). None and NaN
+    are written as empty cells."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    if isinstance(rows, dict):
+        try:
+            import pandas as pd
+        except ImportError:  # e.g. a QGIS Python without pandas: the row writer
+            rows = rows_from_columns(rows)
+        else:
+            pd.DataFrame(rows).to_csv(path, index=False, na_rep="", lineterminator="\r\n")
+            return path
     cols = list(dict.fromkeys(k for r in rows for k in r))
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=cols)

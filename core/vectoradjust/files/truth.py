@@ -73,6 +73,23 @@ def read_lines(path, crs=None, layer=None):
     return gdf.geometry.to_numpy(), gdf.crs
 
 
+_LAST_TRUTH: dict = {}
+
+
+def _truth_lines(path, crs):
+    """:func:`read_lines` of the ``[truth]`` centrelines, kept for the next call with the
+    same file (unchanged size and time) and CRS: ``adjust`` runs the buffer test and the
+    distance table on the same lines, and reads them once."""
+    p = Path(path)
+    st = p.stat() if p.exists() else None
+    key = (str(p.resolve()), st and (st.st_mtime_ns, st.st_size), crs.to_wkt())
+    if key not in _LAST_TRUTH:
+        lines = read_lines(p, crs)[0]
+        _LAST_TRUTH.clear()
+        _LAST_TRUTH[key] = lines
+    return _LAST_TRUTH[key]
+
+
 def line_ranges(feature: np.ndarray, part: np.ndarray) -> list:
     """``(start, end)`` vertex ranges of the feature parts with >= 2 vertices (numpy only,
     so the QGIS plugin builds the same lines with its own geometry engine)."""
@@ -219,7 +236,7 @@ def truth_buffer(run, truth_path, widths=(1.0, 2.0), progress=None, is_cancelled
     widths = [float(w) for w in widths]
     say = progress or (lambda fraction, message="": None)
     say(0.0, "buffer test: reading the true centrelines")
-    truth, _ = read_lines(truth_path, CRS.from_user_input(run.data.crs))
+    truth = _truth_lines(truth_path, CRS.from_user_input(run.data.crs))
     say(0.0, "buffer test: indexing the true centrelines")
     buffers = _truth_buffers(truth, is_cancelled)
 
@@ -243,7 +260,7 @@ def project_truth(spec) -> Optional[tuple]:
 
 
 
-def drive_truth_lines(run, distances, truth_path) -> list:
+def drive_truth_lines(run, distances, truth_path, as_columns: bool = False):
     """Each adjusted object point's distance to the nearest true centreline, before and
     after the adjustment, with any geometry engine (``distances(xy) -> (n,)`` array of
     the distances of the points ``xy`` (n, 2) to the nearest true line).
@@ -253,13 +270,14 @@ def drive_truth_lines(run, distances, truth_path) -> list:
 
     Returns
     -------
-    list of dict
+    list of dict, or dict of numpy.ndarray
         One row per point: ``database, point_id, X, Y, AdjX, AdjY, D_before, D_after,
-        Closer``.
+        Closer``; with ``as_columns`` the same table as columns (None without points).
     """
     from vectoradjust.accuracy.tables import one_vertex_per_point
+    from vectoradjust.files.study import rows_from_columns
 
-    rows = []
+    parts = []
     for d, entry in zip(run.databases, run.summary.get("databases", [])):
         m = one_vertex_per_point(d.vertex_point)
         if not m.any():
@@ -273,27 +291,28 @@ def drive_truth_lines(run, distances, truth_path) -> list:
             "rmse_before": float(np.sqrt(np.mean(dist[0] ** 2))),
             "rmse_after": float(np.sqrt(np.mean(dist[1] ** 2)))}
         ids = d.shape.vertex_ids[m]
-        rows.extend({"database": d.name, "point_id": str(ids[i]), "X": float(db[i, 0]),
-                     "Y": float(db[i, 1]), "AdjX": float(adj[i, 0]), "AdjY": float(adj[i, 1]),
-                     "D_before": float(dist[0][i]), "D_after": float(dist[1][i]),
-                     "Closer": int(closer[i])} for i in range(len(ids)))
-    return rows
+        parts.append({"database": np.full(len(ids), d.name, dtype=object),
+                      "point_id": np.asarray(ids).astype(str).astype(object),
+                      "X": db[:, 0], "Y": db[:, 1], "AdjX": adj[:, 0], "AdjY": adj[:, 1],
+                      "D_before": dist[0], "D_after": dist[1], "Closer": closer.astype(int)})
+    cols = ({k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else None)
+    return cols if as_columns else rows_from_columns(cols)
 
 
-def truth_line_distances(run, truth_path) -> list:
+def truth_line_distances(run, truth_path, as_columns: bool = False):
     """:func:`drive_truth_lines` with the true centrelines read by geopandas and the
     distances of shapely (an STR-tree nearest query); the same rows and summary entry."""
     import shapely
     from pyproj import CRS
 
-    truth, _ = read_lines(truth_path, CRS.from_user_input(run.data.crs))
+    truth = _truth_lines(truth_path, CRS.from_user_input(run.data.crs))
     parts = [p for g in truth if g is not None and not g.is_empty for p in shapely.get_parts(g)]
     if not parts:
-        return []
+        return None if as_columns else []
     tree = shapely.STRtree(parts)
 
     def distances(xy):
         return tree.query_nearest(shapely.points(xy), return_distance=True,
                                   all_matches=False)[1]
 
-    return drive_truth_lines(run, distances, truth_path)
+    return drive_truth_lines(run, distances, truth_path, as_columns)
