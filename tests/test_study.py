@@ -454,11 +454,11 @@ def test_csv_from_columns_equals_csv_from_rows(tmp_path):
     from vectoradjust.files.study import rows_from_columns
 
     cols = {"database": np.array(["OSM", "OSM", "TNM"], dtype=object),
-            "point_id": np.array(["a", "b", "c"], dtype=object),
+            "point_id": np.array(["a", 'b,"x"', "c"], dtype=object),
             "X": np.array([1.25, 506301.123456789, -3e-7]), "Closer": np.array([1, 0, 1]),
             "D": np.array([0.1, np.nan, 2.0])}
     rows = rows_from_columns(cols)
-    assert rows[1] == {"database": "OSM", "point_id": "b", "X": 506301.123456789,
+    assert rows[1] == {"database": "OSM", "point_id": 'b,"x"', "X": 506301.123456789,
                        "Closer": 0, "D": rows[1]["D"]} and np.isnan(rows[1]["D"])
     write_csv(cols, tmp_path / "c.csv")
     rows[1]["D"] = None  # the row writer's empty cell

@@ -452,20 +452,30 @@ def truth_point_rows(run) -> list:
     return rows_from_columns(truth_point_columns(run))
 
 
+def _cell(x) -> str:
+    """One CSV cell: empty for None/NaN, the shortest round-trip text of a float; text
+    holding a comma, quote or line break is quoted as :mod:`csv` does."""
+    if x is None or (isinstance(x, float) and x != x):
+        return ""
+    t = repr(x) if isinstance(x, float) else str(x)
+    if any(ch in t for ch in ',"\r\n'):
+        return '"' + t.replace('"', '""') + '"'
+    return t
+
+
 def write_csv(rows, path) -> Path:
     """Write a table as CSV: a list of dict rows (the union of their keys as columns) or
     a dict of equal-length column arrays (written in one vectorised call). None and NaN
     are written as empty cells."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if isinstance(rows, dict):
-        try:
-            import pandas as pd
-        except ImportError:  # e.g. a QGIS Python without pandas: the row writer
-            rows = rows_from_columns(rows)
-        else:
-            pd.DataFrame(rows).to_csv(path, index=False, na_rep="", lineterminator="\r\n")
-            return path
+    if isinstance(rows, dict):  # columns: each formatted at once, then joined
+        text = [[_cell(x) for x in np.asarray(c).tolist()] for c in rows.values()]
+        with open(path, "w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(list(rows))
+            fh.write("".join(",".join(r) + "\r\n" for r in zip(*text)))
+        return path
     cols = list(dict.fromkeys(k for r in rows for k in r))
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=cols)
