@@ -280,11 +280,11 @@ def _offset_cofactors(result: BundleResult, aqa: np.ndarray, q_point: np.ndarray
                      result.offset_g)
     n = prob.n_images
     u_img = u.reshape(n, 6, -1)[prob.obs_image]  # (k, 6, q)
-    c = (np.einsum("kri,kiq->krq", result.a_pt, qb[prob.obs_point])
-         - np.einsum("kri,kiq->krq", result.a_eo, u_img))
-    aqa = aqa + np.einsum("krq,qs,krs->kr", c, cof, c)
+    # matmul on the stacks of small blocks (several times faster than einsum)
+    c = np.matmul(result.a_pt, qb[prob.obs_point]) - np.matmul(result.a_eo, u_img)
+    aqa = aqa + (np.matmul(c, cof) * c).sum(axis=2)
     d = qb - g
-    return aqa, q_point + np.einsum("miq,qs,mjs->mij", d, cof, d)
+    return aqa, q_point + np.matmul(np.matmul(d, cof), np.swapaxes(d, 1, 2))
 
 
 # --------------------------------------------------------------------------- reliability
@@ -320,9 +320,9 @@ def _point_tests(result: BundleResult, q_point, s0, k_crit, d0, min_redundancy):
     """``r, q_vv, w, mdb, flag, suspected`` of the point priors (``W`` possibly full)."""
     wgt = np.asarray(result.problem.prior_weight, float)
     has_axis = np.einsum("mii->mi", wgt) > 0
-    qw = np.einsum("mij,mjk->mik", q_point, wgt)
+    qw = np.matmul(q_point, wgt)
     r_p = np.where(has_axis, 1.0 - np.einsum("mii->mi", qw), np.nan)
-    wqw = wgt - np.einsum("mij,mjk->mik", wgt, qw)  # W Q_vv W = W - W Q_pp W
+    wqw = wgt - np.matmul(wgt, qw)  # W Q_vv W = W - W Q_pp W
     d_wqw = np.einsum("mii->mi", wqw)
     det = np.linalg.det(wgt) if len(wgt) else np.zeros(0)
     cov = inv3x3(np.where((det > 0)[:, None, None], wgt, np.eye(3)))
