@@ -103,6 +103,16 @@ def print_table(rows: list, out=None) -> None:
         print("  ".join(v.rjust(w) for v, w in zip(c, widths)), file=out)
 
 
+def _bands_alongside(result, wanted: bool):
+    """The uncertainty bands, started in a second process (None: not wanted)."""
+    if not wanted or not result.databases:
+        return None
+    from vectoradjust.cli.background import Background
+    from vectoradjust.files.derived_outputs import uncertainty_bands_frame
+
+    return Background(uncertainty_bands_frame, result)
+
+
 def cmd_adjust(args) -> int:
     from vectoradjust.files.outputs import write_outputs
     from vectoradjust.files.project import load_project
@@ -117,14 +127,19 @@ def cmd_adjust(args) -> int:
     spec = load_project(args.project)
     data = load_project_data(spec, progress=lambda f, m: bar(0.02 * f, m))
     result = run(data, vectors=args.vectors, progress=bar)
-    truth = cli_buffer.project_truth(spec)
-    if truth is not None:  # true centrelines: buffer test before/after the adjustment
-        cli_buffer.truth_buffer(result, *truth,
-                                progress=ProgressBar("truth", enabled=not args.quiet))
-    truth_csv = cli_study.truth_tables(result, spec, args.out)  # per-point truth tables
-    written = write_outputs(result, args.out, fmt=args.format,
-                            bands=not getattr(args, "no_bands", False),
-                            progress=ProgressBar("write", enabled=not args.quiet))
+    bands = _bands_alongside(result, not getattr(args, "no_bands", False))
+    try:
+        truth = cli_buffer.project_truth(spec)
+        if truth is not None:  # true centrelines: buffer test before/after the adjustment
+            cli_buffer.truth_buffer(result, *truth,
+                                    progress=ProgressBar("truth", enabled=not args.quiet))
+        truth_csv = cli_study.truth_tables(result, spec, args.out)  # per-point truth tables
+        written = write_outputs(result, args.out, fmt=args.format,
+                                bands=bands.result if bands is not None else False,
+                                progress=ProgressBar("write", enabled=not args.quiet))
+    finally:
+        if bands is not None:
+            bands.close()
     written.update(truth_csv)
     if getattr(args, "conflation_raster", False):
         from vectoradjust.files.derived_outputs import write_conflation_rasters

@@ -301,6 +301,14 @@ def _write_flagged(rows: list, path: Path) -> None:
             w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in FLAGGED_COLUMNS})
 
 
+def _ready(frame, step, name: str):
+    """The frame itself, or the result of a deferred one (``frame(progress)``)."""
+    if not callable(frame):
+        return frame
+    step(f"building the {name} layer")
+    return frame(step.within)
+
+
 class _Steps:
     """Progress and cancel between the stages of :func:`write_outputs`."""
 
@@ -333,9 +341,11 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
     fmt : {"gpkg", "shp"}
     extra_json : dict, optional
         More keys for summary.json.
-    bands : bool
+    bands : bool or callable
         Also write the ``uncertainty_bands`` layer (90 % G-band of every measured
-        road segment, Shi & Liu 2000).
+        road segment, Shi & Liu 2000). A callable ``bands(progress)`` returns that
+        layer's frame when it is needed, after the other layers are written (the command
+        line builds it in a second process meanwhile).
     progress : callable, optional
         ``progress(fraction, message)`` before each table is built and each layer written.
     is_cancelled : callable, optional
@@ -361,7 +371,9 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
                        ("control_points", control_points_frame)):
         step(f"building the {name} table")
         frames[name] = make(run)
-    if bands and run.databases:
+    if callable(bands) and run.databases:  # built elsewhere: asked for when written
+        frames["uncertainty_bands"] = bands
+    elif bands and run.databases:
         from vectoradjust.files.derived_outputs import uncertainty_bands_frame
 
         step("building the uncertainty_bands layer")
@@ -373,12 +385,14 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
         notes: list = []
         if fmt == "gpkg":
             for name, gdf in frames.items():
+                gdf = _ready(gdf, step, name)
                 step(f"writing the {name} layer")
                 notes += _write_layer(gdf, tmp / "adjusted.gpkg", name, fmt)
             names = ["adjusted.gpkg"]
         else:
             names = []
             for name, gdf in frames.items():
+                gdf = _ready(gdf, step, name)
                 step(f"writing {name}.shp")
                 notes += _write_layer(gdf, tmp / f"{name}.shp", None, fmt)
                 names += [p.name for p in tmp.glob(f"{name}.*")]

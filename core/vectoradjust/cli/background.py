@@ -1,0 +1,116 @@
+"""Run one stage of a command in a forked child process while the parent goes on.
+
+The command line has a second core to use: ``adjust`` builds the uncertainty bands (the
+longest stage after the solve) in a child while the parent runs the ``[truth]`` tests and
+writes the other layers. The child is a ``fork`` of the parent (it sees the adjusted run
+without copying it), sends its progress and then its result back through a pipe, and the
+parent waits for it only where it needs the result.
+
+Where ``fork`` is not available (Windows, or ``VECTORADJUST_WORKERS=1``) or the child
+fails, the stage runs in the parent as before: the outputs are the same either way, and
+an error is raised where it would have been raised without the child.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import traceback
+from typing import Callable, Optional
+
+__all__ = ["Background", "workers"]
+
+
+def workers() -> int:
+    """Processes the command line may use: ``VECTORADJUST_WORKERS``, else the CPUs."""
+    env = os.environ.get("VECTORADJUST_WORKERS", "").strip()
+    if env.isdigit() and int(env) >= 1:
+        return int(env)
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _child(conn, fn, args, kwargs) -> None:
+    def progress(fraction: float, message: str = "") -> None:
+        conn.send(("progress", float(fraction), str(message)))
+
+    try:
+        value = fn(*args, progress=progress, **kwargs)
+        conn.send(("result", value))
+    except BaseException:  # noqa: BLE001 - reported to the parent, which runs it again
+        try:
+            conn.send(("failed", traceback.format_exc()))
+        except Exception:  # noqa: BLE001 - the pipe is gone: the parent sees EOF
+            pass
+    finally:
+        conn.close()
+
+
+class Background:
+    """``fn(*args, progress=..., **kwargs)`` started in a forked child.
+
+    Parameters
+    ----------
+    fn : callable
+        Takes a ``progress(fraction, message)`` keyword; its result must pickle.
+    *args, **kwargs
+        Passed to ``fn``.
+    enabled : bool
+        False (or no ``fork``, or a single worker) runs nothing now: :meth:`result`
+        then calls ``fn`` in the parent.
+    """
+
+    def __init__(self, fn: Callable, *args, enabled: bool = True, **kwargs) -> None:
+        self.fn, self.args, self.kwargs = fn, args, kwargs
+        self.proc = None
+        self.conn = None
+        self.failure: Optional[str] = None
+        if not (enabled and workers() > 1
+                and "fork" in multiprocessing.get_all_start_methods()):
+            return
+        ctx = multiprocessing.get_context("fork")
+        recv, send = ctx.Pipe(duplex=False)
+        self.proc = ctx.Process(target=_child, args=(send, fn, args, kwargs), daemon=True)
+        self.proc.start()
+        send.close()
+        self.conn = recv
+
+    @property
+    def forked(self) -> bool:
+        """True when the stage runs in a child process."""
+        return self.proc is not None
+
+    def result(self, progress: Optional[Callable] = None):
+        """Wait for the child (forwarding its progress) and return ``fn``'s result; run
+        ``fn`` here instead when there is no child or it failed."""
+        say = progress or (lambda fraction, message="": None)
+        if self.proc is not None:
+            try:
+                while True:
+                    kind, *rest = self.conn.recv()
+                    if kind == "progress":
+                        say(*rest)
+                        continue
+                    if kind == "result":
+                        return rest[0]
+                    self.failure = rest[0]
+                    break
+            except EOFError:  # the child died (e.g. out of memory)
+                self.failure = f"the child process ended with code {self.proc.exitcode}"
+            finally:
+                self.close()
+        return self.fn(*self.args, progress=say, **self.kwargs)
+
+    def close(self) -> None:
+        """Stop the child if it still runs (e.g. the parent was interrupted)."""
+        if self.conn is not None:
+            self.conn.close()
+            self.conn = None
+        if self.proc is not None:
+            self.proc.join(timeout=5)
+            if self.proc.is_alive():
+                self.proc.terminate()
+                self.proc.join()
+            self.proc = None

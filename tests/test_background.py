@@ -1,0 +1,84 @@
+"""The command line's second process (cli/background.py): the same result as in the
+parent, progress forwarded, a failing child falls back to the parent (which raises as
+it would have without the child)."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import pytest
+
+from vectoradjust.cli.background import Background, workers
+from vectoradjust.errors import VectorAdjustError
+
+fork_only = pytest.mark.skipif(sys.platform == "win32", reason="fork start method")
+
+
+def _work(n, progress=None, parent=None):
+    progress(0.5, "half way")
+    return {"pid": os.getpid(), "values": list(range(n)), "parent": parent}
+
+
+def _fails_in_child(parent, progress=None):
+    if os.getpid() != parent:
+        raise RuntimeError("only in the child")
+    return "made in the parent"
+
+
+def _user_error(progress=None):
+    raise VectorAdjustError("a user's mistake", "mend it")
+
+
+@fork_only
+def test_result_and_progress_come_from_the_child(monkeypatch):
+    monkeypatch.setenv("VECTORADJUST_WORKERS", "2")
+    seen = []
+    bg = Background(_work, 5, parent=os.getpid())
+    assert bg.forked
+    out = bg.result(lambda f, m: seen.append((f, m)))
+    assert out["values"] == [0, 1, 2, 3, 4] and out["pid"] != os.getpid()
+    assert seen == [(0.5, "half way")] and bg.proc is None
+
+
+def test_one_worker_runs_in_the_parent(monkeypatch):
+    monkeypatch.setenv("VECTORADJUST_WORKERS", "1")
+    assert workers() == 1
+    bg = Background(_work, 3)
+    assert not bg.forked
+    assert bg.result()["pid"] == os.getpid()
+
+
+@fork_only
+def test_a_failing_child_is_run_again_in_the_parent(monkeypatch):
+    monkeypatch.setenv("VECTORADJUST_WORKERS", "2")
+    bg = Background(_fails_in_child, os.getpid())
+    assert bg.result() == "made in the parent"
+    assert "only in the child" in bg.failure
+    bg = Background(_user_error)
+    with pytest.raises(VectorAdjustError, match="a user's mistake"):
+        bg.result()
+
+
+@fork_only
+@pytest.mark.io
+def test_adjust_writes_the_same_bands_with_and_without_the_child(sample_dir, tmp_path,
+                                                                 monkeypatch):
+    pytest.importorskip("geopandas")
+    import pyogrio
+
+    from vectoradjust.cli import main
+
+    layers = {}
+    for n in ("1", "2"):
+        monkeypatch.setenv("VECTORADJUST_WORKERS", n)
+        assert main(["adjust", str(sample_dir / "project.toml"), "--out",
+                     str(tmp_path / n), "-q"]) == 0
+        layers[n] = pyogrio.read_dataframe(tmp_path / n / "adjusted.gpkg",
+                                           layer="uncertainty_bands")
+    a, b = layers["1"], layers["2"]
+    assert len(a) > 10 and list(a.columns) == list(b.columns)
+    assert a.geometry.geom_equals_exact(b.geometry, 0.0).all()
+    assert (a.drop(columns="geometry") == b.drop(columns="geometry")).all().all()
+    assert ((tmp_path / "1" / "summary.json").read_text(encoding="utf-8")
+            == (tmp_path / "2" / "summary.json").read_text(encoding="utf-8"))
