@@ -64,6 +64,30 @@ def _flat(row: dict, prefix: str = "") -> dict:
     return out
 
 
+def _paths(row: dict, prefix: tuple = ()) -> list:
+    """Key paths of the leaves of a nested dict, in order."""
+    out: list = []
+    for k, v in row.items():
+        out += _paths(v, prefix + (k,)) if isinstance(v, dict) else [prefix + (k,)]
+    return out
+
+
+def _get(row: dict, path: tuple):
+    for k in path:
+        if not isinstance(row, dict):
+            return None
+        row = row.get(k)
+    return None if isinstance(row, dict) else row
+
+
+def _json_cells(values: list) -> np.ndarray:
+    """A column of JSON-ready values as an object array (NaN/inf written as empty)."""
+    arr = np.empty(len(values), dtype=object)
+    arr[:] = [clean_json(v) if not isinstance(v, (str, int, type(None))) else v
+              for v in values]
+    return arr
+
+
 def move_feature_statements(summary: dict, out_dir) -> tuple:
     """Move ``accuracy.features`` (one statement per road feature) out of summary.json.
 
@@ -79,8 +103,6 @@ def move_feature_statements(summary: dict, out_dir) -> tuple:
     path : pathlib.Path or None
         The CSV written (None when there were no per-feature statements).
     """
-    import csv
-
     acc = summary.get("accuracy")
     feats = acc.get("features") if isinstance(acc, dict) else None
     if not isinstance(feats, dict) or not any(isinstance(v, list) for v in feats.values()):
@@ -88,17 +110,19 @@ def move_feature_statements(summary: dict, out_dir) -> tuple:
         if stale.is_file():  # from an earlier run into the same folder: not this run's
             stale.unlink()
         return summary, None
-    rows = [{"database": db, **_flat(r)} for db, lst in feats.items()
-            if isinstance(lst, list) for r in lst]
-    columns: list = []
-    for r in rows[:1000]:  # every row has the same keys; a few suffice for the header
-        columns += [k for k in r if k not in columns]
+    rows = [(db, r) for db, lst in feats.items() if isinstance(lst, list) for r in lst]
+    # the columns: every key path of the rows (nested keys joined with "_"), in order
+    paths: list = []
+    for _, r in rows[:1000]:  # every row has the same keys; a few suffice for the header
+        paths += [p for p in _paths(r) if p not in paths]
+    columns = ["database"] + ["_".join(p) for p in paths]
+    cols = {"database": [db for db, _ in rows]}
+    for p, name in zip(paths, columns[1:]):
+        cols[name] = [_get(r, p) for _, r in rows]
     path = Path(out_dir) / FEATURE_ACCURACY_CSV
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: ("" if v is None else v) for k, v in clean_json(r).items()})
+    from vectoradjust.files.study import write_csv
+
+    write_csv({k: _json_cells(v) for k, v in cols.items()}, path)
     out = dict(summary)
     out["accuracy"] = dict(acc)
     out["accuracy"]["features"] = {
