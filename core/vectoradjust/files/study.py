@@ -458,9 +458,19 @@ def _cell(x) -> str:
     if x is None or (isinstance(x, float) and x != x):
         return ""
     t = repr(x) if isinstance(x, float) else str(x)
-    if any(ch in t for ch in ',"\r\n'):
+    if "," in t or '"' in t or "\n" in t or "\r" in t:
         return '"' + t.replace('"', '""') + '"'
     return t
+
+
+def _column_text(values) -> list:
+    """The CSV cells of one column (floats and integers without per-cell checks)."""
+    a = np.asarray(values)
+    if a.dtype.kind == "f":
+        return ["" if x != x else repr(x) for x in a.tolist()]
+    if a.dtype.kind in "iub":
+        return [str(x) for x in a.tolist()]
+    return [_cell(x) for x in a.tolist()]
 
 
 def write_csv(rows, path) -> Path:
@@ -470,7 +480,7 @@ def write_csv(rows, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if isinstance(rows, dict):  # columns: each formatted at once, then joined
-        text = [[_cell(x) for x in np.asarray(c).tolist()] for c in rows.values()]
+        text = [_column_text(c) for c in rows.values()]
         with open(path, "w", newline="", encoding="utf-8") as fh:
             w = csv.writer(fh)
             w.writerow(list(rows))
