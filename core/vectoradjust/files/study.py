@@ -466,8 +466,8 @@ def _cell(x) -> str:
 def _column_text(values) -> list:
     """The CSV cells of one column (floats and integers without per-cell checks)."""
     a = np.asarray(values)
-    if a.dtype.kind == "f":
-        return ["" if x != x else repr(x) for x in a.tolist()]
+    if a.dtype.kind == "f":  # 15 significant digits (DBL_DIG): 3x faster than repr
+        return ["" if x != x else "%.15g" % x for x in a.tolist()]  # noqa: UP031 (fastest)
     if a.dtype.kind in "iub":
         return [str(x) for x in a.tolist()]
     return [_cell(x) for x in a.tolist()]
@@ -475,8 +475,8 @@ def _column_text(values) -> list:
 
 def write_csv(rows, path) -> Path:
     """Write a table as CSV: a list of dict rows (the union of their keys as columns) or
-    a dict of equal-length column arrays (written in one vectorised call). None and NaN
-    are written as empty cells."""
+    a dict of equal-length column arrays (each column formatted at once; float columns
+    with 15 significant digits). None and NaN are written as empty cells."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if isinstance(rows, dict):  # columns: each formatted at once, then joined
