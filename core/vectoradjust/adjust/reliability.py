@@ -362,6 +362,22 @@ def _eo_tests(result: BundleResult, s0, k_crit, d0, min_redundancy):
     return r_e, qvv_e, w_e, mdb_e, flag_e, sus_e
 
 
+def _cached_cofactors(result: BundleResult):
+    """:func:`_cofactors` of a result, computed once: they depend on its factorisation
+    and offsets only, not on sigma0 or the covariance scale (the run asks twice: for the
+    groups' variance factor and for the w-tests)."""
+    key = (result.s_inv, result.npp_inv, getattr(result, "offset_cofactor", None))
+    cached = getattr(result, "_cofactor_cache", None)  # the same arrays (identity)
+    if cached is not None and all(a is b for a, b in zip(cached[0], key)):
+        return cached[1]
+    value = _cofactors(result)
+    try:
+        result._cofactor_cache = (key, value)
+    except AttributeError:  # a result type without a __dict__: recompute next time
+        pass
+    return value
+
+
 def reliability(
     result: BundleResult,
     *,
@@ -399,7 +415,7 @@ def reliability(
     s0 = float(sigma0)
     k_crit = critical_value(alpha0)
     d0 = noncentrality(alpha0, beta0)
-    aqa, q_point = _cofactors(result)
+    aqa, q_point = _cached_cofactors(result)
     r_i, qvv_i, w_i, mdb_i, flag_i, sus_i = _image_tests(result, aqa, s0, k_crit, d0,
                                                          min_redundancy)
     r_p, qvv_p, w_p, mdb_p, flag_p, sus_p = _point_tests(result, q_point, s0, k_crit, d0,
