@@ -214,3 +214,56 @@ def test_the_transformation_of_each_layer_is_reported(sample, osm_alone):
     r = run(data, vectors=["TNM"])
     warn = [w for w in r.summary["warnings"] if "the transformation of its layer" in w]
     assert len(warn) == 1 and warn[0].startswith("TNM: ") and "NAD83" in warn[0]
+
+
+def _reference_flatten(geoms):
+    """Per feature and part, the obvious way: (coords, feature, index, part, problems)."""
+    import shapely
+
+    rows, problems = [], {}
+    for i, g in enumerate(geoms):
+        if g is None:
+            problems[i] = "null geometry"
+            continue
+        if g.geom_type not in ("LineString", "LinearRing", "MultiLineString"):
+            problems[i] = f"geometry type {g.geom_type} is not a line"
+            continue
+        parts = list(g.geoms) if g.geom_type == "MultiLineString" else [g]
+        n = 0
+        for p, part in enumerate(parts):
+            for c in shapely.get_coordinates(part, include_z=True):
+                rows.append((*c, i, n, p))
+                n += 1
+        if n == 0:
+            problems[i] = "empty geometry"
+    bad = {int(r[3]) for r in rows if not np.isfinite(r[:2]).all()}
+    problems.update({b: "NaN coordinates" for b in bad})
+    rows = np.array([r for r in rows if int(r[3]) not in problems]).reshape(-1, 6)
+    return rows[:, :3], rows[:, 3], rows[:, 4], rows[:, 5], problems
+
+
+def test_flattening_lines_matches_a_feature_by_feature_reference():
+    from shapely.geometry import LinearRing, LineString, MultiLineString, Point
+
+    from vectoradjust.files.readers import layer_from_geometries
+
+    rng = np.random.default_rng(3)
+    geoms = [LineString([(0, 0), (1, 1), (2, 0)]), None, Point(1, 2), LineString(),
+             MultiLineString([[(0, 0), (1, 0)], [(5, 5), (6, 6), (7, 7)]]),
+             LinearRing([(0, 0), (1, 0), (1, 1)]), MultiLineString([]),
+             LineString([(0, 0), (np.nan, 1)])]
+    for _ in range(300):
+        if rng.random() < 0.3:
+            geoms.append(MultiLineString([rng.random((rng.integers(2, 6), 3))
+                                          for _ in range(rng.integers(1, 4))]))
+        else:
+            geoms.append(LineString(rng.random((rng.integers(2, 9), 3))))
+    with np.errstate(invalid="ignore"):
+        lay = layer_from_geometries("x", geoms, {}, np.arange(len(geoms)).astype(str),
+                                    None, "s")
+    xyz, vf, vi, vp, problems = _reference_flatten(geoms)
+    assert lay.problems == problems and len(problems) == 5
+    np.testing.assert_array_equal(lay.coords, xyz)
+    np.testing.assert_array_equal(lay.vertex_feature, vf)
+    np.testing.assert_array_equal(lay.vertex_index, vi)
+    np.testing.assert_array_equal(lay.vertex_part, vp)

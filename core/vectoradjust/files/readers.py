@@ -75,36 +75,28 @@ def layer_from_geometries(name, geoms, attributes: dict, feature_ids, crs, sourc
     geoms = np.asarray(geoms, dtype=object)
     nf = len(geoms)
     problems: dict = {}
-    parts_coords = []
-    vf, vi, vp = [], [], []
-    types = shapely.get_type_id(geoms)
-    # 1 = LineString, 2 = LinearRing, 5 = MultiLineString
-    for i in range(nf):
-        g = geoms[i]
-        if g is None:
-            problems[i] = "null geometry"
-            continue
-        if types[i] not in (1, 2, 5):
-            problems[i] = f"geometry type {g.geom_type} is not a line"
-            continue
-        if g.is_empty:
-            problems[i] = "empty geometry"
-            continue
-        parts = list(g.geoms) if types[i] == 5 else [g]
-        count = 0
-        for pnum, part in enumerate(parts):
-            c = shapely.get_coordinates(part, include_z=True)
-            if len(c) == 0:
-                continue
-            parts_coords.append(c)
-            vf.append(np.full(len(c), i))
-            vi.append(count + np.arange(len(c)))
-            vp.append(np.full(len(c), pnum))
-            count += len(c)
-        if count == 0:
-            problems[i] = "empty geometry"
-    return LineLayer.from_parts(name, feature_ids, attributes, parts_coords, vf, vi, vp,
-                                problems, crs, source, geometry_type)
+    types = shapely.get_type_id(geoms)  # -1 = None, 1 = LineString, 2 = LinearRing, 5 = Multi
+    is_line = np.isin(types, (1, 2, 5))
+    for i in np.flatnonzero(~is_line).tolist():
+        problems[i] = ("null geometry" if geoms[i] is None else
+                       f"geometry type {geoms[i].geom_type} is not a line")
+    # every part of every line feature, then every coordinate of every part (no loop)
+    parts, part_feature = shapely.get_parts(geoms[is_line], return_index=True)
+    part_feature = np.flatnonzero(is_line)[part_feature]
+    xyz, vpart = shapely.get_coordinates(parts, include_z=True, return_index=True)
+    # part number within its feature: position among the feature's parts
+    first_part = np.searchsorted(part_feature, part_feature, side="left")
+    part_no = np.arange(len(parts)) - first_part
+    vf = part_feature[vpart]
+    vp = part_no[vpart]
+    # vertex number within its feature: running count over the feature's parts
+    feat_count = np.bincount(vf, minlength=nf)
+    feat_start = np.concatenate([[0], np.cumsum(feat_count)[:-1]])
+    vi = np.arange(len(vf)) - feat_start[vf]
+    for i in np.flatnonzero(is_line & (feat_count == 0)).tolist():
+        problems[i] = "empty geometry"
+    return LineLayer.from_parts(name, feature_ids, attributes, [xyz] if len(xyz) else [],
+                                [vf], [vi], [vp], problems, crs, source, geometry_type)
 
 
 #: a transformation less accurate than this (m), or of unknown accuracy, is a warning
