@@ -472,3 +472,15 @@ def test_csv_from_columns_equals_csv_from_rows(tmp_path):
         fa, fb = ([float(x) if x else np.nan for x in r[2:3] + r[4:]] for r in (ra, rb))
         np.testing.assert_allclose(fa, fb, rtol=1e-15)
     assert float(a[2][2]) == 506301.123456789
+
+
+def test_column_writer_chunks_write_the_same_file(tmp_path, monkeypatch):
+    import vectoradjust.files.study as st
+
+    cols = {"id": np.array([f"p{i}" for i in range(23)], dtype=object),
+            "x": np.linspace(-1.5, 2e6, 23), "n": np.arange(23)}
+    write_csv(cols, tmp_path / "one.csv")
+    monkeypatch.setattr(st, "_CSV_CHUNK", 5)
+    write_csv(cols, tmp_path / "chunks.csv")
+    one = (tmp_path / "one.csv").read_bytes()
+    assert one == (tmp_path / "chunks.csv").read_bytes() and one.count(b"\r\n") == 24

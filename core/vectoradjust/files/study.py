@@ -452,6 +452,10 @@ def truth_point_rows(run) -> list:
     return rows_from_columns(truth_point_columns(run))
 
 
+#: rows formatted at once by the column writer
+_CSV_CHUNK = 65536
+
+
 def _cell(x) -> str:
     """One CSV cell: empty for None/NaN, the shortest round-trip text of a float; text
     holding a comma, quote or line break is quoted as :mod:`csv` does."""
@@ -479,12 +483,15 @@ def write_csv(rows, path) -> Path:
     with 15 significant digits). None and NaN are written as empty cells."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if isinstance(rows, dict):  # columns: each formatted at once, then joined
-        text = [_column_text(c) for c in rows.values()]
+    if isinstance(rows, dict):  # columns: formatted a chunk of rows at a time
+        cols = [np.asarray(c) for c in rows.values()]
+        n = len(cols[0]) if cols else 0
         with open(path, "w", newline="", encoding="utf-8") as fh:
             w = csv.writer(fh)
             w.writerow(list(rows))
-            fh.write("".join(",".join(r) + "\r\n" for r in zip(*text)))
+            for i in range(0, n, _CSV_CHUNK):  # bounded memory: no string per cell held
+                text = [_column_text(c[i:i + _CSV_CHUNK]) for c in cols]
+                fh.write("".join(",".join(r) + "\r\n" for r in zip(*text)))
         return path
     cols = list(dict.fromkeys(k for r in rows for k in r))
     with open(path, "w", newline="", encoding="utf-8") as fh:
