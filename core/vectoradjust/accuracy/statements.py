@@ -303,12 +303,18 @@ def _feature_rows(d, min_vertices: int) -> list[dict[str, Any]]:
     v95 = _NSSDA_V * r[:, 2]
     asprs_h = np.hypot(rh, ref_h)
     asprs_v = np.hypot(r[:, 2], ref_v)
-    fids = layer.feature_ids[keep]
-    asprs_3d = np.hypot(asprs_h, asprs_v)
-    # one list per column, NaN/inf as None (what _clean would give), then plain dicts:
-    # no per-value type dispatch (125 000 features at 10^6 shape points)
     cols = (mean[:, 0], mean[:, 1], mean[:, 2], r[:, 0], r[:, 1], r[:, 2], rh, mu, sigma_c,
-            ce_exact, ce_form, sz, le_exact, le_form, h95, v95, asprs_h, asprs_v, asprs_3d)
+            ce_exact, ce_form, sz, le_exact, le_form, h95, v95, asprs_h, asprs_v,
+            np.hypot(asprs_h, asprs_v))
+    return _feature_dicts(layer.feature_ids[keep], n, mean, cols)
+
+
+def _feature_dicts(fids, n, mean, cols) -> list[dict[str, Any]]:
+    """The per-feature statement dicts from their columns (:func:`_feature_rows`).
+
+    One list per column, NaN/inf as None (what ``_clean`` would give), then plain dicts:
+    no per-value type dispatch (125 000 features at 10^6 shape points).
+    """
     lists = [_finite_list(a) for a in cols]
     neg = [_finite_list(-mean[:, a]) for a in range(3)]
     texts = [_bias_text(x, y) for x, y in zip(mean[:, 0].tolist(), mean[:, 1].tolist())]
