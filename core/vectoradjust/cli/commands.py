@@ -133,7 +133,9 @@ def cmd_adjust(args) -> int:
         if truth is not None:  # true centrelines: buffer test before/after the adjustment
             cli_buffer.truth_buffer(result, *truth,
                                     progress=ProgressBar("truth", enabled=not args.quiet))
-        truth_csv = cli_study.truth_tables(result, spec, args.out)  # per-point truth tables
+        truth_csv = cli_study.truth_tables(  # per-point truth tables
+            result, spec, args.out,
+            progress=ProgressBar("truth tables", enabled=not args.quiet))
         written = write_outputs(result, args.out, fmt=args.format,
                                 bands=bands.result if bands is not None else False,
                                 progress=ProgressBar("write", enabled=not args.quiet))

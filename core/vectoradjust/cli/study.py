@@ -46,7 +46,7 @@ def parse_numbers(text, what: str, integer: bool = False) -> list:
     return vals
 
 
-def truth_tables(run, spec, out_dir, label: str = "") -> dict:
+def truth_tables(run, spec, out_dir, label: str = "", progress=None) -> dict:
     """The per-point truth tables of a run into ``out_dir``.
 
     ``truth_points.csv``: per adjusted object point with vertex truth (``[[vectors]]
@@ -55,6 +55,8 @@ def truth_tables(run, spec, out_dir, label: str = "") -> dict:
     vertex's distance to the nearest true line before and after; the share moved closer
     goes into the summary (``databases[].truth.lines``).
 
+    ``progress(fraction, message)`` is called before each table and while it is written.
+
     Returns
     -------
     dict
@@ -62,21 +64,28 @@ def truth_tables(run, spec, out_dir, label: str = "") -> dict:
     """
     from vectoradjust.files.study import truth_point_columns, write_csv
 
+    say = progress or (lambda fraction, message="": None)
     out = Path(out_dir)
     written = {}
+    say(0.0, "truth_points.csv")
     rows = truth_point_columns(run)
     if rows:
-        written[f"{label}truth_points.csv"] = str(write_csv(rows, out / "truth_points.csv"))
+        written[f"{label}truth_points.csv"] = str(write_csv(
+            rows, out / "truth_points.csv",
+            progress=lambda f: say(0.5 * f, "writing truth_points.csv")))
     truth = None if spec is None else spec.raw.get("truth")
     if truth:
         from vectoradjust.cli.buffer import project_truth
         from vectoradjust.files.truth import truth_line_distances
 
+        say(0.5, "distances to the true centrelines")
         path, _ = project_truth(spec)
         rows = truth_line_distances(run, path, as_columns=True)
         if rows:
-            written[f"{label}truth_line_points.csv"] = str(
-                write_csv(rows, out / "truth_line_points.csv"))
+            written[f"{label}truth_line_points.csv"] = str(write_csv(
+                rows, out / "truth_line_points.csv",
+                progress=lambda f: say(0.75 + 0.25 * f, "writing truth_line_points.csv")))
+    say(1.0, "truth tables written")
     return written
 
 

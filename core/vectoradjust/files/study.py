@@ -477,10 +477,11 @@ def _column_text(values) -> list:
     return [_cell(x) for x in a.tolist()]
 
 
-def write_csv(rows, path) -> Path:
+def write_csv(rows, path, progress: Optional[Callable[[float], None]] = None) -> Path:
     """Write a table as CSV: a list of dict rows (the union of their keys as columns) or
-    a dict of equal-length column arrays (each column formatted at once; float columns
-    with 15 significant digits). None and NaN are written as empty cells."""
+    a dict of equal-length column arrays (formatted column by column in chunks of rows;
+    float columns with 15 significant digits). None and NaN are written as empty cells;
+    ``progress(fraction)`` after each chunk of a column table."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if isinstance(rows, dict):  # columns: formatted a chunk of rows at a time
@@ -492,6 +493,8 @@ def write_csv(rows, path) -> Path:
             for i in range(0, n, _CSV_CHUNK):  # bounded memory: no string per cell held
                 text = [_column_text(c[i:i + _CSV_CHUNK]) for c in cols]
                 fh.write("".join(",".join(r) + "\r\n" for r in zip(*text)))
+                if progress is not None:
+                    progress(min(1.0, (i + _CSV_CHUNK) / n))
         return path
     cols = list(dict.fromkeys(k for r in rows for k in r))
     with open(path, "w", newline="", encoding="utf-8") as fh:
