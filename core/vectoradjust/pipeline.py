@@ -290,9 +290,12 @@ def run(
     tabulate_control(out, cls.ctrl_of_obs, cls.is_check, cls.img_of_obs, setup.imap)
     for d in out.databases:
         tabulate_database(out, d)
+    report(0.78, "feature length accuracy")
     _derived(out)
+    report(0.81, "statistics, reliability and accuracy statements")
     _summarise(out, solution)
     _inputs(out)
+    report(0.9, "roads against the control")
     _roads_and_control(out, cls, setup)
     _conflation(out, solution, report, is_cancelled)
     names = [spec.name for spec, _ in data.vectors]
