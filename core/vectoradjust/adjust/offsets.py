@@ -211,6 +211,15 @@ def offset_normals(result: BundleResult, model: OffsetModel, offsets: np.ndarray
     return 0.5 * (n_red + n_red.T), g, qb, s_ztb
 
 
+def misclosure(result: BundleResult, model: OffsetModel) -> np.ndarray:
+    """``g`` of :func:`offset_normals` alone (no ``Q_xx B``): the offsets' gradient at a
+    bundle solution, zero at the joint solution."""
+    prob = result.problem
+    b = _b_blocks(prob, model)
+    d = np.where(prob.has_prior[:, None], prob.prior_xyz - result.xyz, 0.0)
+    return b.reshape(-1, b.shape[2]).T @ d.reshape(-1)
+
+
 def newton_step(result: BundleResult, model: OffsetModel, offsets: np.ndarray):
     """One Newton step on the offsets; returns (new offsets, cofactor, |g|max, qb, s_ztb)."""
     n_red, g, qb, s_ztb = offset_normals(result, model, offsets)

@@ -360,8 +360,13 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
     tight = dict(adjust_kwargs)
     tight["tolerance_position"] = adjust_kwargs.get("tolerance_position", 1e-4) * 1e-3
     tight["tolerance_angle"] = adjust_kwargs.get("tolerance_angle", 1e-8) * 1e-3
+    # the first step is Newton's; the next reuse its cofactor with the new misclosure (a
+    # chord step: the reduced normal matrix hardly changes between these re-adjustments,
+    # and Q_xx B is the expensive part); the cofactor and Q_xx B that go with the result
+    # are computed once more at the final estimate
+    new, cof, gmax, qb, s_ztb = off.newton_step(result, model, values)
+    exact_at = result
     for _ in range(20):
-        new, cof, gmax, qb, s_ztb = off.newton_step(result, model, values)
         step = float(np.abs(model.displacement(new - values)).max(initial=0.0))  # m
         history.append({"step": step, "gradient": gmax, "values": new.tolist()})
         if step < tol:
@@ -370,6 +375,10 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
         setup.problem = off.shifted_problem(setup.problem, setup.db_prior, model, values,
                                             xyz0=result.xyz, eo_start=result.eo)
         result = adjust(setup.problem, progress=progress, **tight)
+        g = off.misclosure(result, model)
+        new, gmax = values + cof @ g, float(np.abs(g).max(initial=0.0))
+    if exact_at is not result:
+        _, cof, _, qb, s_ztb = off.newton_step(result, model, values)
     state["values"] = values
     state["cofactor"] = cof
     state["converged"] = step < tol
