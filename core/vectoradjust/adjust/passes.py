@@ -371,9 +371,13 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
         history.append({"step": step, "gradient": gmax, "values": new.tolist()})
         if step < tol:
             break
+        # start from the linear prediction of the new solution: the offsets enter only the
+        # point priors, so dX = -Q_xx B dT and dEO = S^-1 Z' B dT (a few % off at most)
+        dt = new - values
         values = new
-        setup.problem = off.shifted_problem(setup.problem, setup.db_prior, model, values,
-                                            xyz0=result.xyz, eo_start=result.eo)
+        setup.problem = off.shifted_problem(
+            setup.problem, setup.db_prior, model, values,
+            xyz0=result.xyz - np.matmul(qb, dt), eo_start=result.eo + (s_ztb @ dt).reshape(-1, 6))
         result = adjust(setup.problem, progress=progress, **tight)
         g = off.misclosure(result, model)
         new, gmax = values + cof @ g, float(np.abs(g).max(initial=0.0))
