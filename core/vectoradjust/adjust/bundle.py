@@ -983,20 +983,26 @@ def ray_intersection(
     Returns the point closest to all of its rays, ``(n_points, 3)``; points with fewer
     than two rays get NaN.
     """
-    e = eo[obs_image]
-    m = rotation_matrix(e[:, 3], e[:, 4], e[:, 5])
+    eo = np.asarray(eo, float)
+    m_img = rotation_matrix(eo[:, 3], eo[:, 4], eo[:, 5]).reshape(-1, 3, 3)  # per image
     v = np.column_stack([
         obs_xy[:, 0] - principal_point[0],
         obs_xy[:, 1] - principal_point[1],
         np.full(len(obs_xy), -float(focal_length)),
     ])
-    d = np.einsum("kji,kj->ki", m, v)  # M^T v: direction in ground frame
+    d = np.empty_like(v)  # M^T v (= v' M): direction in the ground frame, image by image
+    order = np.argsort(obs_image, kind="stable")
+    imgs, starts = np.unique(obs_image[order], return_index=True)
+    for i, lo, hi in zip(imgs.tolist(), starts.tolist(), [*starts[1:].tolist(), len(order)]):
+        sel = order[lo:hi]
+        d[sel] = v[sel] @ m_img[i]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    c = eo[obs_image, :3]
     a = _block_sum(obs_point, proj, n_points)
-    b = _block_sum(obs_point, np.einsum("kij,kj->ki", proj, e[:, :3]), n_points)
+    b = _block_sum(obs_point, c - d * np.sum(d * c, axis=1, keepdims=True), n_points)
     counts = np.bincount(obs_point, minlength=n_points)
-    x = np.einsum("mij,mj->mi", inv3x3(a), b)
+    x = np.matmul(inv3x3(a), b[:, :, None])[:, :, 0]
     x[counts < 2] = np.nan
     return x
 
