@@ -365,7 +365,7 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
     # and Q_xx B is the expensive part); the cofactor and Q_xx B that go with the result
     # are computed once more at the final estimate
     new, cof, gmax, qb, s_ztb = off.newton_step(result, model, values)
-    exact_at = result
+    exact = True  # cof, qb and s_ztb belong to the current result
     for _ in range(20):
         step = float(np.abs(model.displacement(new - values)).max(initial=0.0))  # m
         history.append({"step": step, "gradient": gmax, "values": new.tolist()})
@@ -378,10 +378,12 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
         setup.problem = off.shifted_problem(
             setup.problem, setup.db_prior, model, values,
             xyz0=result.xyz - np.matmul(qb, dt), eo_start=result.eo + (s_ztb @ dt).reshape(-1, 6))
+        result = None  # the previous solution's arrays go before the next are made
         result = adjust(setup.problem, progress=progress, **tight)
+        exact = False
         g = off.misclosure(result, model)
         new, gmax = values + cof @ g, float(np.abs(g).max(initial=0.0))
-    if exact_at is not result:
+    if not exact:
         _, cof, _, qb, s_ztb = off.newton_step(result, model, values)
     state["values"] = values
     state["cofactor"] = cof
