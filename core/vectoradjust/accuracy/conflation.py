@@ -49,7 +49,7 @@ CONFLATION_KEYS = ("enabled", "k", "max_distance", "model", "min_points")
 CE90_CIRCULAR = float(np.sqrt(-2.0 * np.log(0.1)))
 #: LE90 / sigma of a normal error, Phi^-1(0.95)
 LE90 = 1.6448536269514722
-_MODELS = ("exponential", "gaussian")
+_MODELS = ("auto", "exponential", "gaussian")
 
 
 @dataclass
@@ -66,7 +66,8 @@ class ConflationSettings:
         A vertex farther than this (m) from every measured point is ``extrapolated``,
         nearer ``interpolated``; 0 (default): the fitted covariance's practical range.
     model : str
-        ``"exponential"`` (``C0 exp(-r/L)``) or ``"gaussian"`` (``C0 exp(-(r/L)^2)``).
+        ``"exponential"`` (``C0 exp(-r/L)``), ``"gaussian"`` (``C0 exp(-(r/L)^2)``) or
+        ``"auto"`` (default: both fitted, the better leave-one-out score kept).
     min_points : int
         Fewest measured points a database needs for its field (fewer: ``unchanged``).
     """
@@ -74,7 +75,7 @@ class ConflationSettings:
     enabled: bool = True
     k: int = 12
     max_distance: float = 0.0
-    model: str = "exponential"
+    model: str = "auto"
     min_points: int = 5
 
 
@@ -214,8 +215,19 @@ def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
 
 
 def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
-                   kind: str = "exponential") -> CovarianceModel:
-    """Fit ``gamma(h) = nugget + C0 (1 - rho(h / L))`` to the empirical semivariogram.
+                   kind: str = "auto", k: int = 12, max_targets: int = 2000) -> CovarianceModel:
+    """Fit the covariance function and the database's white noise to the residuals.
+
+    Two steps. (1) Weighted least squares on the empirical semivariogram,
+    ``gamma(h) = nugget + C0 (1 - rho(h / L))`` with the nugget at least the mean known
+    noise (start values, and the figures reported). (2) The parameters ``(n_db, C0, L)``
+    that minimise the leave-one-out negative log predictive density of the measured
+    points (:func:`_loo_score`; each held out point predicted from its ``k`` nearest
+    others, exactly as a vertex is predicted, its known noise ``known_noise`` entering its
+    own variance): a proper scoring rule, so the predicted variances are calibrated on
+    the data rather than on a curve fit that cannot tell the database's white noise from
+    a steep rise of the semivariogram at the shortest lags. With ``kind = "auto"`` both
+    functions are fitted and the one with the better score is kept.
 
     Parameters
     ----------
@@ -226,27 +238,49 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     known_noise : numpy.ndarray, shape (n,)
         Each point's known noise variance per component (m^2).
     kind : str
-        ``"exponential"`` or ``"gaussian"``.
+        ``"exponential"``, ``"gaussian"`` or ``"auto"``.
+    k : int
+        Neighbours per leave-one-out prediction (the ``[conflation] k``).
+    max_targets : int
+        The score is summed over at most this many held-out points (a random subset;
+        all points serve as neighbours).
 
     Returns
     -------
     CovarianceModel
-        Weighted least squares (weights: square root of the pairs per bin) with the
-        nugget at least the mean known noise and sill, length >= 0;
-        without enough pairs a pure nugget model (no correlated signal).
+        Without enough pairs for a semivariogram a pure nugget model (no correlated
+        signal). ``fit`` holds the semivariogram, its least-squares fit and the score.
     """
-    noise = float(np.mean(known_noise)) if len(known_noise) else 0.0
+    noise_pt = np.asarray(known_noise, float)
+    noise = float(np.mean(noise_pt)) if len(noise_pt) else 0.0
     total = float(np.mean(resid ** 2)) if resid.size else 0.0
     lag, gam, cnt = empirical_semivariogram(xy, resid)
     fit = {"lags": lag.tolist(), "semivariance": gam.tolist(), "pairs": cnt.astype(int).tolist()}
-    if lag.size < 4:
-        return CovarianceModel(kind, 0.0, 0.0, max(total - noise, 0.0), noise,
+    if lag.size < 4 or len(xy) < 4:
+        return CovarianceModel(kind if kind in ("exponential", "gaussian") else "exponential",
+                               0.0, 0.0, max(total - noise, 0.0), noise,
                                {**fit, "status": "too few pairs: white noise only"})
     # the measured points' own noise is part of the nugget: it cannot be smaller
     floor = min(noise, 0.999 * float(gam.max()))
-    nug, sill, length = _fit_grid(lag, gam, cnt, kind, floor)
-    return CovarianceModel(kind, sill, length, max(nug - noise, 0.0), noise,
-                           {**fit, "status": "fitted", "fitted_nugget": nug})
+    setup = _loo_setup(xy, k, max_targets)
+    scale = max(total, float(gam.max()), 1e-12)
+    best = None
+    for kd in (("exponential", "gaussian") if kind == "auto" else (kind,)):
+        nug, sill, length = _fit_grid(lag, gam, cnt, kd, floor)
+        start = (max(nug - noise, 0.05 * scale), max(sill, 0.05 * scale),
+                 length if sill > 0 else float(np.median(lag)))
+        theta, score = _fit_loo(kd, setup, resid, noise_pt, start, scale, lag)
+        wls = {"nugget": nug, "sill": sill, "length": length}
+        if best is None or score < best[2]:
+            best = (kd, theta, score, wls)
+    kd, theta, score, wls = best
+    white = _fit_white(setup, resid, noise_pt, scale)
+    nug = _nugget_posterior_mean(theta, kd, setup, resid, noise_pt)
+    return CovarianceModel(kd, float(theta[1]), float(theta[2]), nug, noise,
+                           {**fit, "status": "fitted", "fitted_nugget": wls["nugget"],
+                            "semivariogram_fit": wls, "loo_score": score,
+                            "loo_score_white": white[1], "nugget_best": float(theta[0]),
+                            "loo_targets": int(len(setup[0]))})
 
 
 def _nonneg_pair(f: np.ndarray, g: np.ndarray, w: np.ndarray):
@@ -301,6 +335,102 @@ def _neighbours(tree, xy: np.ndarray, k: int, skip_self: bool):
     if skip_self:
         return dist[:, 1:], idx[:, 1:]
     return dist, idx
+
+
+def _loo_setup(xy: np.ndarray, k: int, max_targets: int, seed: int = 0):
+    """Targets (a random subset of at most ``max_targets`` points), their ``k`` nearest
+    other points (all points serve as neighbours) and the distances: fixed while the
+    parameters of :func:`_loo_score` change."""
+    from scipy.spatial import cKDTree
+
+    n = len(xy)
+    tgt = np.arange(n)
+    if n > max_targets:
+        tgt = np.sort(np.random.default_rng(seed).choice(n, max_targets, replace=False))
+    k = int(min(k, n - 1))
+    dist, idx = _neighbours(cKDTree(xy), xy[tgt], k, skip_self=True)
+    px, py = xy[idx, 0], xy[idx, 1]
+    dd = np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :])
+    return tgt, dist, idx, dd
+
+
+def _loo_score(theta, kind: str, setup, resid: np.ndarray, noise: np.ndarray) -> float:
+    """Negative leave-one-out log predictive density (per component, constants dropped)
+    of ``theta = (nugget_db, sill, length)``: ``sum log s2 + e^2 / s2`` with ``e`` the
+    held-out point's error and ``s2`` its predicted variance (kriging variance + database
+    noise + the point's own noise)."""
+    tgt, dist, idx, dd = setup
+    cov = CovarianceModel(kind, theta[1], theta[2], theta[0])
+    diag = np.arange(idx.shape[1])
+    a = cov(dd)
+    a[:, diag, diag] += cov.nugget + noise[idx]
+    c = cov(dist)
+    try:
+        w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:  # a singular system: no admissible parameters
+        return float("inf")
+    e = resid[tgt] - np.einsum("bk,bkc->bc", w, resid[idx])
+    s2 = np.maximum(cov.sill - np.einsum("bk,bk->b", w, c), 0.0) + cov.nugget + noise[tgt]
+    if not np.all(s2 > 0):  # a perfect prediction claimed: not admissible
+        return float("inf")
+    return float(np.sum(resid.shape[1] * np.log(s2) + (e ** 2).sum(axis=1) / s2))
+
+
+def _fit_loo(kind: str, setup, resid, noise, start, scale: float, lags):
+    """``(nugget_db, sill, length), score`` minimising :func:`_loo_score` (bounded
+    Nelder-Mead on the logarithms, from ``start``): nugget and sill between ``1e-6 scale``
+    and ``100 scale``, the length between a tenth of the shortest and ten times the
+    longest lag of the semivariogram."""
+    from scipy.optimize import minimize
+
+    floor = 1e-6 * scale
+    bounds = [(np.log(floor), np.log(100 * scale))] * 2 + [
+        (np.log(lags[0] / 10.0), np.log(lags[-1] * 10.0))]
+    x0 = np.clip(np.log(np.maximum(np.asarray(start, float), floor)),
+                 [b[0] for b in bounds], [b[1] for b in bounds])
+
+    def f(x):
+        return _loo_score(np.exp(x), kind, setup, resid, noise)
+
+    r = minimize(f, x0, method="Nelder-Mead", bounds=bounds,
+                 options={"xatol": 1e-3, "fatol": 1e-6, "maxiter": 600})
+    theta = np.exp(r.x)
+    theta[:2] = np.where(theta[:2] <= 10 * floor, 0.0, theta[:2])
+    return theta, float(r.fun)
+
+
+def _fit_white(setup, resid, noise, scale: float):
+    """The white-noise-only model (no signal): ``n_db`` minimising :func:`_loo_score`
+    on a fine logarithmic grid (one parameter) and its score."""
+    grid = np.geomspace(1e-6 * scale, 10 * scale, 400)
+    tgt = setup[0]
+    r2 = (resid[tgt] ** 2).sum(axis=1)
+    s2 = grid[:, None] + noise[tgt][None, :]
+    sc = np.sum(resid.shape[1] * np.log(s2) + r2[None, :] / s2, axis=1)
+    i = int(np.argmin(sc))
+    return float(grid[i]), float(sc[i])
+
+
+def _nugget_posterior_mean(theta, kind: str, setup, resid, noise, n_grid: int = 121) -> float:
+    """The database's white noise ``n_db`` as its mean given the data, not its best fit.
+
+    ``n_db`` is the difference of two similar variances (the held-out points' scatter
+    and their known noise); its best fit is often 0 (the boundary) where the truth is a
+    few cm^2, and a vertex's variance built on it is too small. With a flat prior on
+    ``n_db >= 0`` and the leave-one-out likelihood ``exp(-score / 2)`` (the signal's
+    parameters fixed at their fit), the mean of ``n_db`` is the variance a prediction
+    should carry for it. Grid: 0 to the best fit plus the scatter, ``n_grid`` values.
+    """
+    tgt = setup[0]
+    spread = float(np.mean((resid[tgt] ** 2).sum(axis=1) / resid.shape[1]))
+    grid = np.linspace(0.0, float(theta[0]) + max(spread, 1e-12), n_grid)
+    sc = np.array([_loo_score((g, theta[1], theta[2]), kind, setup, resid, noise)
+                   for g in grid])
+    if not np.isfinite(sc).any():
+        return float(theta[0])
+    w = np.exp(-(sc - np.nanmin(sc)) / 2.0)
+    w[~np.isfinite(w)] = 0.0
+    return float(np.sum(w * grid) / np.sum(w))
 
 
 def _solve_chunk(models: list, xy_m, dist, idx) -> list:
@@ -434,16 +564,19 @@ def _cv_stats(cov: CovarianceModel, resid, noise, pred, var, factor: float) -> d
 
 
 # --------------------------------------------------------------------------- a run
-def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.ndarray):
+def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.ndarray,
+           mean_var: Optional[np.ndarray] = None):
     """Trend ``t`` (n, 3) and its covariance (n, 3, 3) at every object point.
 
     ``-G(x) T`` of the estimated offset (database minus images, so the displacement is
     its negative); axes the offset model does not cover get the measured points' mean
-    where it differs significantly from zero (else zero), with the larger of its
-    variance over their number and ``common`` (3,), the
-    adjusted points' mean variance: the points share the errors of the exterior
-    orientation (a common height error of a stereo model), which do not average out,
-    and a predicted vertex is not more certain in them than a measured one.
+    ``m`` where it differs from zero by more than 1.96 times the larger of its scatter's
+    standard error and ``sqrt(common)`` (3,), the adjusted points' mean variance: a
+    common height error of a stereo model, larger than its covariance says when the
+    adjustment is strained, must not move good database heights (DEM heights). Its
+    variance is ``mean_var`` (3,; default ``common``), the variance of the points' mean
+    (:func:`_mean_variance`), at least the scatter's; where the mean is not applied, the
+    vertex keeps an error of about ``m``, so its variance is ``m^2 + mean_var``.
     """
     from vectoradjust.adjust.offsets import _kind_design
 
@@ -458,14 +591,16 @@ def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.n
         t = -np.einsum("niq,q->ni", g, vals)
         tcov = np.einsum("niq,qr,njr->nij", g, c_t, g)
         covered = np.abs(g).sum(axis=(0, 2)) > 0
+    mean_var = common if mean_var is None else mean_var
     for a in np.flatnonzero(~covered):
         col = dm[:, a][np.isfinite(dm[:, a])]
         if col.size:
-            var = max(col.var() / col.size, float(common[a]))
-            # only a mean the images tell from zero (z > 1.96) moves the vertices: a
-            # common error of the adjusted heights must not spoil the database's heights
-            t[:, a] = col.mean() if abs(col.mean()) > 1.96 * np.sqrt(var) else 0.0
-            tcov[:, a, a] = var
+            m, scatter = float(col.mean()), col.var() / col.size
+            var = max(scatter, float(mean_var[a]))
+            if abs(m) > 1.96 * np.sqrt(max(scatter, float(common[a]))):
+                t[:, a], tcov[:, a, a] = m, var
+            else:
+                t[:, a], tcov[:, a, a] = 0.0, m * m + var
     return t, tcov, covered
 
 
@@ -491,7 +626,7 @@ def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel):
               (resid[:, 2:], noise[:, 2], LE90)]
     n_u = len(xy_u)
     oks = [np.isfinite(r).all(axis=1) for r, _, _ in groups]
-    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model)
+    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model, s.k)
             if ok.sum() >= s.min_points else None for ok, (r, nz, _) in zip(oks, groups)]
     live = [i for i, c in enumerate(covs) if c is not None]
     fields = [_Field(np.full((n_u, r.shape[1]), np.nan), np.full(n_u, np.nan),
@@ -647,6 +782,38 @@ def _image_scale(out) -> float:
     return max(float(f), 1.0) if f is not None and np.isfinite(f) else float("nan")
 
 
+def _mean_variance(result, pts: np.ndarray) -> np.ndarray:
+    """Variance per axis (3,) of the mean of the adjusted points ``pts``.
+
+    ``1' C 1 / p^2`` of their joint covariance ``s0^2 [D + Z S^-1 Z' + (QB) Q_TT (QB)']``
+    (:meth:`BundleResult.joint_covariance`) without forming it: the sums of the
+    per-point blocks ``D``, of the rows ``Z_j`` and of ``(QB)_j`` are enough. The errors
+    the points share (the orientation, the offsets) count in full, each point's own
+    error (its intersection) by ``1/p``. Without the factorisation: the mean of the
+    points' variances (every error taken as shared, an upper bound).
+    """
+    pts = np.unique(np.asarray(pts, np.int64))
+    if not len(pts):
+        return np.zeros(3)
+    if result.s_inv is None or result.npp_inv is None or result.nep_obs is None:
+        return np.nanmean(np.einsum("nii->ni", result.point_cov[pts]), axis=0)
+    prob = result.problem
+    n, p = prob.n_images, len(pts)
+    inset = np.zeros(prob.n_points, bool)
+    inset[pts] = True
+    sel = np.flatnonzero(inset[prob.obs_point])
+    contrib = np.einsum("kab,kcb->kac", result.npp_inv[prob.obs_point[sel]],
+                        result.nep_obs[sel])  # (s, 3, 6): N_pp^-1 N_pe per observation
+    z = np.zeros((n, 3, 6))
+    np.add.at(z, prob.obs_image[sel], contrib)
+    z = np.transpose(z, (1, 0, 2)).reshape(3, 6 * n)
+    total = result.npp_inv[pts].sum(axis=0) + z @ result.s_inv @ z.T
+    if result.offset_cofactor is not None:
+        qb = result.offset_qb[pts].sum(axis=0)
+        total = total + qb @ result.offset_cofactor @ qb.T
+    return result.variance_factor * np.diagonal(total).copy() / p ** 2
+
+
 def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     """Displacement, covariance and nearest distance of the unmeasured object points."""
     db = d.shape.object_xyz
@@ -655,8 +822,10 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     dm = x_img - db[m_obj]
     noise = photo + d.spec.identification_variance
     common = np.nanmean(np.einsum("nii->ni", out.result.point_cov[obj_pt[m_obj]]), axis=0)
-    t, tcov, covered = _trend(rec, db, dm, common)
-    resid = dm - t[m_obj]
+    t, tcov, covered = _trend(rec, db, dm, common, _mean_variance(out.result, obj_pt[m_obj]))
+    # the field models the deviations from the mean; a mean not applied (above) must
+    # not come back through a long-range field
+    resid = dm - t[m_obj] - np.where(covered, 0.0, np.nanmean(dm - t[m_obj], axis=0))
     xy_m, xy_u = db[m_obj, :2], db[u_obj, :2]
     fh, fv = _fields(xy_m, resid, noise, xy_u, s, report, cancel)
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
