@@ -10,15 +10,20 @@ every other vertex
 
 with the trend ``t`` the database's estimated systematic offset (``-G(x) T``,
 :mod:`vectoradjust.adjust.offsets`; a constant mean for axes the offset model does not
-cover), ``C(r)`` a covariance function (exponential or Gaussian) fitted to the empirical
-semivariogram of the measured residuals ``d_m - t_m`` (Cressie's weights), and
-``N = diag(n_db + D_i)`` the white noise: the database's own random error ``n_db``
-(the fitted nugget less the known noise) plus the measured point's variance ``D_i``
-(the images' share of its covariance plus the identification variance). The measured
+cover, applied only where it is significant), ``C(r)`` a covariance function
+(exponential or Gaussian) and ``N = diag(n_db + D_i)`` the white noise: the database's
+own random error ``n_db`` plus the measured point's variance ``D_i`` (the images' share
+of its covariance plus the identification variance). ``C0``, ``L`` and ``n_db`` are the
+parameters whose leave-one-out predictions of the measured points score best (the
+negative log predictive density, a proper scoring rule, :func:`fit_covariance`); the
+semivariogram's least-squares fit gives the start; ``n_db`` is then taken as its mean
+given the data (flat prior, :func:`_nugget_posterior_mean`). The measured
 displacement is taken as the images see it (:func:`image_only`): the adjusted shape
 point is pulled towards the database by its prior, which would shrink the field.
 The variance of the real vertex's position error is
-``C(0) - c_xm (C_mm + N)^-1 c_mx + n_db + Var(t(x))``.
+``C(0) - c_xm (C_mm + N)^-1 c_mx + n_db + Var(t(x))`` (the unmeasured vertex carries
+its own database noise ``n_db``; the trend's variance from the joint covariance of the
+adjusted points, :func:`_mean_variance`).
 
 Only the ``k`` nearest measured points enter each prediction (a KD-tree; the ``k x k``
 systems are solved batch-wise with :func:`numpy.linalg.solve`), so the cost is linear
@@ -378,14 +383,20 @@ def _loo_score(theta, kind: str, setup, resid: np.ndarray, noise: np.ndarray) ->
 
 def _fit_loo(kind: str, setup, resid, noise, start, scale: float, lags):
     """``(nugget_db, sill, length), score`` minimising :func:`_loo_score` (bounded
-    Nelder-Mead on the logarithms, from ``start``): nugget and sill between ``1e-6 scale``
-    and ``100 scale``, the length between a tenth of the shortest and ten times the
-    longest lag of the semivariogram."""
+    Nelder-Mead on the logarithms, from ``start``).
+
+    Nugget and sill lie between ``1e-6 scale`` and ``2 scale`` (``scale``: the larger of
+    the residuals' mean square and the largest semivariance), the length between a
+    tenth of the shortest and twice the longest lag of the semivariogram. Predictions
+    from the nearest points see the field near the origin only (for the exponential
+    function ``C0 / L``): sill and length are not told apart beyond the data's extent,
+    and without these bounds a field could grow a sill and a range it never showed.
+    """
     from scipy.optimize import minimize
 
     floor = 1e-6 * scale
-    bounds = [(np.log(floor), np.log(100 * scale))] * 2 + [
-        (np.log(lags[0] / 10.0), np.log(lags[-1] * 10.0))]
+    bounds = [(np.log(floor), np.log(2 * scale))] * 2 + [
+        (np.log(lags[0] / 10.0), np.log(lags[-1] * 2.0))]
     x0 = np.clip(np.log(np.maximum(np.asarray(start, float), floor)),
                  [b[0] for b in bounds], [b[1] for b in bounds])
 
