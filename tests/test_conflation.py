@@ -415,3 +415,20 @@ def test_a_common_height_error_of_a_strained_adjustment_does_not_move_dem_height
     rz = np.sqrt(np.mean((v["AdjZ"][u] - t[u, 2]) ** 2))
     assert rz <= rz_db * 1.1  # the DEM heights are not spoilt (nor through the field)
     assert np.mean(np.abs(v["AdjZ"][u] - t[u, 2]) <= v["LE90"][u]) >= 0.9
+
+
+def test_length_sd_says_which_vertices_it_covers():
+    """LengthSD treats conflated vertices as fixed: the features layer says so."""
+    _, out, _ = _runs("helsinki")
+    d = out.databases[0]
+    f = d.features
+    scope = np.asarray(f["LengthSDOf"])
+    fi = d.shape.layer.vertex_feature
+    meas = np.bincount(fi, weights=d.vertices["Adjusted"] == 1, minlength=len(scope))
+    total = np.bincount(fi, minlength=len(scope))
+    assert np.array_equal(scope == "all vertices", (meas == total) & (meas > 0))
+    assert np.array_equal(scope == "measured vertices", (meas > 0) & (meas < total))
+    assert np.array_equal(scope == "", meas == 0)
+    assert (scope == "measured vertices").any() and np.all(np.isnan(f["LengthSD"][scope == ""]))
+    e = out.summary["conflation"]["databases"][0]["length_sd"]
+    assert e["features_with_unmeasured_vertices"] == int((scope == "measured vertices").sum())

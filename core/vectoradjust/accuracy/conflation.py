@@ -946,6 +946,10 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
     n_meas = int((obj_pt >= 0).sum())
     source = np.where(meas_v, "measured", "unchanged").astype(object)
     entry: dict = {"name": d.name, "measured_points": n_meas}
+    scope = np.asarray(d.features.get("LengthSDOf", []), object)
+    entry["length_sd"] = {
+        "covers": "measured vertices; the others count as fixed (features: LengthSDOf)",
+        "features_with_unmeasured_vertices": int((scope == "measured vertices").sum())}
     if not s.enabled or n_meas < s.min_points or meas_v.all():
         d.vertices["Source"] = source
         entry["status"] = ("disabled" if not s.enabled else "nothing to predict"
