@@ -220,7 +220,7 @@ def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
 
 
 def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
-                   kind: str = "auto", k: int = 12, max_targets: int = 2000) -> CovarianceModel:
+                   kind: str = "auto", k: int = 12, max_targets: int = 1000) -> CovarianceModel:
     """Fit the covariance function and the database's white noise to the residuals.
 
     Two steps. (1) Weighted least squares on the empirical semivariogram,
@@ -404,7 +404,7 @@ def _fit_loo(kind: str, setup, resid, noise, start, scale: float, lags):
         return _loo_score(np.exp(x), kind, setup, resid, noise)
 
     r = minimize(f, x0, method="Nelder-Mead", bounds=bounds,
-                 options={"xatol": 1e-3, "fatol": 1e-6, "maxiter": 600})
+                 options={"xatol": 1e-2, "fatol": 1e-3, "maxiter": 400})
     theta = np.exp(r.x)
     theta[:2] = np.where(theta[:2] <= 10 * floor, 0.0, theta[:2])
     return theta, float(r.fun)
@@ -422,7 +422,7 @@ def _fit_white(setup, resid, noise, scale: float):
     return float(grid[i]), float(sc[i])
 
 
-def _nugget_posterior_mean(theta, kind: str, setup, resid, noise, n_grid: int = 121) -> float:
+def _nugget_posterior_mean(theta, kind: str, setup, resid, noise, n_grid: int = 41) -> float:
     """The database's white noise ``n_db`` as its mean given the data, not its best fit.
 
     ``n_db`` is the difference of two similar variances (the held-out points' scatter
@@ -430,15 +430,29 @@ def _nugget_posterior_mean(theta, kind: str, setup, resid, noise, n_grid: int = 
     few cm^2, and a vertex's variance built on it is too small. With a flat prior on
     ``n_db >= 0`` and the leave-one-out likelihood ``exp(-score / 2)`` (the signal's
     parameters fixed at their fit), the mean of ``n_db`` is the variance a prediction
-    should carry for it. Grid: 0 to the best fit plus the scatter, ``n_grid`` values.
+    should carry for it. The grid runs from 0 to where the likelihood has fallen by
+    ``e^-10`` (found on two coarse grids), ``n_grid`` values.
     """
     tgt = setup[0]
-    spread = float(np.mean((resid[tgt] ** 2).sum(axis=1) / resid.shape[1]))
-    grid = np.linspace(0.0, float(theta[0]) + max(spread, 1e-12), n_grid)
-    sc = np.array([_loo_score((g, theta[1], theta[2]), kind, setup, resid, noise)
-                   for g in grid])
-    if not np.isfinite(sc).any():
-        return float(theta[0])
+
+    def scores(grid):
+        return np.array([_loo_score((g, theta[1], theta[2]), kind, setup, resid, noise)
+                         for g in grid])
+
+    hi = float(theta[0]) + max(float(np.mean((resid[tgt] ** 2).sum(axis=1)
+                                             / resid.shape[1])), 1e-12)
+    for _ in range(2):  # narrow the range to where the likelihood is
+        grid = np.linspace(0.0, hi, 21)
+        sc = scores(grid)
+        if not np.isfinite(sc).any():
+            return float(theta[0])
+        i = int(np.nanargmin(sc))
+        above = np.flatnonzero((sc - sc[i] > 20.0) & (np.arange(21) > i))
+        if not above.size:
+            break
+        hi = float(grid[above[0]])
+    grid = np.linspace(0.0, hi, n_grid)
+    sc = scores(grid)
     w = np.exp(-(sc - np.nanmin(sc)) / 2.0)
     w[~np.isfinite(w)] = 0.0
     return float(np.sum(w * grid) / np.sum(w))
@@ -806,7 +820,7 @@ def _mean_variance(result, pts: np.ndarray) -> np.ndarray:
     pts = np.unique(np.asarray(pts, np.int64))
     if not len(pts):
         return np.zeros(3)
-    if result.s_inv is None or result.npp_inv is None or result.nep_obs is None:
+    if any(getattr(result, a, None) is None for a in ("s_inv", "npp_inv", "nep_obs")):
         return np.nanmean(np.einsum("nii->ni", result.point_cov[pts]), axis=0)
     prob = result.problem
     n, p = prob.n_images, len(pts)
