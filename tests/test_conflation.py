@@ -1,9 +1,12 @@
 """Conflation (every vertex corrected by least-squares collocation, DESIGN section 10).
 
 Numerics against independent truth: the batched k-nearest kriging equals the dense
-collocation formula solved directly; the semivariogram fit recovers the parameters of
-simulated random fields; the leave-one-out coverage of a known model is 90 % (Monte
-Carlo); the image-only position undoes the prior's pull by definition. On simulated
+collocation formula solved directly; the fit (leave-one-out score) recovers the parameters
+and the covariance function of simulated random fields; the database noise taken as its
+mean given the data covers new points 90 % (Monte Carlo); the variance of the measured
+points' mean is that of their joint covariance (definition); the leave-one-out coverage of
+a known model is 90 % (Monte Carlo); the image-only position undoes the prior's pull by
+definition. On simulated
 projects with known truth (a smooth field + shift, a shift only, real Helsinki road
 geometry): the unmeasured vertices' RMSE to the truth drops by >= 70 %, measured
 vertices are unchanged, coincident vertices and closed rings stay together.
