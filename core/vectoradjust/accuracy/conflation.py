@@ -139,8 +139,8 @@ class CovarianceModel:
     length : float
         ``L`` (m).
     nugget : float
-        White database noise ``n_db`` (m^2) in the kriging system: the fitted nugget
-        less the measured points' mean known noise.
+        White database noise ``n_db`` (m^2) in the kriging system and in every
+        predicted vertex's variance (:func:`fit_covariance`).
     known_noise : float
         Mean variance of the measured points (adjustment + identification), m^2.
     fit : dict
@@ -232,7 +232,10 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     own variance): a proper scoring rule, so the predicted variances are calibrated on
     the data rather than on a curve fit that cannot tell the database's white noise from
     a steep rise of the semivariogram at the shortest lags. With ``kind = "auto"`` both
-    functions are fitted and the one with the better score is kept.
+    functions are fitted and the one with the better score is kept. The optimiser's
+    result is polished on a fixed lattice (:func:`_lattice_min`) so that QGIS's numpy
+    gives the same model; ``n_db`` is then replaced by its mean given the data
+    (:func:`_nugget_posterior_mean`).
 
     Parameters
     ----------
