@@ -27,7 +27,7 @@ from .qgis_io import fields_for, line_z, new_feature, point_z
 _SHAPE_TYPES = {"point_id": "s", "feature_id": "s", "Database": "s", "NImages": "i",
                 "Adjusted": "i", "Source": "s"}
 _FEATURE_TYPES = {"NPts": "i", "NAdj": "i", "Images": "s", "ImgDate": "s", "Database": "s",
-                  "Problem": "s"}
+                  "Problem": "s", "LengthSDOf": "s"}
 _CONTROL_TYPES = {"point_id": "s", "role": "s", "NImages": "i", "Used": "i"}
 _MASKED = ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "CE90_meas",
            "LE90_meas")

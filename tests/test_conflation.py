@@ -1,9 +1,12 @@
 """Conflation (every vertex corrected by least-squares collocation, DESIGN section 10).
 
 Numerics against independent truth: the batched k-nearest kriging equals the dense
-collocation formula solved directly; the semivariogram fit recovers the parameters of
-simulated random fields; the leave-one-out coverage of a known model is 90 % (Monte
-Carlo); the image-only position undoes the prior's pull by definition. On simulated
+collocation formula solved directly; the fit (leave-one-out score) recovers the parameters
+and the covariance function of simulated random fields; the database noise taken as its
+mean given the data covers new points 90 % (Monte Carlo); the variance of the measured
+points' mean is that of their joint covariance (definition); the leave-one-out coverage of
+a known model is 90 % (Monte Carlo); the image-only position undoes the prior's pull by
+definition. On simulated
 projects with known truth (a smooth field + shift, a shift only, real Helsinki road
 geometry): the unmeasured vertices' RMSE to the truth drops by >= 70 %, measured
 vertices are unchanged, coincident vertices and closed rings stay together.
@@ -132,6 +135,47 @@ def test_fit_nugget_is_at_least_the_known_noise_and_split_from_it():
     assert f.nugget == pytest.approx(0.09, abs=0.04)
 
 
+def test_auto_keeps_the_covariance_function_the_field_was_drawn_from():
+    """The leave-one-out score tells a smooth (Gaussian) field from a rough one."""
+    rng = np.random.default_rng(14)
+    for kind in ("gaussian", "exponential"):
+        true = CovarianceModel(kind, 4.0, 120.0, 0.25)
+        xy, z = _field(rng, 400, true, extent=600.0)
+        f = fit_covariance(xy, z, np.zeros(400))  # model "auto"
+        assert f.kind == kind
+        assert f.fit["loo_score"] < f.fit["loo_score_white"]  # the field beats white noise
+
+
+def test_database_noise_as_its_mean_given_the_data_covers_new_points():
+    """Monte Carlo: white database noise (0.09 m^2) under known image noise (0.1 m^2),
+    60 measured points. A new vertex's error is N(0, 0.09) per axis; with the predicted
+    variance v its CE90 covers it with probability 1 - 0.1^(v / 0.09) (Rayleigh)."""
+    rng = np.random.default_rng(21)
+    cover, nug = [], []
+    for _ in range(30):
+        xy = rng.uniform(0, 700, (60, 2))
+        z = rng.normal(0, np.sqrt(0.09 + 0.1), (60, 2))
+        f = fit_covariance(xy, z, np.full(60, 0.1))
+        cover.append(1 - 0.1 ** ((f.nugget + f.sill) / 0.09))
+        nug.append(f.nugget)
+    assert np.mean(cover) == pytest.approx(0.90, abs=0.04)
+    assert np.mean(nug) == pytest.approx(0.09, abs=0.025)
+
+
+def test_mean_variance_is_that_of_the_joint_covariance():
+    """Definition: Var(mean) = 1' C 1 / p^2 of the points' joint covariance."""
+    from vectoradjust.accuracy.conflation import _mean_variance
+
+    _, out, _ = _runs("shift")
+    res = out.result
+    pts = np.arange(0, res.problem.n_points, 3)[:50]
+    j = res.joint_covariance(pts)
+    want = [j[a::3, a::3].sum() / len(pts) ** 2 for a in range(3)]
+    assert np.allclose(_mean_variance(res, pts), want, rtol=1e-9, atol=0)
+    # the points' own (intersection) errors average out: far below one point's variance
+    assert np.all(_mean_variance(res, pts) < 0.5 * np.mean(np.diagonal(j).reshape(-1, 3), 0))
+
+
 def test_leave_one_out_coverage_of_a_known_model_is_90_percent():
     """Monte Carlo: a field drawn from the model -> 90 % of held-out points inside."""
     rng = np.random.default_rng(13)
@@ -199,7 +243,8 @@ def test_project_file_checks_the_conflation_table():
 @functools.cache
 def _runs(name: str):
     kw = {"smooth": {}, "shift": {"amplitude": 0.0},
-          "helsinki": {"true_roads": read_road_lines(ROADS)}}[name]
+          "helsinki": {"true_roads": read_road_lines(ROADS)},
+          "helsinki-0.3": {"true_roads": read_road_lines(ROADS), "stated_sigma": 0.3}}[name]
     data = conflation_scenario(1, **kw)
     return data, run(data), run(replace(data, conflation={"enabled": False}))
 
@@ -220,11 +265,17 @@ def test_unmeasured_vertices_move_towards_the_truth(name):
     e = out.summary["conflation"]["databases"][0]
     assert e["truth"]["rmse_conflated_truth_horizontal"] == pytest.approx(after)
     inside = np.mean(np.hypot(*(adj - t[u, :2]).T) <= v["CE90"][u])
-    # CE90 covers the truth: 0.85-0.95 on real roads; the synthetic grid's smooth field is
-    # covered conservatively (validation/conflation.py: 0.94-0.99), a pure shift 0.78-0.94
+    # CE90 covers the truth 0.85-0.95 (validation/conflation.py, seeds 1-5: smooth
+    # 0.89-0.96, Helsinki 0.87-0.94); a pure shift's white database noise is split from
+    # the known image noise on ~50 points only: 0.80-0.94 over the seeds, 0.84 on seed 1
     assert inside == pytest.approx(e["truth"]["share_within_ce90"])
-    assert {"smooth": 0.9, "shift": 0.78, "helsinki": 0.85}[name] <= inside <= (
-        0.995 if name == "smooth" else 0.95)
+    assert (0.8 if name == "shift" else 0.85) <= inside <= 0.95
+    ez = np.abs(v["AdjZ"][u] - t[u, 2])
+    le = np.mean(ez <= v["LE90"][u])
+    assert le == pytest.approx(e["truth"]["share_within_le90"])
+    # heights: the DEM heights (0.1 m) are better than one image height (0.3 m); LE90
+    # 0.84-0.96 on Helsinki, wider (0.96-1.00) on the 50-point synthetic grid
+    assert 0.85 <= le <= (0.95 if name == "helsinki" else 1.0)
     cv = e["cross_validation"]["horizontal"]
     assert cv["count"] >= 40 and cv["rmse"] < cv["rmse_trend_only"] + 1e-9
 
@@ -342,20 +393,22 @@ def test_the_stage_reports_progress_and_honours_cancel():
         run(data, progress=progress_then_cancel, is_cancelled=lambda: state["go"])
 
 
-def test_a_mean_height_shift_moves_heights_only_where_significant():
-    data, out, _ = _runs("helsinki")
+def test_a_common_height_error_of_a_strained_adjustment_does_not_move_dem_heights():
+    """The database states 0.3 m while a 2 m field is present: the adjustment is strained
+    and its heights share an error far beyond their covariance. The heights' mean is
+    applied only where it exceeds what one measured point's height error could be; an
+    unapplied mean is counted in the vertices' variance (sigma^2 >= m^2)."""
+    data, out, _ = _runs("helsinki-0.3")
     e = out.summary["conflation"]["databases"][0]
     mean, sig = e["trend"]["mean"][2], e["trend"]["mean_sigma"][2]
     d = out.databases[0]
     v = d.vertices
     m = v["Adjusted"] == 1
     raw = float(np.nanmean(v["Vz"][m]))  # the adjusted heights' mean displacement
-    assert abs(raw) > 0.2  # the stereo model's common height error in this scenario
-    # at least the measured points' own height sigma (SigmaZ less the identification's)
+    assert abs(raw) > 0.2  # the strained stereo model's common height error
     own = np.sqrt(np.nanmean(v["SigmaZ"][m] ** 2) - d.spec.identification_sigma[1] ** 2)
-    assert sig >= 0.98 * own  # per object point, not per vertex: near, not equal
-    if abs(raw) <= 1.96 * sig:
-        assert mean == 0.0
+    if abs(raw) <= 1.96 * own:
+        assert mean == 0.0 and sig >= 0.95 * abs(raw)
     else:
         assert mean != 0.0
     tid, txyz = data.truth["OSM"]
@@ -363,4 +416,22 @@ def test_a_mean_height_shift_moves_heights_only_where_significant():
     u = ~m
     rz_db = np.sqrt(np.mean((v["Z"][u] - t[u, 2]) ** 2))
     rz = np.sqrt(np.mean((v["AdjZ"][u] - t[u, 2]) ** 2))
-    assert rz <= rz_db * 1.1  # the DEM heights are not spoilt
+    assert rz <= rz_db * 1.1  # the DEM heights are not spoilt (nor through the field)
+    assert np.mean(np.abs(v["AdjZ"][u] - t[u, 2]) <= v["LE90"][u]) >= 0.9
+
+
+def test_length_sd_says_which_vertices_it_covers():
+    """LengthSD treats conflated vertices as fixed: the features layer says so."""
+    _, out, _ = _runs("helsinki")
+    d = out.databases[0]
+    f = d.features
+    scope = np.asarray(f["LengthSDOf"])
+    fi = d.shape.layer.vertex_feature
+    meas = np.bincount(fi, weights=d.vertices["Adjusted"] == 1, minlength=len(scope))
+    total = np.bincount(fi, minlength=len(scope))
+    assert np.array_equal(scope == "all vertices", (meas == total) & (meas > 0))
+    assert np.array_equal(scope == "measured vertices", (meas > 0) & (meas < total))
+    assert np.array_equal(scope == "", meas == 0)
+    assert (scope == "measured vertices").any() and np.all(np.isnan(f["LengthSD"][scope == ""]))
+    e = out.summary["conflation"]["databases"][0]["length_sd"]
+    assert e["features_with_unmeasured_vertices"] == int((scope == "measured vertices").sum())

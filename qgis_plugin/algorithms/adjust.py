@@ -8,6 +8,7 @@ from qgis.core import (
     QgsProcessing,
     QgsProcessingOutputBoolean,
     QgsProcessingOutputNumber,
+    QgsProcessingParameterBoolean,
     QgsProcessingParameterDefinition,
     QgsProcessingParameterFeatureSink,
     QgsProcessingParameterFileDestination,
@@ -48,11 +49,14 @@ CE90, LE90, NImages, Adjusted (1 = measured on the images) and Source: <i>measur
 or for the other vertices <i>interpolated</i> / <i>extrapolated</i> (corrected by the
 conflation: the database's offset plus the displacement field predicted from the measured
 vertices, with its CE90/LE90; the project's <code>[conflation]</code> table) or
-<i>unchanged</i> (too few measured points, or conflation disabled).</li>
+<i>unchanged</i> (too few measured points, or conflation disabled: <b>Correct every
+vertex (conflation)</b> unchecked replaces the project's <code>[conflation] enabled</code>).
+The log says how many vertices were measured, interpolated, extrapolated and unchanged.</li>
 <li><b>Adjusted road features</b>: every input feature with all its attributes and the adjusted
 (conflated) geometry, plus NPts, NAdj, RMSE_X/Y/Z, RMSE (horizontal), Length with its standard
 deviation LengthSD (from the joint covariance of the vertices) and LengthSDnc (covariances
-between vertices ignored), first/last point, Images, ImgDate.</li>
+between vertices ignored; LengthSDOf says whether they cover all vertices or the measured
+ones only, the conflated ones counting as fixed), first/last point, Images, ImgDate.</li>
 <li><b>Control and check points</b>: surveyed and adjusted (check points: intersected from the
 adjusted images, not used in the adjustment) coordinates, residuals, CE90, LE90, and QA
 (pass/fail against the product tolerances) when the project has a <code>[qa]</code>
@@ -85,6 +89,7 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
     SIGMA_XY = "SIGMA_XY"
     SIGMA_Z = "SIGMA_Z"
     RESIDUAL_SCALE = "RESIDUAL_SCALE"
+    CONFLATION = "CONFLATION"
     SHAPE_POINTS = "SHAPE_POINTS"
     FEATURES = "FEATURES"
     CONTROL_POINTS = "CONTROL_POINTS"
@@ -100,6 +105,8 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
                                          minValue=0.0)
         p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
         self.addParameter(p)
+        self.addParameter(QgsProcessingParameterBoolean(
+            self.CONFLATION, "Correct every vertex (conflation)", defaultValue=True))
         # optional sinks, created by default in the dialog: qgis_process and models write
         # only those that are given
         for key, label, kind in (
@@ -128,7 +135,9 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
     # ------------------------------------------------------------------ run
     def run_algorithm(self, parameters, context, feedback):
         t0 = time.perf_counter()
-        adj = inputs.run_adjustment(self, parameters, context, feedback, span=70.0)
+        adj = inputs.run_adjustment(
+            self, parameters, context, feedback, span=70.0,
+            conflation=self.parameterAsBoolean(parameters, self.CONFLATION, context))
         out = adj.run
         # true centrelines ([truth]): buffer shares before/after, into the summary
         project_truth_buffer(adj.prj, [out], context, feedback)
@@ -252,6 +261,12 @@ def report_summary(feedback, s):
                               f"{_f(r['rmse_horizontal'])} m")
     if s.get("mean_ce90") is not None:
         feedback.pushInfo(f"mean CE90 {_f(s['mean_ce90'])} m, mean LE90 {_f(s['mean_le90'])} m")
+    for e in (s.get("conflation") or {}).get("databases", []):
+        n = e.get("vertices") or {}
+        feedback.pushInfo(f"conflation of {e['name']} ({e['status']}): "
+                          + ", ".join(f"{n.get(k, 0)} {k}" for k in
+                                      ("measured", "interpolated", "extrapolated", "unchanged"))
+                          + " vertices")
 
 
 def _f(v, nd=3):

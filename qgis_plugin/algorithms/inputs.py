@@ -751,13 +751,14 @@ class Adjusted:
 
 
 def run_adjustment(alg, parameters, context, feedback, *, road_optional=False, start=10.0,
-                   span=75.0):
+                   span=75.0, conflation: Optional[bool] = None):
     """Read the road layer (if any) and the project, and run the adjustment.
 
     With a road layer, that database is adjusted (``pipeline.run(data,
     vectors=[name])``) with every other ``[[vectors]]`` entry of the project read
     too; without one (``road_optional``), every ``[[vectors]]`` entry is adjusted
-    together (as ``vectoradjust qa PROJECT`` / ``equal-error`` do).
+    together (as ``vectoradjust qa PROJECT`` / ``equal-error`` do). ``conflation``
+    (not None) replaces the project's ``[conflation] enabled``.
 
     Returns
     -------
@@ -792,6 +793,10 @@ def run_adjustment(alg, parameters, context, feedback, *, road_optional=False, s
         given.append(road)
     check_cancelled(feedback)
     data = project_data_with(prj, given, context, feedback)
+    if conflation is not None:
+        from dataclasses import replace
+
+        data = replace(data, conflation={**(data.conflation or {}), "enabled": bool(conflation)})
     feedback.setProgress(start)
     out = run_pipeline(data, vectors=[road.spec.name] if road is not None else None,
                        progress=progress_callback(feedback, start, span),

@@ -592,3 +592,33 @@ def test_adjust_with_identification_sigma_and_offset_from_the_dialog(qgis_app, s
     assert b["identification_sigma"] == [2.0, 0.0]
     assert b["offset"]["axes"] == ["X", "Y"] and "of the images" in b["offset"]["statement"]
     assert b["mean_ce90"] > a["mean_ce90"] + 2.0
+
+
+def test_adjust_conflation_switch_defaults_on_and_the_log_counts_the_vertices(qgis_app, sample,
+                                                                             tmp_path):
+    """'Correct every vertex (conflation)': on in the dialog (the project's [conflation]
+    enabled is replaced by it); off keeps the unmeasured vertices at their database
+    position. The log gives the vertices per Source."""
+    import json
+
+    from qgis.core import QgsApplication, QgsProcessingFeedback
+
+    alg = QgsApplication.processingRegistry().algorithmById("vectoradjust:adjustroadvectors")
+    assert alg.parameterDefinition("CONFLATION").defaultValue() is True
+    on, off = tmp_path / "on.json", tmp_path / "off.json"
+    fb = QgsProcessingFeedback()
+    run("adjustroadvectors", adjust_params(sample, SUMMARY=str(on)), feedback=fb)
+    res = run("adjustroadvectors", adjust_params(sample, SUMMARY=str(off), CONFLATION=False))
+    a = json.loads(on.read_text())["conflation"]
+    b = json.loads(off.read_text())["conflation"]
+    assert a["enabled"] is True and b["enabled"] is False
+    n = a["databases"][0]["vertices"]
+    assert n["interpolated"] + n["extrapolated"] > 0
+    assert (f"{n['measured']} measured, {n['interpolated']} interpolated, "
+            f"{n['extrapolated']} extrapolated, {n['unchanged']} unchanged vertices"
+            in fb.textLog())
+    m = b["databases"][0]["vertices"]
+    assert m["interpolated"] == m["extrapolated"] == 0 and m["unchanged"] > 0
+    c = columns(res["SHAPE_POINTS"])
+    src = np.array(c["Source"], dtype=object)[np.array(c["Adjusted"]) == 0]
+    assert src.size > 0 and set(src) == {"unchanged"}

@@ -10,15 +10,20 @@ every other vertex
 
 with the trend ``t`` the database's estimated systematic offset (``-G(x) T``,
 :mod:`vectoradjust.adjust.offsets`; a constant mean for axes the offset model does not
-cover), ``C(r)`` a covariance function (exponential or Gaussian) fitted to the empirical
-semivariogram of the measured residuals ``d_m - t_m`` (Cressie's weights), and
-``N = diag(n_db + D_i)`` the white noise: the database's own random error ``n_db``
-(the fitted nugget less the known noise) plus the measured point's variance ``D_i``
-(the images' share of its covariance plus the identification variance). The measured
+cover, applied only where it is significant), ``C(r)`` a covariance function
+(exponential or Gaussian) and ``N = diag(n_db + D_i)`` the white noise: the database's
+own random error ``n_db`` plus the measured point's variance ``D_i`` (the images' share
+of its covariance plus the identification variance). ``C0``, ``L`` and ``n_db`` are the
+parameters whose leave-one-out predictions of the measured points score best (the
+negative log predictive density, a proper scoring rule, :func:`fit_covariance`); the
+semivariogram's least-squares fit gives the start; ``n_db`` is then taken as its mean
+given the data (flat prior, :func:`_nugget_posterior_mean`). The measured
 displacement is taken as the images see it (:func:`image_only`): the adjusted shape
 point is pulled towards the database by its prior, which would shrink the field.
 The variance of the real vertex's position error is
-``C(0) - c_xm (C_mm + N)^-1 c_mx + n_db + Var(t(x))``.
+``C(0) - c_xm (C_mm + N)^-1 c_mx + n_db + Var(t(x))`` (the unmeasured vertex carries
+its own database noise ``n_db``; the trend's variance from the joint covariance of the
+adjusted points, :func:`_mean_variance`).
 
 Only the ``k`` nearest measured points enter each prediction (a KD-tree; the ``k x k``
 systems are solved batch-wise with :func:`numpy.linalg.solve`), so the cost is linear
@@ -49,7 +54,7 @@ CONFLATION_KEYS = ("enabled", "k", "max_distance", "model", "min_points")
 CE90_CIRCULAR = float(np.sqrt(-2.0 * np.log(0.1)))
 #: LE90 / sigma of a normal error, Phi^-1(0.95)
 LE90 = 1.6448536269514722
-_MODELS = ("exponential", "gaussian")
+_MODELS = ("auto", "exponential", "gaussian")
 
 
 @dataclass
@@ -66,7 +71,8 @@ class ConflationSettings:
         A vertex farther than this (m) from every measured point is ``extrapolated``,
         nearer ``interpolated``; 0 (default): the fitted covariance's practical range.
     model : str
-        ``"exponential"`` (``C0 exp(-r/L)``) or ``"gaussian"`` (``C0 exp(-(r/L)^2)``).
+        ``"exponential"`` (``C0 exp(-r/L)``), ``"gaussian"`` (``C0 exp(-(r/L)^2)``) or
+        ``"auto"`` (default: both fitted, the better leave-one-out score kept).
     min_points : int
         Fewest measured points a database needs for its field (fewer: ``unchanged``).
     """
@@ -74,7 +80,7 @@ class ConflationSettings:
     enabled: bool = True
     k: int = 12
     max_distance: float = 0.0
-    model: str = "exponential"
+    model: str = "auto"
     min_points: int = 5
 
 
@@ -133,8 +139,8 @@ class CovarianceModel:
     length : float
         ``L`` (m).
     nugget : float
-        White database noise ``n_db`` (m^2) in the kriging system: the fitted nugget
-        less the measured points' mean known noise.
+        White database noise ``n_db`` (m^2) in the kriging system and in every
+        predicted vertex's variance (:func:`fit_covariance`).
     known_noise : float
         Mean variance of the measured points (adjustment + identification), m^2.
     fit : dict
@@ -214,8 +220,22 @@ def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
 
 
 def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
-                   kind: str = "exponential") -> CovarianceModel:
-    """Fit ``gamma(h) = nugget + C0 (1 - rho(h / L))`` to the empirical semivariogram.
+                   kind: str = "auto", k: int = 12, max_targets: int = 1000) -> CovarianceModel:
+    """Fit the covariance function and the database's white noise to the residuals.
+
+    Two steps. (1) Weighted least squares on the empirical semivariogram,
+    ``gamma(h) = nugget + C0 (1 - rho(h / L))`` with the nugget at least the mean known
+    noise (start values, and the figures reported). (2) The parameters ``(n_db, C0, L)``
+    that minimise the leave-one-out negative log predictive density of the measured
+    points (:func:`_loo_score`; each held out point predicted from its ``k`` nearest
+    others, exactly as a vertex is predicted, its known noise ``known_noise`` entering its
+    own variance): a proper scoring rule, so the predicted variances are calibrated on
+    the data rather than on a curve fit that cannot tell the database's white noise from
+    a steep rise of the semivariogram at the shortest lags. With ``kind = "auto"`` both
+    functions are fitted and the one with the better score is kept. The optimiser's
+    result is polished on a fixed lattice (:func:`_lattice_min`) so that QGIS's numpy
+    gives the same model; ``n_db`` is then replaced by its mean given the data
+    (:func:`_nugget_posterior_mean`).
 
     Parameters
     ----------
@@ -226,27 +246,49 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     known_noise : numpy.ndarray, shape (n,)
         Each point's known noise variance per component (m^2).
     kind : str
-        ``"exponential"`` or ``"gaussian"``.
+        ``"exponential"``, ``"gaussian"`` or ``"auto"``.
+    k : int
+        Neighbours per leave-one-out prediction (the ``[conflation] k``).
+    max_targets : int
+        The score is summed over at most this many held-out points (a random subset;
+        all points serve as neighbours).
 
     Returns
     -------
     CovarianceModel
-        Weighted least squares (weights: square root of the pairs per bin) with the
-        nugget at least the mean known noise and sill, length >= 0;
-        without enough pairs a pure nugget model (no correlated signal).
+        Without enough pairs for a semivariogram a pure nugget model (no correlated
+        signal). ``fit`` holds the semivariogram, its least-squares fit and the score.
     """
-    noise = float(np.mean(known_noise)) if len(known_noise) else 0.0
+    noise_pt = np.asarray(known_noise, float)
+    noise = float(np.mean(noise_pt)) if len(noise_pt) else 0.0
     total = float(np.mean(resid ** 2)) if resid.size else 0.0
     lag, gam, cnt = empirical_semivariogram(xy, resid)
     fit = {"lags": lag.tolist(), "semivariance": gam.tolist(), "pairs": cnt.astype(int).tolist()}
-    if lag.size < 4:
-        return CovarianceModel(kind, 0.0, 0.0, max(total - noise, 0.0), noise,
+    if lag.size < 4 or len(xy) < 4:
+        return CovarianceModel(kind if kind in ("exponential", "gaussian") else "exponential",
+                               0.0, 0.0, max(total - noise, 0.0), noise,
                                {**fit, "status": "too few pairs: white noise only"})
     # the measured points' own noise is part of the nugget: it cannot be smaller
     floor = min(noise, 0.999 * float(gam.max()))
-    nug, sill, length = _fit_grid(lag, gam, cnt, kind, floor)
-    return CovarianceModel(kind, sill, length, max(nug - noise, 0.0), noise,
-                           {**fit, "status": "fitted", "fitted_nugget": nug})
+    setup = _loo_setup(xy, k, max_targets)
+    scale = max(total, float(gam.max()), 1e-12)
+    best = None
+    for kd in (("exponential", "gaussian") if kind == "auto" else (kind,)):
+        nug, sill, length = _fit_grid(lag, gam, cnt, kd, floor)
+        start = (max(nug - noise, 0.05 * scale), max(sill, 0.05 * scale),
+                 length if sill > 0 else float(np.median(lag)))
+        theta, score = _fit_loo(kd, setup, resid, noise_pt, start, scale, lag)
+        wls = {"nugget": nug, "sill": sill, "length": length}
+        if best is None or score < best[2]:
+            best = (kd, theta, score, wls)
+    kd, theta, score, wls = best
+    white = _fit_white(setup, resid, noise_pt, scale)
+    nug = _nugget_posterior_mean(theta, kd, setup, resid, noise_pt)
+    return CovarianceModel(kd, float(theta[1]), float(theta[2]), nug, noise,
+                           {**fit, "status": "fitted", "fitted_nugget": wls["nugget"],
+                            "semivariogram_fit": wls, "loo_score": score,
+                            "loo_score_white": white[1], "nugget_best": float(theta[0]),
+                            "loo_targets": int(len(setup[0]))})
 
 
 def _nonneg_pair(f: np.ndarray, g: np.ndarray, w: np.ndarray):
@@ -301,6 +343,158 @@ def _neighbours(tree, xy: np.ndarray, k: int, skip_self: bool):
     if skip_self:
         return dist[:, 1:], idx[:, 1:]
     return dist, idx
+
+
+def _loo_setup(xy: np.ndarray, k: int, max_targets: int, seed: int = 0):
+    """Targets (a random subset of at most ``max_targets`` points), their ``k`` nearest
+    other points (all points serve as neighbours) and the distances: fixed while the
+    parameters of :func:`_loo_score` change."""
+    from scipy.spatial import cKDTree
+
+    n = len(xy)
+    tgt = np.arange(n)
+    if n > max_targets:
+        tgt = np.sort(np.random.default_rng(seed).choice(n, max_targets, replace=False))
+    k = int(min(k, n - 1))
+    dist, idx = _neighbours(cKDTree(xy), xy[tgt], k, skip_self=True)
+    px, py = xy[idx, 0], xy[idx, 1]
+    dd = np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :])
+    return tgt, dist, idx, dd
+
+
+def _loo_score(theta, kind: str, setup, resid: np.ndarray, noise: np.ndarray) -> float:
+    """Negative leave-one-out log predictive density (per component, constants dropped)
+    of ``theta = (nugget_db, sill, length)``: ``sum log s2 + e^2 / s2`` with ``e`` the
+    held-out point's error and ``s2`` its predicted variance (kriging variance + database
+    noise + the point's own noise)."""
+    tgt, dist, idx, dd = setup
+    cov = CovarianceModel(kind, theta[1], theta[2], theta[0])
+    diag = np.arange(idx.shape[1])
+    a = cov(dd)
+    a[:, diag, diag] += cov.nugget + noise[idx]
+    c = cov(dist)
+    try:
+        w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:  # a singular system: no admissible parameters
+        return float("inf")
+    e = resid[tgt] - np.einsum("bk,bkc->bc", w, resid[idx])
+    s2 = np.maximum(cov.sill - np.einsum("bk,bk->b", w, c), 0.0) + cov.nugget + noise[tgt]
+    if not np.all(s2 > 0):  # a perfect prediction claimed: not admissible
+        return float("inf")
+    return float(np.sum(resid.shape[1] * np.log(s2) + (e ** 2).sum(axis=1) / s2))
+
+
+def _fit_loo(kind: str, setup, resid, noise, start, scale: float, lags):
+    """``(nugget_db, sill, length), score`` minimising :func:`_loo_score` (bounded
+    Nelder-Mead on the logarithms, from ``start``).
+
+    Nugget and sill lie between ``1e-6 scale`` and ``2 scale`` (``scale``: the larger of
+    the residuals' mean square and the largest semivariance), the length between a
+    tenth of the shortest and twice the longest lag of the semivariogram. Predictions
+    from the nearest points see the field near the origin only (for the exponential
+    function ``C0 / L``): sill and length are not told apart beyond the data's extent,
+    and without these bounds a field could grow a sill and a range it never showed.
+    """
+    from scipy.optimize import minimize
+
+    floor = 1e-6 * scale
+    bounds = [(np.log(floor), np.log(2 * scale))] * 2 + [
+        (np.log(lags[0] / 10.0), np.log(lags[-1] * 2.0))]
+    x0 = np.clip(np.log(np.maximum(np.asarray(start, float), floor)),
+                 [b[0] for b in bounds], [b[1] for b in bounds])
+
+    def f(x):
+        return _loo_score(np.exp(x), kind, setup, resid, noise)
+
+    r = minimize(f, x0, method="Nelder-Mead", bounds=bounds,
+                 options={"xatol": 1e-2, "fatol": 1e-3, "maxiter": 400})
+    x, fx = _lattice_min(f, r.x, np.array([b[0] for b in bounds]),
+                         np.array([b[1] for b in bounds]))
+    theta = np.exp(x)
+    theta[:2] = np.where(theta[:2] <= 10 * floor, 0.0, theta[:2])
+    if theta[1] == 0.0:  # no signal: the length means nothing (a plateau); white noise
+        theta[2] = 0.0
+        fx = _loo_score(theta, kind, setup, resid, noise)
+    return theta, fx
+
+
+def _lattice_min(f, x, lo, hi, step: float = 0.05, max_moves: int = 200):
+    """Polish a minimum on the fixed lattice ``step * Z^3`` (logarithms: 5 %).
+
+    The optimiser's path depends on the last bits of its sums, which differ between
+    numpy builds (QGIS's and the command line's); ending on a lattice local minimum
+    (best of the 26 neighbours, moves only for a real decrease) gives both the same
+    parameters.
+    """
+    lo_i, hi_i = np.ceil(lo / step - 1e-9), np.floor(hi / step + 1e-9)
+    cur = np.clip(np.round(np.asarray(x) / step), lo_i, hi_i)
+    seen: dict = {}
+
+    def val(i):
+        key = tuple(int(v) for v in i)
+        if key not in seen:
+            seen[key] = f(np.asarray(i, float) * step)
+        return seen[key]
+
+    moves = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)
+                      if (a, b, c) != (0, 0, 0)], float)
+    best = val(cur)
+    for _ in range(max_moves):
+        cand = [np.clip(cur + m, lo_i, hi_i) for m in moves]
+        vals = [val(c) for c in cand]
+        j = int(np.argmin(vals))
+        if not vals[j] < best - 1e-9 * max(abs(best), 1.0):
+            break
+        cur, best = cand[j], vals[j]
+    return cur * step, float(best)
+
+
+def _fit_white(setup, resid, noise, scale: float):
+    """The white-noise-only model (no signal): ``n_db`` minimising :func:`_loo_score`
+    on a fine logarithmic grid (one parameter) and its score."""
+    grid = np.geomspace(1e-6 * scale, 10 * scale, 400)
+    tgt = setup[0]
+    r2 = (resid[tgt] ** 2).sum(axis=1)
+    s2 = grid[:, None] + noise[tgt][None, :]
+    sc = np.sum(resid.shape[1] * np.log(s2) + r2[None, :] / s2, axis=1)
+    i = int(np.argmin(sc))
+    return float(grid[i]), float(sc[i])
+
+
+def _nugget_posterior_mean(theta, kind: str, setup, resid, noise, n_grid: int = 41) -> float:
+    """The database's white noise ``n_db`` as its mean given the data, not its best fit.
+
+    ``n_db`` is the difference of two similar variances (the held-out points' scatter
+    and their known noise); its best fit is often 0 (the boundary) where the truth is a
+    few cm^2, and a vertex's variance built on it is too small. With a flat prior on
+    ``n_db >= 0`` and the leave-one-out likelihood ``exp(-score / 2)`` (the signal's
+    parameters fixed at their fit), the mean of ``n_db`` is the variance a prediction
+    should carry for it. The grid runs from 0 to where the likelihood has fallen by
+    ``e^-10`` (found on two coarse grids), ``n_grid`` values.
+    """
+    tgt = setup[0]
+
+    def scores(grid):
+        return np.array([_loo_score((g, theta[1], theta[2]), kind, setup, resid, noise)
+                         for g in grid])
+
+    hi = float(theta[0]) + max(float(np.mean((resid[tgt] ** 2).sum(axis=1)
+                                             / resid.shape[1])), 1e-12)
+    for _ in range(2):  # narrow the range to where the likelihood is
+        grid = np.linspace(0.0, hi, 21)
+        sc = scores(grid)
+        if not np.isfinite(sc).any():
+            return float(theta[0])
+        i = int(np.nanargmin(sc))
+        above = np.flatnonzero((sc - sc[i] > 20.0) & (np.arange(21) > i))
+        if not above.size:
+            break
+        hi = float(grid[above[0]])
+    grid = np.linspace(0.0, hi, n_grid)
+    sc = scores(grid)
+    w = np.exp(-(sc - np.nanmin(sc)) / 2.0)
+    w[~np.isfinite(w)] = 0.0
+    return float(np.sum(w * grid) / np.sum(w))
 
 
 def _solve_chunk(models: list, xy_m, dist, idx) -> list:
@@ -434,16 +628,19 @@ def _cv_stats(cov: CovarianceModel, resid, noise, pred, var, factor: float) -> d
 
 
 # --------------------------------------------------------------------------- a run
-def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.ndarray):
+def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.ndarray,
+           mean_var: Optional[np.ndarray] = None):
     """Trend ``t`` (n, 3) and its covariance (n, 3, 3) at every object point.
 
     ``-G(x) T`` of the estimated offset (database minus images, so the displacement is
     its negative); axes the offset model does not cover get the measured points' mean
-    where it differs significantly from zero (else zero), with the larger of its
-    variance over their number and ``common`` (3,), the
-    adjusted points' mean variance: the points share the errors of the exterior
-    orientation (a common height error of a stereo model), which do not average out,
-    and a predicted vertex is not more certain in them than a measured one.
+    ``m`` where it differs from zero by more than 1.96 times the larger of its scatter's
+    standard error and ``sqrt(common)`` (3,), the adjusted points' mean variance: a
+    common height error of a stereo model, larger than its covariance says when the
+    adjustment is strained, must not move good database heights (DEM heights). Its
+    variance is ``mean_var`` (3,; default ``common``), the variance of the points' mean
+    (:func:`_mean_variance`), at least the scatter's; where the mean is not applied, the
+    vertex keeps an error of about ``m``, so its variance is ``m^2 + mean_var``.
     """
     from vectoradjust.adjust.offsets import _kind_design
 
@@ -458,14 +655,16 @@ def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.n
         t = -np.einsum("niq,q->ni", g, vals)
         tcov = np.einsum("niq,qr,njr->nij", g, c_t, g)
         covered = np.abs(g).sum(axis=(0, 2)) > 0
+    mean_var = common if mean_var is None else mean_var
     for a in np.flatnonzero(~covered):
         col = dm[:, a][np.isfinite(dm[:, a])]
         if col.size:
-            var = max(col.var() / col.size, float(common[a]))
-            # only a mean the images tell from zero (z > 1.96) moves the vertices: a
-            # common error of the adjusted heights must not spoil the database's heights
-            t[:, a] = col.mean() if abs(col.mean()) > 1.96 * np.sqrt(var) else 0.0
-            tcov[:, a, a] = var
+            m, scatter = float(col.mean()), col.var() / col.size
+            var = max(scatter, float(mean_var[a]))
+            if abs(m) > 1.96 * np.sqrt(max(scatter, float(common[a]))):
+                t[:, a], tcov[:, a, a] = m, var
+            else:
+                t[:, a], tcov[:, a, a] = 0.0, m * m + var
     return t, tcov, covered
 
 
@@ -491,7 +690,7 @@ def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel):
               (resid[:, 2:], noise[:, 2], LE90)]
     n_u = len(xy_u)
     oks = [np.isfinite(r).all(axis=1) for r, _, _ in groups]
-    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model)
+    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model, s.k)
             if ok.sum() >= s.min_points else None for ok, (r, nz, _) in zip(oks, groups)]
     live = [i for i, c in enumerate(covs) if c is not None]
     fields = [_Field(np.full((n_u, r.shape[1]), np.nan), np.full(n_u, np.nan),
@@ -647,6 +846,38 @@ def _image_scale(out) -> float:
     return max(float(f), 1.0) if f is not None and np.isfinite(f) else float("nan")
 
 
+def _mean_variance(result, pts: np.ndarray) -> np.ndarray:
+    """Variance per axis (3,) of the mean of the adjusted points ``pts``.
+
+    ``1' C 1 / p^2`` of their joint covariance ``s0^2 [D + Z S^-1 Z' + (QB) Q_TT (QB)']``
+    (:meth:`BundleResult.joint_covariance`) without forming it: the sums of the
+    per-point blocks ``D``, of the rows ``Z_j`` and of ``(QB)_j`` are enough. The errors
+    the points share (the orientation, the offsets) count in full, each point's own
+    error (its intersection) by ``1/p``. Without the factorisation: the mean of the
+    points' variances (every error taken as shared, an upper bound).
+    """
+    pts = np.unique(np.asarray(pts, np.int64))
+    if not len(pts):
+        return np.zeros(3)
+    if any(getattr(result, a, None) is None for a in ("s_inv", "npp_inv", "nep_obs")):
+        return np.nanmean(np.einsum("nii->ni", result.point_cov[pts]), axis=0)
+    prob = result.problem
+    n, p = prob.n_images, len(pts)
+    inset = np.zeros(prob.n_points, bool)
+    inset[pts] = True
+    sel = np.flatnonzero(inset[prob.obs_point])
+    contrib = np.einsum("kab,kcb->kac", result.npp_inv[prob.obs_point[sel]],
+                        result.nep_obs[sel])  # (s, 3, 6): N_pp^-1 N_pe per observation
+    z = np.zeros((n, 3, 6))
+    np.add.at(z, prob.obs_image[sel], contrib)
+    z = np.transpose(z, (1, 0, 2)).reshape(3, 6 * n)
+    total = result.npp_inv[pts].sum(axis=0) + z @ result.s_inv @ z.T
+    if result.offset_cofactor is not None:
+        qb = result.offset_qb[pts].sum(axis=0)
+        total = total + qb @ result.offset_cofactor @ qb.T
+    return result.variance_factor * np.diagonal(total).copy() / p ** 2
+
+
 def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     """Displacement, covariance and nearest distance of the unmeasured object points."""
     db = d.shape.object_xyz
@@ -655,8 +886,10 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     dm = x_img - db[m_obj]
     noise = photo + d.spec.identification_variance
     common = np.nanmean(np.einsum("nii->ni", out.result.point_cov[obj_pt[m_obj]]), axis=0)
-    t, tcov, covered = _trend(rec, db, dm, common)
-    resid = dm - t[m_obj]
+    t, tcov, covered = _trend(rec, db, dm, common, _mean_variance(out.result, obj_pt[m_obj]))
+    # the field models the deviations from the mean; a mean not applied (above) must
+    # not come back through a long-range field
+    resid = dm - t[m_obj] - np.where(covered, 0.0, np.nanmean(dm - t[m_obj], axis=0))
     xy_m, xy_u = db[m_obj, :2], db[u_obj, :2]
     fh, fv = _fields(xy_m, resid, noise, xy_u, s, report, cancel)
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
@@ -766,6 +999,10 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
     n_meas = int((obj_pt >= 0).sum())
     source = np.where(meas_v, "measured", "unchanged").astype(object)
     entry: dict = {"name": d.name, "measured_points": n_meas}
+    scope = np.asarray(d.features.get("LengthSDOf", []), object)
+    entry["length_sd"] = {
+        "covers": "measured vertices; the others count as fixed (features: LengthSDOf)",
+        "features_with_unmeasured_vertices": int((scope == "measured vertices").sum())}
     if not s.enabled or n_meas < s.min_points or meas_v.all():
         d.vertices["Source"] = source
         entry["status"] = ("disabled" if not s.enabled else "nothing to predict"

@@ -318,6 +318,19 @@ def _feature_problems(d: DatabaseResult, adj: np.ndarray) -> np.ndarray:
     return txt
 
 
+def length_sd_scope(npts: np.ndarray, nadj: np.ndarray) -> np.ndarray:
+    """The ``LengthSDOf`` field: which vertices ``LengthSD`` / ``LengthSDnc`` account for.
+
+    ``"all vertices"`` when every vertex of the feature was measured; ``"measured
+    vertices"`` when some were not: they count as fixed (their conflated position's
+    uncertainty, correlated from vertex to vertex, is not in the sigma), so the sigma is
+    a lower bound; ``""`` without a measured vertex (no sigma).
+    """
+    npts, nadj = np.asarray(npts), np.asarray(nadj)
+    return np.where(nadj <= 0, "", np.where(nadj >= npts, "all vertices",
+                                            "measured vertices")).astype(object)
+
+
 def tabulate_database(out: AdjustmentRun, d: DatabaseResult) -> None:
     """Fill ``d.vertices``, ``d.features``, ``d.adjusted_coords`` and ``d.truth``.
 
@@ -339,5 +352,6 @@ def tabulate_database(out: AdjustmentRun, d: DatabaseResult) -> None:
         "RMSE_X": rm[:, 0], "RMSE_Y": rm[:, 1], "RMSE_Z": rm[:, 2],
         "RMSE": np.sqrt(rm[:, 0] ** 2 + rm[:, 1] ** 2), **geometry,
         "Images": images, "ImgDate": dates, "Problem": problem_txt,
+        "LengthSDOf": length_sd_scope(npts, nadj),
     }
     d.truth = _truth_comparison(out, d, adj, v, ce, le, meas_v)

@@ -33,7 +33,7 @@ SHAPE_FIELDS = ["point_id", "feature_id", "X", "Y", "Z", "Vx", "Vy", "Vz", "AdjX
                 "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "CE90_meas", "LE90_meas",
                 "NImages", "Adjusted", "Database", "Source"]
 FEATURE_FIELDS = ["NPts", "NAdj", "RMSE_X", "RMSE_Y", "RMSE_Z", "RMSE", "Length", "LengthSD",
-                  "LengthSDnc", "FirstX",
+                  "LengthSDnc", "LengthSDOf", "FirstX",
                   "FirstY", "LastX", "LastY", "Images", "ImgDate", "Database", "Problem"]
 CONTROL_FIELDS = ["point_id", "role", "X", "Y", "Z", "AdjX", "AdjY", "AdjZ", "Vx", "Vy", "Vz",
                   "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "NImages", "Used"]

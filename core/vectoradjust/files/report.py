@@ -1617,7 +1617,7 @@ def _conflation_rows(c: dict) -> list:
         cv = ((e.get("cross_validation") or {}).get("horizontal")) or {}
         tr = e.get("truth") or {}
         model = (f"{cov['model']}: C0 {cov['sill']:.3g} m\u00b2, L {cov['length']:.0f} m, "
-                 f"nugget {cov['nugget']:.3g} m\u00b2" if cov else "-")
+                 f"database noise {cov['nugget']:.3g} m\u00b2" if cov else "-")
         truth = (f"{tr['rmse_database_truth_horizontal']:.2f} \u2192 "
                  f"{tr['rmse_conflated_truth_horizontal']:.2f} m, CE90 covers "
                  f"{tr['share_within_ce90']:.0%}" if tr else "-")
@@ -1641,7 +1641,10 @@ def _conflation_body(run) -> str:
         "offset plus the displacement field predicted by least-squares collocation from "
         f"its {c.get('k')} nearest measured points ([conflation], DESIGN section 10). "
         "LOO: each measured point predicted from the others (horizontal RMSE of the "
-        "held-out displacement and the share inside its predicted 90 % radius)."))
+        "held-out displacement and the share inside its predicted 90 % radius); the "
+        "covariance function and the database's own white noise are those whose held-out "
+        "predictions score best. The features' LengthSD counts the predicted vertices as "
+        "fixed (LengthSDOf)."))
     parts.append(_img(conflation_figure(run), "conflation field",
                       "Displacement (adjusted \u2212 database) at measured and predicted "
                       "points over the CE90 of the predicted position."))

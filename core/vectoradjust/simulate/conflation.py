@@ -46,6 +46,7 @@ def conflation_scenario(seed: int = 1, *, bias=(3.0, -2.0), amplitude: float = 2
                         length: float = 150.0, noise: float = 0.3,
                         measured_fraction: float = 0.3, true_roads=None,
                         spacing: float = 20.0, identification_sigma=(0.3, 0.1),
+                        stated_sigma: float | None = None,
                         conflation: dict | None = None) -> ProjectData:
     """Project data of one database ``OSM`` with a smooth error field, partly measured.
 
@@ -68,6 +69,13 @@ def conflation_scenario(seed: int = 1, *, bias=(3.0, -2.0), amplitude: float = 2
     identification_sigma : (float, float)
         The analyst's pointing error (horizontal, used as the scenario's
         ``pointing_sigma``) and the stated identification sigma.
+    stated_sigma : float, optional
+        The database's stated horizontal sigma (its prior in the adjustment). Default:
+        its real error once the shift is removed, ``hypot(amplitude, noise)``. Stating
+        only the white ``noise`` while a 2 m field is present strains the adjustment
+        (sigma0^2 of 7-12 on Helsinki): the database's priors bend the orientation, the
+        images' positions then err by more than their covariance says, and smoothly, so
+        that no cross-validation can see it.
     conflation : dict, optional
         The ``[conflation]`` table.
 
@@ -97,7 +105,8 @@ def conflation_scenario(seed: int = 1, *, bias=(3.0, -2.0), amplitude: float = 2
     meas = replace(meas, point_id=meas.point_id[keep], image_id=meas.image_id[keep],
                    xy=meas.xy[keep], sigma=meas.sigma[keep],
                    rows=None if meas.rows is None else meas.rows[keep])
-    spec = replace(spec, sigma=(max(noise, 0.1), max(noise, 0.1), 3.0), offset="shift",
+    st = float(np.hypot(amplitude, max(noise, 0.1)) if stated_sigma is None else stated_sigma)
+    spec = replace(spec, sigma=(st, st, 3.0), offset="shift",
                    identification_sigma=tuple(identification_sigma))
     return replace(data, vectors=[(spec, replace(layer, coords=coords))], measurements=meas,
                    conflation=conflation)
