@@ -168,9 +168,9 @@ def cross_covariance(result: BundleResult, pa, pb) -> np.ndarray:
         ka = idx.order[idx.starts[pa[entry]] + ia]
         kb = idx.order[idx.starts[pb[entry]] + ib]
         blk = sinv[prob.obs_image[ka], :, prob.obs_image[kb], :]  # (T, 6, 6)
-        t = np.einsum("tia,tij,tjb->tab", result.nep_obs[ka], blk, result.nep_obs[kb])
+        t = np.matmul(np.swapaxes(result.nep_obs[ka], 1, 2), blk) @ result.nep_obs[kb]
         acc[lo:hi] = _block_sum(entry - lo, t, hi - lo)
-    cov = np.einsum("mij,mjk,mkl->mil", result.npp_inv[pa], acc, result.npp_inv[pb])
+    cov = result.npp_inv[pa] @ acc @ result.npp_inv[pb]
     same = pa == pb
     cov[same] += result.npp_inv[pa[same]]
     cov += result.offset_cross(pa, pb)  # database offsets (zero without)
@@ -302,7 +302,7 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult,
 
 
 # ------------------------------------------------------------------------------ G-band
-_BAND_BUDGET = 2_000_000  # elements of the largest (chunk, P, P K) temporaries of a chunk
+_BAND_BUDGET = 500_000  # elements of the largest (chunk, P, P K) temporaries (~1000 rows)
 
 
 def _upper_envelope(cu: np.ndarray, slope: np.ndarray, icpt: np.ndarray):
@@ -387,67 +387,96 @@ def _drop_collinear(u: np.ndarray, w: np.ndarray, valid: np.ndarray,
     return keep
 
 
-def _tangent_normals(tl: np.ndarray, ql: np.ndarray, k: float, du: float) -> np.ndarray:
+def _tangent_normals(tl: np.ndarray, ql: np.ndarray, k: float, du: float):
     """Normal directions of the common tangents of consecutive ellipses (both sides).
 
-    The support functions ``h_j(theta) = tl_j cos(theta) + k sqrt(d' Q_j d)`` of the
-    ellipses ``j`` and ``j + 1`` are equal at the normal of their common tangent; it is
-    searched within ``centre +- du`` (one uniform direction step) around ``centre = pi/2``
-    (left side) and ``3 pi/2`` (right side): 8 bisection steps, then 4 steps of the
-    secant through the bracket (regula falsi; ``g`` is smooth, so the root is then known
-    to ~1e-12 rad). Where there is no sign change (one ellipse reaches farther on the whole
-    interval) or the root is within ``1e-6`` of a uniform direction, ``centre + du / 2``
-    is returned. Any direction keeps the circumscribed polygon valid (an outer bound):
-    the precision only makes the polygon follow the band's straight side.
+    The support functions ``h_j(d) = tl_j d_u + k sqrt(d' Q_j d)`` of the ellipses ``j``
+    and ``j + 1`` are equal at the normal ``d`` of their common tangent. It is searched
+    within one uniform direction step ``du`` of the left normal ``(0, 1)`` and of the right
+    normal ``(0, -1)``, as ``d = (-s, 1)`` and ``(s, -1)`` with ``|s| <= tan(du)`` (the
+    support function is positively homogeneous, so the sign of ``h_j - h_j+1`` does not
+    depend on the length of ``d``; no trigonometric function in the loop): 6 bisection
+    steps, then 4 steps of regula falsi (the function is smooth: the direction is then
+    known to ~1e-9 rad). Where there is no sign change (one ellipse reaches farther on the
+    whole interval) or the root is within ``1e-6`` rad of a uniform direction, the
+    direction half a step past the normal is taken. Any direction keeps the circumscribed
+    polygon valid (an outer bound): the precision only makes it follow the band's side.
 
     ``tl``: (m, P+1) centres; ``ql``: (m, P+1, 2, 2) local covariances.
-    Returns (m, P, 2): left and right side.
+    Returns ``(cos, sin, phi)`` (m, P, 2) of the left and right tangent normals and their
+    angle ``phi`` from ``(0, 1)`` resp. ``(0, -1)``, in ``(-du, du)``.
     """
     q00, q01, q11 = ql[..., 0, 0, None], ql[..., 0, 1, None], ql[..., 1, 1, None]
-    dt = (tl[:, :-1] - tl[:, 1:])[..., None]
-    centre = np.array([0.5 * np.pi, 1.5 * np.pi])
+    dt = (tl[:, :-1] - tl[:, 1:])[..., None] * np.array([-1.0, 1.0])
 
-    def g(th):
-        c, s = np.cos(th), np.sin(th)
-        cc, cs2, ss = c * c, 2.0 * c * s, s * s
-        v0 = cc * q00[:, :-1] + cs2 * q01[:, :-1] + ss * q11[:, :-1]  # d' Q_j d
-        v1 = cc * q00[:, 1:] + cs2 * q01[:, 1:] + ss * q11[:, 1:]  # d' Q_j+1 d
-        return dt * c + k * (np.sqrt(np.clip(v0, 0.0, None)) - np.sqrt(np.clip(v1, 0.0, None)))
+    def g(s):
+        ss, s2 = s * s, 2.0 * s
+        v0 = ss * q00[:, :-1] - s2 * q01[:, :-1] + q11[:, :-1]  # d' Q_j d
+        v1 = ss * q00[:, 1:] - s2 * q01[:, 1:] + q11[:, 1:]  # d' Q_j+1 d
+        return dt * s + k * (np.sqrt(np.clip(v0, 0.0, None)) - np.sqrt(np.clip(v1, 0.0, None)))
 
-    shape = dt.shape[:2] + (2,)
-    lo = np.broadcast_to(centre - du, shape).copy()
-    hi = np.broadcast_to(centre + du, shape).copy()
-    glo = g(lo)
-    ghi = g(hi)
+    smax = np.tan(du)
+    lo, hi = np.full(dt.shape, -smax), np.full(dt.shape, smax)
+    glo, ghi = g(lo), g(hi)
     ok = np.sign(glo) * np.sign(ghi) < 0
-    for _ in range(8):  # bisection: bracket 2 du / 256
+    for _ in range(6):  # bisection: bracket 2 tan(du) / 64
         mid = 0.5 * (lo + hi)
         gm = g(mid)
         left = np.sign(gm) == np.sign(glo)
         lo, glo = np.where(left, mid, lo), np.where(left, gm, glo)
         hi, ghi = np.where(left, hi, mid), np.where(left, ghi, gm)
-    root = 0.5 * (lo + hi)
+    s = 0.5 * (lo + hi)
     for _ in range(4):  # regula falsi within the bracket
         with np.errstate(invalid="ignore", divide="ignore"):
-            x = lo - glo * (hi - lo) / (ghi - glo)
-        x = np.where(np.isfinite(x) & (x >= lo) & (x <= hi), x, 0.5 * (lo + hi))
-        gx = g(x)
-        left = np.sign(gx) == np.sign(glo)
-        lo, glo = np.where(left, x, lo), np.where(left, gx, glo)
-        hi, ghi = np.where(left, hi, x), np.where(left, ghi, gx)
-        root = x
-    near = np.abs(root - np.round(root / du) * du) < 1e-6
-    return np.where(ok & ~near, root, centre + 0.5 * du)
+            s = lo - glo * (hi - lo) / (ghi - glo)
+        s = np.where(np.isfinite(s) & (s >= lo) & (s <= hi), s, 0.5 * (lo + hi))
+        gs = g(s)
+        left = np.sign(gs) == np.sign(glo)
+        lo, glo = np.where(left, s, lo), np.where(left, gs, glo)
+        hi, ghi = np.where(left, hi, s), np.where(left, ghi, gs)
+    phi = np.arctan(s)
+    near = (np.abs(phi) < 1e-6) | (np.abs(phi) > du - 1e-6)
+    use = ok & ~near
+    phi = np.where(use, phi, 0.5 * du)
+    s = np.where(use, s, np.tan(0.5 * du))
+    r = 1.0 / np.sqrt(1.0 + s * s)
+    side = np.array([1.0, -1.0])  # left: (-s, 1), right: (s, -1)
+    return -side * s * r, side * r, phi
+
+
+def _directions(n_directions: int, extra, phi):
+    """Arrange the uniform directions and the tangent normals in ascending angle.
+
+    ``extra``: (cos, sin) of the left and right tangent normals, (m, P, 2) each, at
+    ``pi/2 + phi`` and ``3 pi/2 + phi``; each goes just before or after the uniform
+    direction ``pi/2`` (``3 pi/2``) by the sign of ``phi``. Returns a function that lays
+    out any per-direction quantity ``(uniform (..., M), extra (m, P, 2))`` as
+    (m, P, M + 2) in that order (no sort, no trigonometric function per segment).
+    """
+    a, b = n_directions // 4, 3 * n_directions // 4
+    before = phi < 0  # (m, P, 2)
+
+    def lay(uni, ext):
+        shape = ext.shape[:2] + (n_directions,)
+        u = np.broadcast_to(uni, shape)
+        cols = []
+        for j, c in ((0, a), (1, b)):
+            e, bf = ext[..., j:j + 1], before[..., j:j + 1]
+            cols.append((np.where(bf, e, u[..., c:c + 1]), np.where(bf, u[..., c:c + 1], e)))
+        return np.concatenate([u[..., :a], *cols[0], u[..., a + 1:b], *cols[1], u[..., b + 1:]],
+                              axis=2)
+
+    return lay
 
 
 def _pair_polygons(a, b, c4, k: float, n_pairs: int, n_directions: int):
     """Circumscribed polygons of the pair hulls of many segments, in the segment frame.
 
     Local frame: ``u`` along the segment from ``a``, ``w`` to its left. Returns
-    ``(e_u, theta, hp, vu)``: the unit vector along each segment (m, 2), the polygon's
-    edge normals ``theta`` (m, P, M + 2; ascending from 0, the uniform directions and the
+    ``(e_u, cs, sn, hp, vu)``: the unit vector along each segment (m, 2); the polygon's
+    edge normals ``(cs, sn)`` in ascending angle from 0 (the uniform directions and the
     two tangent normals), the support ``hp`` of the pair hull at each of them and the
-    ``u`` of the vertex between edges ``i`` and ``i + 1`` (both (m, P, M + 2)).
+    ``u`` of the vertex between edges ``i`` and ``i + 1`` (all (m, P, M + 2)).
     """
     delta = b - a
     length = np.hypot(delta[:, 0], delta[:, 1])
@@ -470,36 +499,37 @@ def _pair_polygons(a, b, c4, k: float, n_pairs: int, n_directions: int):
     ql[..., 0, 1] = ql[..., 1, 0] = ex * ey * (qyy - qxx) + (ex * ex - ey * ey) * qxy
     tl = t * length[:, None]  # (m, P+1) centres along the segment
     du = 2.0 * np.pi / n_directions
-    extra = _tangent_normals(tl, ql, k, du)  # (m, P, 2)
-    theta = np.concatenate([np.broadcast_to(du * np.arange(n_directions),
-                                            extra.shape[:2] + (n_directions,)), extra], axis=2)
-    theta.sort(axis=2)
-    cs, sn = np.cos(theta), np.sin(theta)
-    cc, cs2, ss = cs * cs, 2.0 * cs * sn, sn * sn
-    hp = None
-    for j in (0, 1):  # the two ellipses of each pair
-        sl = slice(j, n_pairs + j)
-        v = (cc * ql[:, sl, 0, 0, None] + cs2 * ql[:, sl, 0, 1, None]
-             + ss * ql[:, sl, 1, 1, None])
-        h = tl[:, sl, None] * cs + k * np.sqrt(np.clip(v, 0.0, None))
-        hp = h if hp is None else np.maximum(hp, h)
-    hn = np.roll(hp, -1, axis=2)
-    s1 = np.roll(sn, -1, axis=2)
-    det = np.sin(np.diff(np.concatenate([theta, theta[..., :1] + 2 * np.pi], axis=2), axis=2))
+    xc, xs, phi = _tangent_normals(tl, ql, k, du)  # (m, P, 2)
+    ang = du * np.arange(n_directions)
+    uc, us = np.cos(ang), np.sin(ang)
+    uc[np.abs(uc) < 1e-15], us[np.abs(us) < 1e-15] = 0.0, 0.0
+
+    def support(c, s, tl, ql):  # support of ellipses (m, n) in directions (..., d)
+        v = c * c * ql[..., 0, 0, None] + 2.0 * c * s * ql[..., 0, 1, None] \
+            + s * s * ql[..., 1, 1, None]
+        return tl[..., None] * c + k * np.sqrt(np.clip(v, 0.0, None))
+
+    hu = support(uc, us, tl, ql)  # every sampled ellipse at the uniform directions
+    hu = np.maximum(hu[:, :-1], hu[:, 1:])
+    hx = np.maximum(support(xc, xs, tl[:, :-1], ql[:, :-1]),
+                    support(xc, xs, tl[:, 1:], ql[:, 1:]))
+    lay = _directions(n_directions, (xc, xs), phi)
+    cs, sn, hp = lay(uc, xc), lay(us, xs), lay(hu, hx)
+    c1, s1, hn = (np.roll(x, -1, axis=2) for x in (cs, sn, hp))
+    det = cs * s1 - sn * c1  # sin of the angle between consecutive directions
     vu = (hp * s1 - hn * sn) / det  # vertex between directions i and i + 1
-    return e_u, theta, hp, vu
+    return e_u, cs, sn, hp, vu
 
 
-def _band_chain(cu, theta, hp, sign: float):
+def _band_chain(cu, cs, sn, hp, sign: float):
     """Envelope of one side's chains: ``sign`` 1 the left (upper), -1 the right side.
 
-    The edge of normal ``theta`` (``sin(theta) != 0``) is the line
-    ``w = (h - u cos(theta)) / sin(theta)``; the right side is taken as the upper envelope
-    of ``-w``. Returns ``(u, w, valid)`` (m, P K): the envelope's vertices where ``valid``,
-    straight runs thinned to within ``1e-9`` of the band's scale.
+    The edge of normal ``(cs, sn)`` (``sn != 0``) is the line
+    ``w = (h - u cs) / sn``; the right side is taken as the upper envelope of ``-w``.
+    Returns ``(u, w, valid)`` (m, P K): the envelope's vertices where ``valid``, straight
+    runs thinned to within ``1e-9`` of the band's scale.
     """
-    sn = np.sin(theta)
-    slope = -sign * np.cos(theta) / sn
+    slope = -sign * cs / sn
     icpt = sign * hp / sn
     u, w = _upper_envelope(cu, slope, icpt)
     valid = np.isfinite(w)
@@ -516,13 +546,14 @@ def _g_band_flat(a, b, c4, k: float, n_pairs: int, n_directions: int):
     Returns ``(xy, offsets)``: ring ``i`` is ``xy[offsets[i]:offsets[i + 1]]`` (closed).
     """
     m = len(a)
-    e_u, theta, hp, vu = _pair_polygons(a, b, c4, k, n_pairs, n_directions)
+    e_u, cs, sn, hp, vu = _pair_polygons(a, b, c4, k, n_pairs, n_directions)
     half = n_directions // 2 + 1  # directions in [0, pi) incl. the left tangent
     # left chain: vertices 0 .. half - 1 (u descending) on the edges 1 .. half - 1;
     # right chain: vertices half .. M + 1 (u ascending) on the edges half + 1 .. M + 1
-    up_u, up_w, up_v = _band_chain(vu[..., :half][..., ::-1], theta[..., 1:half][..., ::-1],
-                                   hp[..., 1:half][..., ::-1], 1.0)
-    lo_u, lo_w, lo_v = _band_chain(vu[..., half:], theta[..., half + 1:],
+    rev = slice(half - 1, 0, -1)
+    up_u, up_w, up_v = _band_chain(vu[..., half - 1::-1], cs[..., rev], sn[..., rev],
+                                   hp[..., rev], 1.0)
+    lo_u, lo_w, lo_v = _band_chain(vu[..., half:], cs[..., half + 1:], sn[..., half + 1:],
                                    hp[..., half + 1:], -1.0)
     # ring: right side from u min to u max, then the left side back
     ru = np.concatenate([lo_u, up_u[:, ::-1]], axis=1)
@@ -623,7 +654,7 @@ def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
     n_directions : int
         Uniform directions of the circumscribed polygons (a multiple of 4, >= 8).
     progress : callable, optional
-        ``progress(fraction)`` after every chunk of segments (about 4000 with the
+        ``progress(fraction)`` after every chunk of segments (about 1000 with the
         defaults; fewer with more pairs or directions, so that the temporaries stay
         bounded). It may raise to cancel, e.g. :class:`vectoradjust.errors.CancelledError`.
 
@@ -640,6 +671,24 @@ def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
     return np.split(xy, offsets[1:-1])
 
 
+class _Rings(Sequence):
+    """The rings of :func:`g_band_rings` as a read-only list of arrays (views, made on use)."""
+
+    def __init__(self, xy: np.ndarray, offsets: np.ndarray) -> None:
+        self._xy, self._off = xy, offsets
+
+    def __len__(self) -> int:
+        return max(len(self._off) - 1, 0)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        if not -len(self) <= i < len(self):
+            raise IndexError("ring index out of range")
+        i = i % len(self)
+        return self._xy[self._off[i]:self._off[i + 1]]
+
+
 @dataclass
 class SegmentBands:
     """G-bands of the segments of a road database (:func:`segment_bands`).
@@ -650,11 +699,14 @@ class SegmentBands:
         Feature index of each segment.
     start_vertex : numpy.ndarray of int, shape (s,)
         First vertex of each segment (the segment runs to ``start_vertex + 1``).
-    rings : list of numpy.ndarray
-        Closed ring ``(k, 2)`` of each segment's band.
+    rings : sequence of numpy.ndarray
+        Closed ring ``(k, 2)`` of each segment's band (a read-only list).
     cov_joint : numpy.ndarray, shape (s, 6, 6)
         Joint a-posteriori covariance of the segment's end points (X1, Y1, Z1, X2, ...).
     confidence : float
+    xy, offsets : numpy.ndarray, optional
+        The same rings as one array: ring ``i`` is ``xy[offsets[i]:offsets[i + 1]]``
+        (:func:`g_band_rings`).
     """
 
     feature: np.ndarray
@@ -662,6 +714,8 @@ class SegmentBands:
     rings: list
     cov_joint: np.ndarray
     confidence: float
+    xy: Optional[np.ndarray] = None
+    offsets: Optional[np.ndarray] = None
 
 
 def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.9,
@@ -703,9 +757,11 @@ def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.
         cov[:, :3, 3:] = cab
         cov[:, 3:, :3] = np.swapaxes(cab, 1, 2)
     sel = [0, 1, 3, 4]
-    rings = g_band_batch(res.xyz[pa], res.xyz[pb], cov[:, sel][:, :, sel], confidence,
-                         **kwargs)
-    return SegmentBands(db.shape.layer.vertex_feature[a], a, rings, cov, confidence)
+    xy, offsets = g_band_rings(res.xyz[pa], res.xyz[pb], cov[:, sel][:, :, sel], confidence,
+                               **kwargs)
+    rings = _Rings(xy, offsets)
+    return SegmentBands(db.shape.layer.vertex_feature[a], a, rings, cov, confidence, xy,
+                        offsets)
 
 
 def uncertainty_bands(run: AdjustmentRun, db: DatabaseResult,

@@ -87,10 +87,11 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
             progress((i + 0.9) / len(dbs), f"uncertainty bands: {d.name}: union per feature")
         if not sb.rings:
             continue
-        sizes = np.array([len(r) for r in sb.rings])
-        coords = np.concatenate(sb.rings)
-        rings = shapely.linearrings(coords, indices=np.repeat(np.arange(len(sizes)), sizes))
-        polys = shapely.make_valid(shapely.polygons(rings))
+        sizes = np.diff(sb.offsets)
+        rings = shapely.linearrings(sb.xy, indices=np.repeat(np.arange(len(sizes)), sizes))
+        polys = shapely.polygons(rings)
+        bad = ~shapely.is_valid(polys)  # a ring may touch itself in degenerate cases
+        polys[bad] = shapely.make_valid(polys[bad])
         feats, counts = np.unique(sb.feature, return_counts=True)
         geoms += list(_union_per_feature(polys, np.searchsorted(feats, sb.feature), len(feats)))
         fids = d.shape.layer.feature_ids
@@ -122,7 +123,11 @@ def _union_per_feature(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarr
         ok = (shapely.get_type_id(parts) == 3) & ~shapely.is_empty(parts)
         return parts[ok], index[which[ok]]
 
-    parts, g = polygon_parts(polys, group)
+    simple = shapely.get_type_id(polys) == 3
+    if simple.all():  # no GeometryCollection from make_valid: the polygons are the parts
+        parts, g = polys[~shapely.is_empty(polys)], group[~shapely.is_empty(polys)]
+    else:
+        parts, g = polygon_parts(polys, group)
     multi = np.full(n, None, dtype=object)
     if len(parts):
         order = np.argsort(g, kind="stable")
@@ -130,12 +135,20 @@ def _union_per_feature(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarr
         multi[:len(built)] = built
     multi = np.where(shapely.is_missing(multi), shapely.from_wkt("MULTIPOLYGON EMPTY"), multi)
     united = shapely.buffer(multi, 0.0)
-    parts, g = polygon_parts(united, np.arange(n))
     out = np.full(n, shapely.from_wkt("MULTIPOLYGON EMPTY"), dtype=object)
-    if len(parts):
-        built = shapely.multipolygons(parts, indices=g)
-        have = np.unique(g)
-        out[have] = built[have]
+    kind = shapely.get_type_id(united)
+    done = (kind == 6) & ~shapely.is_empty(united)
+    out[done] = united[done]  # already MultiPolygons
+    one = np.flatnonzero((kind == 3) & ~shapely.is_empty(united))
+    if len(one):  # a single polygon: a MultiPolygon of one part
+        out[one] = shapely.multipolygons(united[one], indices=np.arange(len(one)))
+    rest = np.flatnonzero((kind != 3) & (kind != 6))
+    if len(rest):  # anything else (a collection): its polygon parts
+        parts, g = polygon_parts(united[rest], rest)
+        if len(parts):
+            built = shapely.multipolygons(parts, indices=g)
+            have = np.unique(g)
+            out[have] = built[have]
     return out
 
 
