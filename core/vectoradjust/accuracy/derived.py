@@ -324,15 +324,17 @@ def _upper_envelope(cu: np.ndarray, slope: np.ndarray, icpt: np.ndarray):
     order = np.argsort(flat, axis=1, kind="stable")
     su = np.take_along_axis(flat, order, axis=1)
     owner = order // kk  # chain of each station
-    count = np.cumsum(owner[:, None, :] == np.arange(p)[None, :, None], axis=2,
-                      dtype=np.int32)  # (m, P, P K): vertices of chain c up to station i
+    # (m, P, P K): vertices of chain c up to station i, made the flat index of the piece
+    count = np.cumsum(owner[:, None, :] == np.arange(p)[None, :, None], axis=2, dtype=np.intp)
     np.subtract(count, 1, out=count)
     np.clip(count, 0, kk - 2, out=count)
-    count += (np.arange(m * p, dtype=np.int32) * (kk - 1)).reshape(m, p, 1)
+    count += (np.arange(m * p) * (kk - 1)).reshape(m, p, 1)
     sb = su[:, None, :]
-    val = np.take(icpt, count) + np.take(slope, count) * sb
+    val = np.take(slope, count)
+    val *= sb
+    val += np.take(icpt, count)
     out = (sb < cu[:, :, :1]) | (sb > cu[:, :, -1:])
-    val[out] = -np.inf
+    np.putmask(val, out, -np.inf)
     return su, val.max(axis=1)
 
 
@@ -347,12 +349,13 @@ def _neighbours(keep: np.ndarray):
 
 def _chord_gap(u: np.ndarray, w: np.ndarray, prev: np.ndarray, nxt: np.ndarray):
     """``w`` minus the chord through the entries ``prev`` and ``nxt`` (NaN without both)."""
-    n = u.shape[1]
+    m, n = u.shape
     inner = (prev >= 0) & (nxt < n)
-    pi = np.clip(prev, 0, n - 1)
-    ni = np.clip(nxt, 0, n - 1)
-    u0, u1 = np.take_along_axis(u, pi, 1), np.take_along_axis(u, ni, 1)
-    w0, w1 = np.take_along_axis(w, pi, 1), np.take_along_axis(w, ni, 1)
+    base = np.arange(0, m * n, n)[:, None]
+    pi = np.clip(prev, 0, n - 1) + base
+    ni = np.clip(nxt, 0, n - 1) + base
+    uf, wf = u.ravel(), w.ravel()
+    u0, u1, w0, w1 = uf.take(pi), uf.take(ni), wf.take(pi), wf.take(ni)
     with np.errstate(invalid="ignore", divide="ignore"):
         gap = w - (w0 + (w1 - w0) * (u - u0) / (u1 - u0))
     return np.where(inner, gap, np.nan)

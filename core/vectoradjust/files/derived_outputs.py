@@ -130,9 +130,9 @@ def _union_per_feature(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarr
         parts, g = polygon_parts(polys, group)
     multi = np.full(n, None, dtype=object)
     if len(parts):
+        have, g = np.unique(g, return_inverse=True)  # sorted; groups without parts left out
         order = np.argsort(g, kind="stable")
-        built = shapely.multipolygons(parts[order], indices=g[order])
-        multi[:len(built)] = built
+        multi[have] = shapely.multipolygons(parts[order], indices=g[order])
     multi = np.where(shapely.is_missing(multi), shapely.from_wkt("MULTIPOLYGON EMPTY"), multi)
     united = shapely.buffer(multi, 0.0)
     out = np.full(n, shapely.from_wkt("MULTIPOLYGON EMPTY"), dtype=object)
