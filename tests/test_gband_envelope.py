@@ -107,14 +107,28 @@ def test_drop_collinear_thins_straight_runs_within_the_tolerance():
     assert keep2.sum(axis=1).max() == 5  # ends, the bump and its two neighbours
 
 
-def test_tangent_normals_make_both_supports_equal():
+def _pair_covariances(rng, m, p, length):
+    """Random end-point covariances of segments, sampled at P + 1 points (local frame)."""
+    a = rng.normal(size=(m, 4, 4)) * 0.06
+    c = a @ np.swapaxes(a, 1, 2) + np.eye(4) * 0.004
+    t = np.linspace(0, 1, p + 1)
+    f = np.concatenate([(1 - t)[:, None, None] * np.eye(2), t[:, None, None] * np.eye(2)], axis=2)
+    return t[None, :] * length[:, None], f @ c[:, None] @ np.swapaxes(f, 1, 2)
+
+
+@pytest.mark.parametrize("case", ["random", "road"])
+def test_tangent_normals_make_both_supports_equal(case):
     rng = np.random.default_rng(3)
-    m, p = 200, 6
+    m, p = 2000, 6
     k = prop.confidence_scale(0.9)
-    length = rng.uniform(0.5, 30, m)
-    tl = np.linspace(0, 1, p + 1)[None, :] * length[:, None]
-    a = rng.normal(size=(m, p + 1, 2, 2))
-    ql = a @ np.swapaxes(a, -1, -2) * rng.uniform(0.01, 1, (m, 1, 1, 1))
+    if case == "random":
+        length = rng.uniform(0.5, 30, m)
+        tl = np.linspace(0, 1, p + 1)[None, :] * length[:, None]
+        a = rng.normal(size=(m, p + 1, 2, 2))
+        ql = a @ np.swapaxes(a, -1, -2) * rng.uniform(0.01, 1, (m, 1, 1, 1))
+    else:  # short to long road segments, small ellipses: the regula falsi converges fully
+        length = rng.uniform(0.8, 25, m)
+        tl, ql = _pair_covariances(rng, m, p, length)
     du = 2 * np.pi / 24
     c, s, phi = derived._tangent_normals(tl, ql, k, du)
     assert np.allclose(c * c + s * s, 1.0)

@@ -399,11 +399,12 @@ def _tangent_normals(tl: np.ndarray, ql: np.ndarray, k: float, du: float):
     normal ``(0, -1)``, as ``d = (-s, 1)`` and ``(s, -1)`` with ``|s| <= tan(du)`` (the
     support function is positively homogeneous, so the sign of ``h_j - h_j+1`` does not
     depend on the length of ``d``; no trigonometric function in the loop): 6 bisection
-    steps, then 4 steps of regula falsi (the function is smooth: the direction is then
-    known to ~1e-9 rad). Where there is no sign change (one ellipse reaches farther on the
-    whole interval) or the root is within ``1e-6`` rad of a uniform direction, the
-    direction half a step past the normal is taken. Any direction keeps the circumscribed
-    polygon valid (an outer bound): the precision only makes it follow the band's side.
+    steps, then 5 steps of regula falsi with the Illinois modification (the function is
+    smooth: the supports then agree to ~1e-12 of the band's scale). Where there is no
+    sign change (one ellipse reaches farther on the whole interval) or the root is within
+    ``1e-6`` rad of a uniform direction, the direction half a step past the normal is taken.
+    Any direction keeps the circumscribed polygon valid (an outer bound): the precision
+    only makes it follow the band's side.
 
     ``tl``: (m, P+1) centres; ``ql``: (m, P+1, 2, 2) local covariances.
     Returns ``(cos, sin, phi)`` (m, P, 2) of the left and right tangent normals and their
@@ -429,14 +430,20 @@ def _tangent_normals(tl: np.ndarray, ql: np.ndarray, k: float, du: float):
         lo, glo = np.where(left, mid, lo), np.where(left, gm, glo)
         hi, ghi = np.where(left, hi, mid), np.where(left, ghi, gm)
     s = 0.5 * (lo + hi)
-    for _ in range(4):  # regula falsi within the bracket
+    last = np.zeros(dt.shape, bool)  # the low end was replaced in the previous step
+    for it in range(5):  # regula falsi within the bracket (Illinois: no stuck end)
         with np.errstate(invalid="ignore", divide="ignore"):
             s = lo - glo * (hi - lo) / (ghi - glo)
-        s = np.where(np.isfinite(s) & (s >= lo) & (s <= hi), s, 0.5 * (lo + hi))
+        # converged, the step may leave the bracket by rounding: stay at its end
+        s = np.where(np.isfinite(s), np.clip(s, lo, hi), 0.5 * (lo + hi))
         gs = g(s)
         left = np.sign(gs) == np.sign(glo)
         lo, glo = np.where(left, s, lo), np.where(left, gs, glo)
         hi, ghi = np.where(left, hi, s), np.where(left, ghi, gs)
+        if it:  # the same end replaced twice: halve the other end's value
+            ghi = np.where(left & last, 0.5 * ghi, ghi)
+            glo = np.where(~left & ~last, 0.5 * glo, glo)
+        last = left
     phi = np.arctan(s)
     near = (np.abs(phi) < 1e-6) | (np.abs(phi) > du - 1e-6)
     use = ok & ~near
