@@ -257,3 +257,33 @@ def test_union_per_feature_against_union_all():
     bow = shapely.make_valid(shapely.Polygon([(0, 0), (2, 2), (2, 0), (0, 2)]))
     out = _union_per_feature(np.array([bow], dtype=object), np.array([0]), 1)
     assert out[0].geom_type == "MultiPolygon" and out[0].area == pytest.approx(2.0)
+
+
+def test_feature_unions_in_chunks_equal_one_union_per_feature():
+    shapely = pytest.importorskip("shapely")
+    from types import SimpleNamespace
+
+    from vectoradjust.files.derived_outputs import _feature_unions
+
+    # 12 features of 1 .. 9 consecutive segments (a random walk each), shuffled groups
+    rng = np.random.default_rng(8)
+    pts, group = [], []
+    for f in rng.permutation(12):
+        walk = np.cumsum(rng.normal(0, 1.5, (int(rng.integers(2, 11)), 2)), axis=0) + f * 40
+        pts += [(walk[j], walk[j + 1]) for j in range(len(walk) - 1)]
+        group += [f] * (len(walk) - 1)
+    p1, p2 = (np.array(x) for x in zip(*pts))
+    group = np.array(group)
+    a = rng.normal(size=(len(p1), 4, 4)) * 0.1
+    xy, off = derived.g_band_rings(p1, p2, a @ np.swapaxes(a, 1, 2) + np.eye(4) * 0.01)
+    sb = SimpleNamespace(xy=xy, offsets=off)
+    seen = []
+    small = _feature_unions(sb, group, 12, seen.append, chunk=7)
+    whole = _feature_unions(sb, group, 12, lambda f: None)
+    assert len(seen) > 3 and seen[-1] == 1.0
+    polys = shapely.polygons([shapely.linearrings(xy[off[i]:off[i + 1]]) for i in range(len(p1))])
+    for f in range(12):
+        ref = shapely.union_all(polys[group == f])
+        for got in (small[f], whole[f]):
+            assert got.geom_type == "MultiPolygon" and got.is_valid
+            assert shapely.symmetric_difference(got, ref).area <= 1e-9 * ref.area
