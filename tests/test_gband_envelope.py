@@ -287,3 +287,27 @@ def test_feature_unions_in_chunks_equal_one_union_per_feature():
         for got in (small[f], whole[f]):
             assert got.geom_type == "MultiPolygon" and got.is_valid
             assert shapely.symmetric_difference(got, ref).area <= 1e-9 * ref.area
+
+
+def test_degenerate_covariances_give_empty_or_flat_rings():
+    shapely = pytest.importorskip("shapely")
+    from types import SimpleNamespace
+
+    from vectoradjust.files.derived_outputs import _feature_unions
+
+    p1, p2, c = _road_like_segments(4, 2)
+    ref = derived.g_band_batch(p1, p2, c)
+    for bad in (0, 3):  # a covariance that is not finite: an empty ring, the others kept
+        cn = c.copy()
+        cn[bad] = np.nan
+        rings = derived.g_band_batch(p1, p2, cn)
+        assert len(rings) == 4 and len(rings[bad]) == 0
+        assert all(np.array_equal(rings[i], ref[i]) for i in range(4) if i != bad)
+        xy, off = derived.g_band_rings(p1, p2, cn)
+        out = _feature_unions(SimpleNamespace(xy=xy, offsets=off), np.array([0, 0, 1, 1]), 2,
+                              lambda f: None)
+        assert all(g.geom_type == "MultiPolygon" and g.area > 0 for g in out)
+    flat = derived.g_band_batch(p1, p2, c * 0.0)  # no uncertainty: the segment itself
+    for r, a, b in zip(flat, p1, p2):
+        assert shapely.Polygon(r).area == pytest.approx(0.0, abs=1e-12)
+        assert shapely.LineString(r).hausdorff_distance(shapely.LineString([a, b])) < 1e-12

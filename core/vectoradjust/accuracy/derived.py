@@ -579,8 +579,9 @@ def _g_band_flat(a, b, c4, k: float, n_pairs: int, n_directions: int):
     pts, rows = pts[keep], rows[keep]
     counts = np.bincount(rows, minlength=m)
     ends = np.cumsum(counts)
-    pts = np.insert(pts, ends, pts[ends - counts], axis=0)
-    offsets = np.concatenate([[0], ends + np.arange(1, m + 1)])
+    has = counts > 0  # none where the covariance is not finite: an empty ring
+    pts = np.insert(pts, ends[has], pts[(ends - counts)[has]], axis=0)
+    offsets = np.concatenate([[0], np.cumsum(counts + has)])
     return pts, offsets
 
 

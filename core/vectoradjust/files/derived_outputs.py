@@ -122,8 +122,10 @@ def _feature_unions(sb, group: np.ndarray, n: int, step, chunk: int = 50_000) ->
         sizes = hi - lo
         take = np.repeat(lo - np.concatenate([[0], np.cumsum(sizes)[:-1]]), sizes) + \
             np.arange(int(sizes.sum()))
-        rings = shapely.linearrings(sb.xy[take], indices=np.repeat(np.arange(len(seg)), sizes))
-        polys = shapely.polygons(rings)
+        ok = sizes >= 4  # fewer points: a degenerate ring (no finite covariance), no area
+        polys = np.full(len(seg), shapely.from_wkt("POLYGON EMPTY"), dtype=object)
+        polys[ok] = shapely.polygons(shapely.linearrings(
+            sb.xy[take[np.repeat(ok, sizes)]], indices=np.repeat(np.arange(ok.sum()), sizes[ok])))
         bad = ~shapely.is_valid(polys)  # a ring may touch itself in degenerate cases
         polys[bad] = shapely.make_valid(polys[bad])
         out += list(_union_per_feature(polys, group[seg] - g0, g1 - g0))
