@@ -53,7 +53,8 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
     confidence : float
         Probability of the error ellipses (default 0.9).
     progress : callable, optional
-        ``progress(fraction, message)`` per database and per chunk of about 1000 segments.
+        ``progress(fraction, message)`` per database, per chunk of about 1000 segments
+        (their bands) and per chunk of whole features (their union).
     is_cancelled : callable, optional
         Polled as often; true raises :class:`vectoradjust.errors.CancelledError`.
     **kwargs
