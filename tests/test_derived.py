@@ -644,3 +644,20 @@ def test_uncertainty_bands_equal_the_per_feature_union(adj_run):
             assert nseg == np.sum(sb.feature == f)
             assert geom.geom_type == "MultiPolygon" and geom.is_valid
             assert shapely.symmetric_difference(geom, ref).area <= 1e-9 * ref.area
+
+
+def test_uncertainty_bands_report_progress_and_cancel_in_the_union(adj_run):
+    pytest.importorskip("geopandas")
+    from vectoradjust.errors import CancelledError
+    from vectoradjust.files.derived_outputs import uncertainty_bands_frame
+
+    seen = []
+    uncertainty_bands_frame(adj_run, progress=lambda f, msg: seen.append((f, msg)))
+    fractions = [f for f, _ in seen]
+    assert np.all(np.diff(fractions) >= 0) and 0.99 <= fractions[-1] <= 1.0
+    assert any("union" in m for _, m in seen) and any("segments" in m for _, m in seen)
+    msgs = []
+    with pytest.raises(CancelledError):  # polled before every progress report
+        uncertainty_bands_frame(adj_run, progress=lambda f, msg: msgs.append(msg),
+                                is_cancelled=lambda: bool(msgs) and "union" in msgs[-1])
+    assert "union" in msgs[-1] and len(msgs) < len(seen)

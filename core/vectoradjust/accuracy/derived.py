@@ -52,6 +52,7 @@ __all__ = [
     "cross_covariance",
     "feature_length_sigma",
     "g_band_batch",
+    "g_band_rings",
     "SegmentBands",
     "segment_bands",
     "uncertainty_bands",
@@ -167,9 +168,9 @@ def cross_covariance(result: BundleResult, pa, pb) -> np.ndarray:
         ka = idx.order[idx.starts[pa[entry]] + ia]
         kb = idx.order[idx.starts[pb[entry]] + ib]
         blk = sinv[prob.obs_image[ka], :, prob.obs_image[kb], :]  # (T, 6, 6)
-        t = np.einsum("tia,tij,tjb->tab", result.nep_obs[ka], blk, result.nep_obs[kb])
+        t = np.matmul(np.swapaxes(result.nep_obs[ka], 1, 2), blk) @ result.nep_obs[kb]
         acc[lo:hi] = _block_sum(entry - lo, t, hi - lo)
-    cov = np.einsum("mij,mjk,mkl->mil", result.npp_inv[pa], acc, result.npp_inv[pb])
+    cov = result.npp_inv[pa] @ acc @ result.npp_inv[pb]
     same = pa == pb
     cov[same] += result.npp_inv[pa[same]]
     cov += result.offset_cross(pa, pb)  # database offsets (zero without)
@@ -301,130 +302,326 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult,
 
 
 # ------------------------------------------------------------------------------ G-band
-def _batched_interp(cu: np.ndarray, cw: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Piecewise-linear ``w(u)`` of many chains evaluated at many abscissae.
+_BAND_BUDGET = 500_000  # elements of the largest (chunk, P, P K) temporaries (~1000 rows)
 
-    ``cu, cw``: (m, P, K), ``cu`` ascending along the last axis; ``q``: (m, Q).
-    Returns (m, P, Q); ``-inf`` where ``q`` is outside a chain's range.
+
+def _upper_envelope(cu: np.ndarray, slope: np.ndarray, icpt: np.ndarray):
+    """Upper envelope of P concave piecewise-linear chains per row, at every chain vertex.
+
+    Chain ``c`` of a row has the vertices ``cu[c, 0] <= ... <= cu[c, K-1]`` and on piece
+    ``j`` (between vertices ``j`` and ``j + 1``) the line ``w = icpt[c, j] + slope[c, j] u``
+    (an upper edge of a convex polygon); outside ``[cu[c, 0], cu[c, K-1]]`` it is absent.
+    The envelope is evaluated at every vertex of every chain (the stations, sorted): the
+    piece of chain ``c`` holding station ``i`` is found by counting chain ``c``'s vertices
+    among the sorted stations up to ``i`` (one cumulative sum, no search); at a tie the
+    neighbouring piece gives the same value (the chain is continuous).
+
+    ``cu``: (m, P, K); ``slope, icpt``: (m, P, K - 1). Returns ``(u, w)`` of shape
+    (m, P K): the stations in ascending order and the envelope there.
     """
-    m, p, k = cu.shape
-    qb = q[:, None, :]
-    # the piece of each chain holding q: how many inner vertices lie at or left of q
-    # (k is small: k - 2 broadcast comparisons beat a search over all chains)
-    local = np.zeros((m, p, q.shape[1]), dtype=np.intp)
-    for j in range(1, k - 1):
-        local += qb >= cu[:, :, j:j + 1]
-    x0 = np.take_along_axis(cu, local, axis=2)
-    x1 = np.take_along_axis(cu, local + 1, axis=2)
-    f0 = np.take_along_axis(cw, local, axis=2)
-    f1 = np.take_along_axis(cw, local + 1, axis=2)
+    m, p, kk = cu.shape
+    flat = cu.reshape(m, p * kk)
+    order = np.argsort(flat, axis=1, kind="stable")
+    su = np.take_along_axis(flat, order, axis=1)
+    owner = order // kk  # chain of each station
+    # (m, P, P K): vertices of chain c up to station i, made the flat index of the piece
+    count = np.cumsum(owner[:, None, :] == np.arange(p)[None, :, None], axis=2, dtype=np.intp)
+    np.subtract(count, 1, out=count)
+    np.clip(count, 0, kk - 2, out=count)
+    count += (np.arange(m * p) * (kk - 1)).reshape(m, p, 1)
+    sb = su[:, None, :]
+    val = np.take(slope, count)
+    val *= sb
+    val += np.take(icpt, count)
+    out = (sb < cu[:, :, :1]) | (sb > cu[:, :, -1:])
+    np.putmask(val, out, -np.inf)
+    return su, val.max(axis=1)
+
+
+def _neighbours(keep: np.ndarray):
+    """Index of the last kept entry at or before, and the first at or after, each entry."""
+    m, n = keep.shape
+    idx = np.arange(n)
+    prev = np.maximum.accumulate(np.where(keep, idx, -1), axis=1)
+    nxt = np.minimum.accumulate(np.where(keep, idx, n)[:, ::-1], axis=1)[:, ::-1]
+    return prev, nxt
+
+
+def _chord_gap(u: np.ndarray, w: np.ndarray, prev: np.ndarray, nxt: np.ndarray):
+    """``w`` minus the chord through the entries ``prev`` and ``nxt`` (NaN without both)."""
+    m, n = u.shape
+    inner = (prev >= 0) & (nxt < n)
+    base = np.arange(0, m * n, n)[:, None]
+    pi = np.clip(prev, 0, n - 1) + base
+    ni = np.clip(nxt, 0, n - 1) + base
+    uf, wf = u.ravel(), w.ravel()
+    u0, u1, w0, w1 = uf.take(pi), uf.take(ni), wf.take(pi), wf.take(ni)
     with np.errstate(invalid="ignore", divide="ignore"):
-        t = np.where(x1 > x0, (qb - x0) / (x1 - x0), 1.0)
-    np.clip(t, 0.0, 1.0, out=t)
-    val = f0 + t * (f1 - f0)
-    inside = (qb >= cu[:, :, :1]) & (qb <= cu[:, :, -1:])
-    return np.where(inside, val, -np.inf)
+        gap = w - (w0 + (w1 - w0) * (u - u0) / (u1 - u0))
+    return np.where(inner, gap, np.nan)
 
 
-def _upper_envelope(cu: np.ndarray, cw: np.ndarray):
-    """Upper envelope of P piecewise-linear chains per row, as an outer polyline.
+def _drop_collinear(u: np.ndarray, w: np.ndarray, valid: np.ndarray,
+                    tol: np.ndarray) -> np.ndarray:
+    """Vertices of the polyline ``(u, w)[valid]`` to keep, straight runs thinned out.
 
-    The envelope is evaluated exactly at every vertex of every chain (the stations);
-    between two consecutive stations every chain is linear, so the envelope there is
-    a maximum of linear functions, convex, and the chord through the two station
-    values lies on or above it: the polyline through the stations is an outer bound.
-    Stations on a straight run (within ``1e-9`` of the scale) are then dropped.
-
-    ``cu, cw``: (m, P, K), ``cu`` ascending. Returns ``(u, w, valid)`` of shape
-    (m, P K): the polyline's points in ascending ``u`` where ``valid``.
+    One vectorised pass drops every vertex within ``tol`` (per row) of the chord through
+    its two neighbours; then every dropped vertex is checked against the chord through
+    the kept vertices around it, and those farther than ``tol`` are kept after all
+    (repeated until none is; usually no repetition). So the thinned polyline is within
+    ``tol`` of the full one at every dropped vertex and, both being linear between the
+    vertices, everywhere: an outer polyline stays outer to within ``tol``.
     """
-    m, p, k = cu.shape
-    su = np.sort(cu.reshape(m, p * k), axis=1)
-    env = _batched_interp(cu, cw, su).max(axis=1)
-    valid = np.isfinite(env)
-    scale = np.maximum(np.abs(cw).reshape(m, -1).max(axis=1), np.ptp(su, axis=1))
-    tol = (1e-9 * np.maximum(scale, 1e-300))[:, None]
-    # drop repeated abscissae (keep the highest value: env is equal there anyway)
-    dup = np.zeros_like(valid)
-    dup[:, 1:] = su[:, 1:] <= su[:, :-1]
-    valid &= ~dup
-    w = np.where(valid, env, 0.0)
-    idx = np.broadcast_to(np.arange(p * k), (m, p * k))
-    for sweep in range(64):  # remove every other collinear station per pass
-        prev = np.maximum.accumulate(np.where(valid, idx, -1), axis=1)
-        prev = np.concatenate([np.full((m, 1), -1), prev[:, :-1]], axis=1)
-        nxt = np.minimum.accumulate(np.where(valid, idx, p * k)[:, ::-1], axis=1)[:, ::-1]
-        nxt = np.concatenate([nxt[:, 1:], np.full((m, 1), p * k)], axis=1)
-        inner = valid & (prev >= 0) & (nxt < p * k)
-        pi = np.clip(prev, 0, p * k - 1)
-        ni = np.clip(nxt, 0, p * k - 1)
-        u0 = np.take_along_axis(su, pi, 1)
-        u1 = np.take_along_axis(su, ni, 1)
-        w0 = np.take_along_axis(w, pi, 1)
-        w1 = np.take_along_axis(w, ni, 1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            chord = w0 + (w1 - w0) * (su - u0) / (u1 - u0)
-        cand = inner & (np.abs(w - chord) <= tol)
-        rank = np.cumsum(valid, axis=1)
-        rem = cand & (rank % 2 == sweep % 2)
-        if not rem.any():
-            if not cand.any():
-                break
-            continue
-        valid &= ~rem
-    return su, w, valid
+    prev, nxt = _neighbours(valid)
+    n = u.shape[1]
+    prev = np.concatenate([np.full((len(u), 1), -1), prev[:, :-1]], axis=1)
+    nxt = np.concatenate([nxt[:, 1:], np.full((len(u), 1), n)], axis=1)
+    gap = _chord_gap(u, w, prev, nxt)
+    keep = valid & ~(np.abs(gap) <= tol)
+    for _ in range(n):
+        dropped = valid & ~keep
+        if not dropped.any():
+            break
+        gap = _chord_gap(u, w, *_neighbours(keep))
+        bad = dropped & ~(np.abs(gap) <= tol)
+        if not bad.any():
+            break
+        keep |= bad
+    return keep
 
 
-def _tangent_normal(tl: np.ndarray, ql: np.ndarray, k: float, centre: float,
-                    du: float) -> np.ndarray:
-    """Normal direction of the common tangent of consecutive ellipses near ``centre``.
+def _tangent_normals(tl: np.ndarray, ql: np.ndarray, k: float, du: float):
+    """Normal directions of the common tangents of consecutive ellipses (both sides).
 
-    The support functions ``h_j(theta) = tl_j cos(theta) + k sqrt(d' Q_j d)`` of the
-    ellipses ``j`` and ``j + 1`` are equal at the normal of their common tangent; it is
-    searched by bisection within ``centre +- du`` (one uniform direction step). Where
-    there is none (one ellipse reaches farther on the whole interval) or it is within
-    ``1e-6`` of a uniform direction, ``centre + du / 2`` is returned (any extra direction
-    keeps the circumscribed polygon valid).
+    The support functions ``h_j(d) = tl_j d_u + k sqrt(d' Q_j d)`` of the ellipses ``j``
+    and ``j + 1`` are equal at the normal ``d`` of their common tangent. It is searched
+    within one uniform direction step ``du`` of the left normal ``(0, 1)`` and of the right
+    normal ``(0, -1)``, as ``d = (-s, 1)`` and ``(s, -1)`` with ``|s| <= tan(du)`` (the
+    support function is positively homogeneous, so the sign of ``h_j - h_j+1`` does not
+    depend on the length of ``d``; no trigonometric function in the loop): 6 bisection
+    steps, then 5 steps of regula falsi with the Illinois modification (the function is
+    smooth: the supports then agree to ~1e-12 of the band's scale). Where there is no
+    sign change (one ellipse reaches farther on the whole interval) or the root is within
+    ``1e-6`` rad of a uniform direction, the direction half a step past the normal is taken.
+    Any direction keeps the circumscribed polygon valid (an outer bound): the precision
+    only makes it follow the band's side.
 
-    ``tl``: (m, P+1) centres; ``ql``: (m, P+1, 2, 2) local covariances. Returns (m, P).
+    ``tl``: (m, P+1) centres; ``ql``: (m, P+1, 2, 2) local covariances.
+    Returns ``(cos, sin, phi)`` (m, P, 2) of the left and right tangent normals and their
+    angle ``phi`` from ``(0, 1)`` resp. ``(0, -1)``, in ``(-du, du)``.
     """
-    q00, q01, q11 = ql[..., 0, 0], ql[..., 0, 1], ql[..., 1, 1]
-    dt = tl[:, :-1] - tl[:, 1:]
+    q00, q01, q11 = ql[..., 0, 0, None], ql[..., 0, 1, None], ql[..., 1, 1, None]
+    dt = (tl[:, :-1] - tl[:, 1:])[..., None] * np.array([-1.0, 1.0])
 
-    def g(th):
-        c, s = np.cos(th), np.sin(th)
-        cc, cs2, ss = c * c, 2.0 * c * s, s * s
-        v0 = cc * q00[:, :-1] + cs2 * q01[:, :-1] + ss * q11[:, :-1]  # d' Q_j d
-        v1 = cc * q00[:, 1:] + cs2 * q01[:, 1:] + ss * q11[:, 1:]  # d' Q_j+1 d
-        return dt * c + k * (np.sqrt(np.clip(v0, 0.0, None)) - np.sqrt(np.clip(v1, 0.0, None)))
+    def g(s):
+        ss, s2 = s * s, 2.0 * s
+        v0 = ss * q00[:, :-1] - s2 * q01[:, :-1] + q11[:, :-1]  # d' Q_j d
+        v1 = ss * q00[:, 1:] - s2 * q01[:, 1:] + q11[:, 1:]  # d' Q_j+1 d
+        return dt * s + k * (np.sqrt(np.clip(v0, 0.0, None)) - np.sqrt(np.clip(v1, 0.0, None)))
 
-    shape = (tl.shape[0], tl.shape[1] - 1)
-    lo = np.full(shape, centre - du)
-    hi = np.full(shape, centre + du)
-    glo = g(lo)
-    ghi = g(hi)
+    smax = np.tan(du)
+    lo, hi = np.full(dt.shape, -smax), np.full(dt.shape, smax)
+    glo, ghi = g(lo), g(hi)
     ok = np.sign(glo) * np.sign(ghi) < 0
-    for _ in range(40):  # bisection of the 2 du bracket to ~1e-12 rad
+    for _ in range(6):  # bisection: bracket 2 tan(du) / 64
         mid = 0.5 * (lo + hi)
         gm = g(mid)
         left = np.sign(gm) == np.sign(glo)
-        lo = np.where(left, mid, lo)
-        glo = np.where(left, gm, glo)
-        hi = np.where(left, hi, mid)
-    root = 0.5 * (lo + hi)
-    near = np.abs(root - np.round(root / du) * du) < 1e-6
-    return np.where(ok & ~near, root, centre + 0.5 * du)
+        lo, glo = np.where(left, mid, lo), np.where(left, gm, glo)
+        hi, ghi = np.where(left, hi, mid), np.where(left, ghi, gm)
+    s = 0.5 * (lo + hi)
+    last = np.zeros(dt.shape, bool)  # the low end was replaced in the previous step
+    for it in range(5):  # regula falsi within the bracket (Illinois: no stuck end)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = lo - glo * (hi - lo) / (ghi - glo)
+        # converged, the step may leave the bracket by rounding: stay at its end
+        s = np.where(np.isfinite(s), np.clip(s, lo, hi), 0.5 * (lo + hi))
+        gs = g(s)
+        left = np.sign(gs) == np.sign(glo)
+        lo, glo = np.where(left, s, lo), np.where(left, gs, glo)
+        hi, ghi = np.where(left, hi, s), np.where(left, ghi, gs)
+        if it:  # the same end replaced twice: halve the other end's value
+            ghi = np.where(left & last, 0.5 * ghi, ghi)
+            glo = np.where(~left & ~last, 0.5 * glo, glo)
+        last = left
+    phi = np.arctan(s)
+    near = (np.abs(phi) < 1e-6) | (np.abs(phi) > du - 1e-6)
+    use = ok & ~near
+    phi = np.where(use, phi, 0.5 * du)
+    s = np.where(use, s, np.tan(0.5 * du))
+    r = 1.0 / np.sqrt(1.0 + s * s)
+    side = np.array([1.0, -1.0])  # left: (-s, 1), right: (s, -1)
+    return -side * s * r, side * r, phi
 
 
-def _g_band_chunks(a, b, c4, chunk: int, progress, *args) -> list:
-    """:func:`g_band_batch` in chunks of ``chunk`` segments, ``progress`` after each."""
-    out: list = []
+def _directions(n_directions: int, extra, phi):
+    """Arrange the uniform directions and the tangent normals in ascending angle.
+
+    ``extra``: (cos, sin) of the left and right tangent normals, (m, P, 2) each, at
+    ``pi/2 + phi`` and ``3 pi/2 + phi``; each goes just before or after the uniform
+    direction ``pi/2`` (``3 pi/2``) by the sign of ``phi``. Returns a function that lays
+    out any per-direction quantity ``(uniform (..., M), extra (m, P, 2))`` as
+    (m, P, M + 2) in that order (no sort, no trigonometric function per segment).
+    """
+    a, b = n_directions // 4, 3 * n_directions // 4
+    before = phi < 0  # (m, P, 2)
+
+    def lay(uni, ext):
+        shape = ext.shape[:2] + (n_directions,)
+        u = np.broadcast_to(uni, shape)
+        cols = []
+        for j, c in ((0, a), (1, b)):
+            e, bf = ext[..., j:j + 1], before[..., j:j + 1]
+            cols.append((np.where(bf, e, u[..., c:c + 1]), np.where(bf, u[..., c:c + 1], e)))
+        return np.concatenate([u[..., :a], *cols[0], u[..., a + 1:b], *cols[1], u[..., b + 1:]],
+                              axis=2)
+
+    return lay
+
+
+def _pair_polygons(a, b, c4, k: float, n_pairs: int, n_directions: int):
+    """Circumscribed polygons of the pair hulls of many segments, in the segment frame.
+
+    Local frame: ``u`` along the segment from ``a``, ``w`` to its left. Returns
+    ``(e_u, cs, sn, hp, vu)``: the unit vector along each segment (m, 2); the polygon's
+    edge normals ``(cs, sn)`` in ascending angle from 0 (the uniform directions and the
+    two tangent normals), the support ``hp`` of the pair hull at each of them and the
+    ``u`` of the vertex between edges ``i`` and ``i + 1`` (all (m, P, M + 2)).
+    """
+    delta = b - a
+    length = np.hypot(delta[:, 0], delta[:, 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        e_u = np.where(length[:, None] > 0, delta / length[:, None], [1.0, 0.0])
+    c4 = 0.5 * (c4 + np.swapaxes(c4, 1, 2))
+    t = np.linspace(0.0, 1.0, n_pairs + 1)[None, :]
+    t0, t1 = (1 - t) ** 2, 2 * (1 - t) * t
+    t2 = t * t
+
+    def q(i, j):  # (m, P+1) element (i, j) of F(t) C F(t)'
+        return (t0 * c4[:, i, j, None] + 0.5 * t1 * (c4[:, i, 2 + j, None]
+                + c4[:, j, 2 + i, None]) + t2 * c4[:, 2 + i, 2 + j, None])
+
+    qxx, qxy, qyy = q(0, 0), q(0, 1), q(1, 1)
+    ex, ey = e_u[:, 0, None], e_u[:, 1, None]  # rotate to (u, w): R = [[ex, ey], [-ey, ex]]
+    ql = np.empty(qxx.shape + (2, 2))
+    ql[..., 0, 0] = ex * ex * qxx + 2 * ex * ey * qxy + ey * ey * qyy
+    ql[..., 1, 1] = ey * ey * qxx - 2 * ex * ey * qxy + ex * ex * qyy
+    ql[..., 0, 1] = ql[..., 1, 0] = ex * ey * (qyy - qxx) + (ex * ex - ey * ey) * qxy
+    tl = t * length[:, None]  # (m, P+1) centres along the segment
+    du = 2.0 * np.pi / n_directions
+    xc, xs, phi = _tangent_normals(tl, ql, k, du)  # (m, P, 2)
+    ang = du * np.arange(n_directions)
+    uc, us = np.cos(ang), np.sin(ang)
+    uc[np.abs(uc) < 1e-15], us[np.abs(us) < 1e-15] = 0.0, 0.0
+
+    def support(c, s, tl, ql):  # support of ellipses (m, n) in directions (..., d)
+        v = c * c * ql[..., 0, 0, None] + 2.0 * c * s * ql[..., 0, 1, None] \
+            + s * s * ql[..., 1, 1, None]
+        return tl[..., None] * c + k * np.sqrt(np.clip(v, 0.0, None))
+
+    hu = support(uc, us, tl, ql)  # every sampled ellipse at the uniform directions
+    hu = np.maximum(hu[:, :-1], hu[:, 1:])
+    hx = np.maximum(support(xc, xs, tl[:, :-1], ql[:, :-1]),
+                    support(xc, xs, tl[:, 1:], ql[:, 1:]))
+    lay = _directions(n_directions, (xc, xs), phi)
+    cs, sn, hp = lay(uc, xc), lay(us, xs), lay(hu, hx)
+    c1, s1, hn = (np.roll(x, -1, axis=2) for x in (cs, sn, hp))
+    det = cs * s1 - sn * c1  # sin of the angle between consecutive directions
+    vu = (hp * s1 - hn * sn) / det  # vertex between directions i and i + 1
+    return e_u, cs, sn, hp, vu
+
+
+def _band_chain(cu, cs, sn, hp, sign: float):
+    """Envelope of one side's chains: ``sign`` 1 the left (upper), -1 the right side.
+
+    The edge of normal ``(cs, sn)`` (``sn != 0``) is the line
+    ``w = (h - u cs) / sn``; the right side is taken as the upper envelope of ``-w``.
+    Returns ``(u, w, valid)`` (m, P K): the envelope's vertices where ``valid``, straight
+    runs thinned to within ``1e-9`` of the band's scale.
+    """
+    slope = -sign * cs / sn
+    icpt = sign * hp / sn
+    u, w = _upper_envelope(cu, slope, icpt)
+    valid = np.isfinite(w)
+    valid[:, 1:] &= u[:, 1:] > u[:, :-1]  # repeated abscissae: the envelope is equal there
+    w = np.where(valid, w, 0.0)
+    scale = np.maximum(np.abs(w).max(axis=1), np.ptp(u, axis=1))
+    tol = (1e-9 * np.maximum(scale, 1e-300))[:, None]
+    return u, sign * w, _drop_collinear(u, w, valid, tol)
+
+
+def _g_band_flat(a, b, c4, k: float, n_pairs: int, n_directions: int):
+    """The rings of :func:`g_band_batch` as one coordinate array and ring offsets.
+
+    Returns ``(xy, offsets)``: ring ``i`` is ``xy[offsets[i]:offsets[i + 1]]`` (closed).
+    """
     m = len(a)
+    e_u, cs, sn, hp, vu = _pair_polygons(a, b, c4, k, n_pairs, n_directions)
+    half = n_directions // 2 + 1  # directions in [0, pi) incl. the left tangent
+    # left chain: vertices 0 .. half - 1 (u descending) on the edges 1 .. half - 1;
+    # right chain: vertices half .. M + 1 (u ascending) on the edges half + 1 .. M + 1
+    rev = slice(half - 1, 0, -1)
+    up_u, up_w, up_v = _band_chain(vu[..., half - 1::-1], cs[..., rev], sn[..., rev],
+                                   hp[..., rev], 1.0)
+    lo_u, lo_w, lo_v = _band_chain(vu[..., half:], cs[..., half + 1:], sn[..., half + 1:],
+                                   hp[..., half + 1:], -1.0)
+    # ring: right side from u min to u max, then the left side back
+    ru = np.concatenate([lo_u, up_u[:, ::-1]], axis=1)
+    rw = np.concatenate([lo_w, up_w[:, ::-1]], axis=1)
+    rv = np.concatenate([lo_v, up_v[:, ::-1]], axis=1)
+    rows, cols = np.nonzero(rv)
+    uu, ww = ru[rows, cols], rw[rows, cols]
+    ex, ey = e_u[rows, 0], e_u[rows, 1]
+    pts = np.column_stack([a[rows, 0] + uu * ex - ww * ey, a[rows, 1] + uu * ey + ww * ex])
+    # drop repeated points, then close every ring with its first point
+    keep = np.ones(len(pts), bool)
+    keep[1:] = (rows[1:] != rows[:-1]) | np.any(pts[1:] != pts[:-1], axis=1)
+    pts, rows = pts[keep], rows[keep]
+    counts = np.bincount(rows, minlength=m)
+    ends = np.cumsum(counts)
+    has = counts > 0  # none where the covariance is not finite: an empty ring
+    pts = np.insert(pts, ends[has], pts[(ends - counts)[has]], axis=0)
+    offsets = np.concatenate([[0], np.cumsum(counts + has)])
+    return pts, offsets
+
+
+def g_band_rings(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
+                 n_directions: int = 24, progress=None):
+    """:func:`g_band_batch` with the rings as one array: ``(xy, offsets)``.
+
+    Ring ``i`` is ``xy[offsets[i]:offsets[i + 1]]`` (closed, counter-clockwise); ready
+    for ``shapely.linearrings(xy, indices=...)`` without a Python list of arrays. The
+    parameters are those of :func:`g_band_batch`.
+
+    Returns
+    -------
+    xy : numpy.ndarray, shape (N, 2)
+    offsets : numpy.ndarray of int, shape (m + 1,)
+    """
+    a = np.asarray(p1, float)
+    b = np.asarray(p2, float)
+    a = a.reshape(-1, a.shape[-1])[:, :2]
+    b = b.reshape(-1, b.shape[-1])[:, :2]
+    c4 = np.asarray(cov_joint, float).reshape(-1, 4, 4)
+    m = a.shape[0]
+    if b.shape[0] != m or c4.shape[0] != m:
+        raise ValueError("g_band_batch: p1, p2 and cov_joint must describe the same segments")
+    if n_pairs < 1 or n_directions < 8 or n_directions % 4:
+        raise ValueError("g_band_batch needs n_pairs >= 1 and n_directions a multiple of 4, >= 8")
+    k = prop.confidence_scale(confidence, 2)
+    # bounded temporaries: (chunk, P, P (M / 2 + 1)) per chunk
+    chunk = max(16, _BAND_BUDGET // (n_pairs * n_pairs * (n_directions // 2 + 1)))
+    xys, offs, base = [], [np.zeros(1, np.int64)], 0
     for i in range(0, m, chunk):
-        out += g_band_batch(a[i:i + chunk], b[i:i + chunk], c4[i:i + chunk], *args)
+        xy, off = _g_band_flat(a[i:i + chunk], b[i:i + chunk], c4[i:i + chunk], k,
+                               n_pairs, n_directions)
+        xys.append(xy)
+        offs.append(off[1:] + base)
+        base += len(xy)
         if progress is not None:
             progress(min(i + chunk, m) / m)
-    return out
+    xy = np.concatenate(xys) if xys else np.zeros((0, 2))
+    return xy, np.concatenate(offs)
 
 
 def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
@@ -440,18 +637,20 @@ def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
     plus an affine term), so every ellipse between two samples ``t_j, t_{j+1}`` lies in
     the convex hull of the two sampled ellipses. Each of the ``n_pairs`` hulls is
     replaced by the polygon circumscribed at ``n_directions`` uniform directions plus the
-    normals of the two common tangents along the band's sides (found by bisection), so
-    it contains the hull, follows its straight sides exactly and exceeds its round caps
-    by at most ``1 / cos(pi / n_directions) - 1`` of the ellipse size. The band's ring
-    is the upper and lower envelope of these polygons along the segment, evaluated at
-    every polygon vertex; between two such stations the envelope is a maximum of linear
-    pieces, which the chord bounds from outside. The ring therefore contains every
-    ellipse of the band, in particular those of the two end points. It exceeds the exact
-    band where the band narrows between samples (the waist, ``O(1 / n_pairs^2)``): on
-    road segments about 0.5 % of the area with the defaults, 0.3 % with 8 pairs and 32
-    directions. Like :func:`vectoradjust.accuracy.propagate.g_band` it assumes that every line
-    normal to the segment cuts the band in one interval (true unless the segment is
-    shorter than its ellipses).
+    normals of the two common tangents along the band's sides (bisection, then regula
+    falsi), so it contains the hull, follows its straight sides and exceeds its round
+    caps by at most ``1 / cos(pi / n_directions) - 1`` of the ellipse size. The band's
+    ring is the upper and lower envelope of these polygons along the segment, evaluated
+    exactly at every polygon vertex (each polygon side is a maximum / minimum of its edge
+    lines); between two such stations the envelope is a maximum of linear pieces, which
+    the chord bounds from outside. Stations on straight runs are then dropped where the
+    ring moves by at most ``1e-9`` of the band's scale. The ring therefore contains every
+    ellipse of the band (to that tolerance), in particular those of the two end points.
+    It exceeds the exact band where the band narrows between samples (the waist,
+    ``O(1 / n_pairs^2)``): on road segments about 0.5 % of the area with the defaults,
+    0.3 % with 8 pairs and 32 directions. Like :func:`vectoradjust.accuracy.propagate.g_band`
+    it assumes that every line normal to the segment cuts the band in one interval (true
+    unless the segment is shorter than its ellipses).
 
     Parameters
     ----------
@@ -466,88 +665,39 @@ def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
     n_directions : int
         Uniform directions of the circumscribed polygons (a multiple of 4, >= 8).
     progress : callable, optional
-        ``progress(fraction)`` after every chunk of 1024 segments (it may raise to
-        cancel, e.g. :class:`vectoradjust.errors.CancelledError`).
+        ``progress(fraction)`` after every chunk of segments (about 1000 with the
+        defaults; fewer with more pairs or directions, so that the temporaries stay
+        bounded). It may raise to cancel, e.g. :class:`vectoradjust.errors.CancelledError`.
 
     Returns
     -------
     list of numpy.ndarray
         One closed ring ``(k, 2)`` per segment (first point repeated), counter-clockwise.
+        :func:`g_band_rings` gives the same rings as one array with offsets.
     """
-    a = np.asarray(p1, float)
-    b = np.asarray(p2, float)
-    a = a.reshape(-1, a.shape[-1])[:, :2]
-    b = b.reshape(-1, b.shape[-1])[:, :2]
-    c4 = np.asarray(cov_joint, float).reshape(-1, 4, 4)
-    m = a.shape[0]
-    if b.shape[0] != m or c4.shape[0] != m:
-        raise ValueError("g_band_batch: p1, p2 and cov_joint must describe the same segments")
-    if n_pairs < 1 or n_directions < 8 or n_directions % 4:
-        raise ValueError("g_band_batch needs n_pairs >= 1 and n_directions a multiple of 4, >= 8")
-    if m == 0:
+    xy, offsets = g_band_rings(p1, p2, cov_joint, confidence, n_pairs, n_directions,
+                               progress)
+    if len(offsets) < 2:
         return []
-    chunk = 1024
-    if m > chunk:  # bounded temporaries: (chunk, n_pairs, n_pairs * n_directions / 2)
-        return _g_band_chunks(a, b, c4, chunk, progress, confidence, n_pairs, n_directions)
-    k = prop.confidence_scale(confidence, 2)
-    delta = b - a
-    length = np.hypot(delta[:, 0], delta[:, 1])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        e_u = np.where(length[:, None] > 0, delta / length[:, None], [1.0, 0.0])
-    e_n = np.column_stack([-e_u[:, 1], e_u[:, 0]])
-    rot = np.stack([e_u, e_n], axis=1)  # (m, 2, 2): world -> local rows
-    c4 = 0.5 * (c4 + np.swapaxes(c4, 1, 2))
-    ca, cab, cb = c4[:, :2, :2], c4[:, :2, 2:], c4[:, 2:, 2:]
-    t = np.linspace(0.0, 1.0, n_pairs + 1)
-    q = ((1 - t)[None, :, None, None] ** 2 * ca[:, None]
-         + ((1 - t) * t)[None, :, None, None] * (cab + np.swapaxes(cab, 1, 2))[:, None]
-         + (t**2)[None, :, None, None] * cb[:, None])  # (m, P+1, 2, 2)
-    ql = np.einsum("mia,mtab,mjb->mtij", rot, q, rot)
-    tl = t[None, :] * length[:, None]  # (m, P+1) centres along the segment
-    # directions: M uniform ones plus, per pair, the normals of the two common tangents
-    # of the pair's ellipses near the segment's normal (the sides of the band), so the
-    # polygons follow the sides without a staircase
-    du = 2.0 * np.pi / n_directions
-    extra = np.stack([_tangent_normal(tl, ql, k, 0.5 * np.pi, du),
-                      _tangent_normal(tl, ql, k, 1.5 * np.pi, du)], axis=-1)  # (m, P, 2)
-    theta = np.concatenate([np.broadcast_to(du * np.arange(n_directions),
-                                            extra.shape[:2] + (n_directions,)), extra], axis=2)
-    theta = np.sort(theta, axis=2)  # (m, P, M + 2), theta[..., 0] = 0
-    cs, sn = np.cos(theta), np.sin(theta)
-    dirs = np.stack([cs, sn], axis=-1)
-    h0 = tl[:, :-1, None] * cs + k * np.sqrt(np.clip(np.einsum(
-        "mpia,mpab,mpib->mpi", dirs, ql[:, :-1], dirs), 0.0, None))
-    h1 = tl[:, 1:, None] * cs + k * np.sqrt(np.clip(np.einsum(
-        "mpia,mpab,mpib->mpi", dirs, ql[:, 1:], dirs), 0.0, None))
-    hp = np.maximum(h0, h1)  # (m, P, M + 2): support of the pair hulls
-    hn = np.roll(hp, -1, axis=2)
-    c1, s1 = np.roll(cs, -1, axis=2), np.roll(sn, -1, axis=2)
-    det = np.sin(np.diff(np.concatenate([theta, theta[..., :1] + 2 * np.pi], axis=2), axis=2))
-    vu = (hp * s1 - hn * sn) / det  # vertex between directions i and i + 1
-    vw = (hn * cs - hp * c1) / det
-    half = n_directions // 2 + 1  # directions in [0, pi) incl. the upper tangent
-    # upper chain: vertices 0 .. half - 1 (u descending); lower: the others (u ascending)
-    uu, uw = vu[:, :, :half][:, :, ::-1], vw[:, :, :half][:, :, ::-1]
-    lu, lw = vu[:, :, half:], vw[:, :, half:]
-    up_u, up_w, up_v = _upper_envelope(uu, uw)
-    lo_u, lo_w, lo_v = _upper_envelope(lu, -lw)
-    lo_w = -lo_w
-    # ring: lower envelope left -> right, then upper envelope right -> left
-    ru = np.concatenate([lo_u, up_u[:, ::-1]], axis=1)
-    rw = np.concatenate([lo_w, up_w[:, ::-1]], axis=1)
-    rv = np.concatenate([lo_v, up_v[:, ::-1]], axis=1)
-    world = a[:, None, :] + ru[..., None] * e_u[:, None, :] + rw[..., None] * e_n[:, None, :]
-    pts = world[rv]
-    sid = np.broadcast_to(np.arange(m)[:, None], rv.shape)[rv]
-    # drop repeated points, then close every ring with its first point
-    keep = np.ones(len(pts), bool)
-    keep[1:] = (sid[1:] != sid[:-1]) | np.any(np.abs(np.diff(pts, axis=0)) > 0, axis=1)
-    pts, sid = pts[keep], sid[keep]
-    counts = np.bincount(sid, minlength=m)
-    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    ends = np.cumsum(counts)
-    pts = np.insert(pts, ends, pts[first], axis=0)
-    return np.split(pts, (ends + np.arange(1, m + 1))[:-1])
+    return np.split(xy, offsets[1:-1])
+
+
+class _Rings(Sequence):
+    """The rings of :func:`g_band_rings` as a read-only list of arrays (views, made on use)."""
+
+    def __init__(self, xy: np.ndarray, offsets: np.ndarray) -> None:
+        self._xy, self._off = xy, offsets
+
+    def __len__(self) -> int:
+        return max(len(self._off) - 1, 0)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        if not -len(self) <= i < len(self):
+            raise IndexError("ring index out of range")
+        i = i % len(self)
+        return self._xy[self._off[i]:self._off[i + 1]]
 
 
 @dataclass
@@ -560,11 +710,14 @@ class SegmentBands:
         Feature index of each segment.
     start_vertex : numpy.ndarray of int, shape (s,)
         First vertex of each segment (the segment runs to ``start_vertex + 1``).
-    rings : list of numpy.ndarray
-        Closed ring ``(k, 2)`` of each segment's band.
+    rings : sequence of numpy.ndarray
+        Closed ring ``(k, 2)`` of each segment's band (a read-only list).
     cov_joint : numpy.ndarray, shape (s, 6, 6)
         Joint a-posteriori covariance of the segment's end points (X1, Y1, Z1, X2, ...).
     confidence : float
+    xy, offsets : numpy.ndarray, optional
+        The same rings as one array: ring ``i`` is ``xy[offsets[i]:offsets[i + 1]]``
+        (:func:`g_band_rings`).
     """
 
     feature: np.ndarray
@@ -572,6 +725,8 @@ class SegmentBands:
     rings: list
     cov_joint: np.ndarray
     confidence: float
+    xy: Optional[np.ndarray] = None
+    offsets: Optional[np.ndarray] = None
 
 
 def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.9,
@@ -613,9 +768,11 @@ def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.
         cov[:, :3, 3:] = cab
         cov[:, 3:, :3] = np.swapaxes(cab, 1, 2)
     sel = [0, 1, 3, 4]
-    rings = g_band_batch(res.xyz[pa], res.xyz[pb], cov[:, sel][:, :, sel], confidence,
-                         **kwargs)
-    return SegmentBands(db.shape.layer.vertex_feature[a], a, rings, cov, confidence)
+    xy, offsets = g_band_rings(res.xyz[pa], res.xyz[pb], cov[:, sel][:, :, sel], confidence,
+                               **kwargs)
+    rings = _Rings(xy, offsets)
+    return SegmentBands(db.shape.layer.vertex_feature[a], a, rings, cov, confidence, xy,
+                        offsets)
 
 
 def uncertainty_bands(run: AdjustmentRun, db: DatabaseResult,

@@ -53,7 +53,8 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
     confidence : float
         Probability of the error ellipses (default 0.9).
     progress : callable, optional
-        ``progress(fraction, message)`` per database and per chunk of 1024 segments.
+        ``progress(fraction, message)`` per database, per chunk of about 1000 segments
+        (their bands) and per chunk of whole features (their union).
     is_cancelled : callable, optional
         Polled as often; true raises :class:`vectoradjust.errors.CancelledError`.
     **kwargs
@@ -67,32 +68,27 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
     """
     import geopandas as gpd
     import pandas as pd
-    import shapely
 
     cols: dict = {f: [] for f in BAND_FIELDS}
     geoms: list = []
     dbs = list(run.databases)
     for i, d in enumerate(dbs):
-        def step(fraction, i=i, name=d.name):
+        def step(fraction, i=i, name=d.name, what="segments"):
             if is_cancelled is not None and is_cancelled():
                 raise CancelledError("Building the uncertainty bands was cancelled",
                                      "Run again, or leave the bands out (--no-bands)")
-            if progress is not None:
-                progress((i + 0.9 * fraction) / len(dbs),
-                         f"uncertainty bands: {name} {100 * fraction:3.0f} %")
+            if progress is not None:  # the bands of the segments, then their union
+                done = 0.5 * fraction if what == "segments" else 0.5 + 0.5 * fraction
+                progress((i + done) / len(dbs),
+                         f"uncertainty bands: {name} {what} {100 * fraction:3.0f} %")
 
         step(0.0)
         sb = segment_bands(run, d, confidence, progress=step, **kwargs)
-        if progress is not None:
-            progress((i + 0.9) / len(dbs), f"uncertainty bands: {d.name}: union per feature")
         if not sb.rings:
             continue
-        sizes = np.array([len(r) for r in sb.rings])
-        coords = np.concatenate(sb.rings)
-        rings = shapely.linearrings(coords, indices=np.repeat(np.arange(len(sizes)), sizes))
-        polys = shapely.make_valid(shapely.polygons(rings))
         feats, counts = np.unique(sb.feature, return_counts=True)
-        geoms += list(_union_per_feature(polys, np.searchsorted(feats, sb.feature), len(feats)))
+        geoms += _feature_unions(sb, np.searchsorted(feats, sb.feature), len(feats),
+                                 lambda f, step=step: step(f, what="union"))
         fids = d.shape.layer.feature_ids
         cols["database"] += [d.name] * len(feats)
         cols["feature_id"] += [str(f) for f in fids[feats]]
@@ -103,6 +99,40 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
     frame["confidence"] = frame["confidence"].astype(float)
     return gpd.GeoDataFrame(frame, geometry=gpd.GeoSeries(geoms, crs=run.data.crs),
                             crs=run.data.crs)
+
+
+def _feature_unions(sb, group: np.ndarray, n: int, step, chunk: int = 50_000) -> list:
+    """The union of each feature's segment bands, in chunks of whole features.
+
+    ``group`` (s,) numbers the features ``0 .. n - 1``; the segments' rings are made
+    polygons (``make_valid`` where a ring touches itself) and united
+    (:func:`_union_per_feature`) about ``chunk`` segments at a time, so the GEOS copies
+    of the rings stay bounded; ``step(fraction)`` after every chunk.
+    """
+    import shapely
+
+    order = np.argsort(group, kind="stable")
+    starts = np.searchsorted(group[order], np.arange(n + 1))  # segments of each feature
+    out: list = []
+    g0 = 0
+    while g0 < n:
+        g1 = int(np.searchsorted(starts, starts[g0] + chunk, side="right")) - 1
+        g1 = min(max(g1, g0 + 1), n)
+        seg = order[starts[g0]:starts[g1]]
+        lo, hi = sb.offsets[seg], sb.offsets[seg + 1]
+        sizes = hi - lo
+        take = np.repeat(lo - np.concatenate([[0], np.cumsum(sizes)[:-1]]), sizes) + \
+            np.arange(int(sizes.sum()))
+        ok = sizes >= 4  # fewer points: a degenerate ring (no finite covariance), no area
+        polys = np.full(len(seg), shapely.from_wkt("POLYGON EMPTY"), dtype=object)
+        polys[ok] = shapely.polygons(shapely.linearrings(
+            sb.xy[take[np.repeat(ok, sizes)]], indices=np.repeat(np.arange(ok.sum()), sizes[ok])))
+        bad = ~shapely.is_valid(polys)  # a ring may touch itself in degenerate cases
+        polys[bad] = shapely.make_valid(polys[bad])
+        out += list(_union_per_feature(polys, group[seg] - g0, g1 - g0))
+        g0 = g1
+        step(g1 / n)
+    return out
 
 
 def _union_per_feature(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
@@ -122,20 +152,32 @@ def _union_per_feature(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarr
         ok = (shapely.get_type_id(parts) == 3) & ~shapely.is_empty(parts)
         return parts[ok], index[which[ok]]
 
-    parts, g = polygon_parts(polys, group)
+    simple = shapely.get_type_id(polys) == 3
+    if simple.all():  # no GeometryCollection from make_valid: the polygons are the parts
+        parts, g = polys[~shapely.is_empty(polys)], group[~shapely.is_empty(polys)]
+    else:
+        parts, g = polygon_parts(polys, group)
     multi = np.full(n, None, dtype=object)
     if len(parts):
+        have, g = np.unique(g, return_inverse=True)  # sorted; groups without parts left out
         order = np.argsort(g, kind="stable")
-        built = shapely.multipolygons(parts[order], indices=g[order])
-        multi[:len(built)] = built
+        multi[have] = shapely.multipolygons(parts[order], indices=g[order])
     multi = np.where(shapely.is_missing(multi), shapely.from_wkt("MULTIPOLYGON EMPTY"), multi)
     united = shapely.buffer(multi, 0.0)
-    parts, g = polygon_parts(united, np.arange(n))
     out = np.full(n, shapely.from_wkt("MULTIPOLYGON EMPTY"), dtype=object)
-    if len(parts):
-        built = shapely.multipolygons(parts, indices=g)
-        have = np.unique(g)
-        out[have] = built[have]
+    kind = shapely.get_type_id(united)
+    done = (kind == 6) & ~shapely.is_empty(united)
+    out[done] = united[done]  # already MultiPolygons
+    one = np.flatnonzero((kind == 3) & ~shapely.is_empty(united))
+    if len(one):  # a single polygon: a MultiPolygon of one part
+        out[one] = shapely.multipolygons(united[one], indices=np.arange(len(one)))
+    rest = np.flatnonzero((kind != 3) & (kind != 6))
+    if len(rest):  # anything else (a collection): its polygon parts
+        parts, g = polygon_parts(united[rest], rest)
+        if len(parts):
+            built = shapely.multipolygons(parts, indices=g)
+            have = np.unique(g)
+            out[have] = built[have]
     return out
 
 
