@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from vectoradjust.cli.background import Background, workers
+from vectoradjust.cli.background import Background, gather, workers
 from vectoradjust.errors import VectorAdjustError
 
 fork_only = pytest.mark.skipif(sys.platform == "win32", reason="fork start method")
@@ -70,15 +70,33 @@ def test_adjust_writes_the_same_bands_with_and_without_the_child(sample_dir, tmp
     from vectoradjust.cli import main
 
     layers = {}
-    for n in ("1", "2"):
+    for n in ("1", "2", "3"):
         monkeypatch.setenv("VECTORADJUST_WORKERS", n)
         assert main(["adjust", str(sample_dir / "project.toml"), "--out",
                      str(tmp_path / n), "-q"]) == 0
         layers[n] = pyogrio.read_dataframe(tmp_path / n / "adjusted.gpkg",
                                            layer="uncertainty_bands")
-    a, b = layers["1"], layers["2"]
-    assert len(a) > 10 and list(a.columns) == list(b.columns)
-    assert a.geometry.geom_equals_exact(b.geometry, 0.0).all()
-    assert (a.drop(columns="geometry") == b.drop(columns="geometry")).all().all()
+    a = layers["1"]
+    assert len(a) > 10
+    for b in (layers["2"], layers["3"]):  # shares of the features, put back in order
+        assert list(a.columns) == list(b.columns) and len(a) == len(b)
+        assert a.geometry.geom_equals_exact(b.geometry, 0.0).all()
+        assert (a.drop(columns="geometry") == b.drop(columns="geometry")).all().all()
     assert ((tmp_path / "1" / "summary.json").read_text(encoding="utf-8")
             == (tmp_path / "2" / "summary.json").read_text(encoding="utf-8"))
+
+
+def _many_messages(i, progress=None):
+    for k in range(20000):  # far more than a pipe holds if nobody reads
+        progress(k / 20000, f"job {i}")
+    return i * 10
+
+
+@fork_only
+def test_gather_reads_every_child_as_it_talks(monkeypatch):
+    monkeypatch.setenv("VECTORADJUST_WORKERS", "3")
+    jobs = [Background(_many_messages, i) for i in range(3)]
+    seen = []
+    assert gather(jobs, lambda f, m: seen.append(f)) == [0, 10, 20]
+    assert all(j.proc is None for j in jobs)
+    assert seen == sorted(seen)  # the mean of fractions that only grow

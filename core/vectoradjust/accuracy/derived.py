@@ -730,7 +730,7 @@ class SegmentBands:
 
 
 def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.9,
-                  **kwargs) -> SegmentBands:
+                  part: tuple = (0, 1), **kwargs) -> SegmentBands:
     """G-band of every segment of a road database whose two end points were measured.
 
     The joint 6x6 covariance of the end points comes from :func:`cross_covariance`
@@ -744,6 +744,9 @@ def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.
     db : DatabaseResult
     confidence : float
         Probability of the error ellipses (0.9 = 90 %).
+    part : (int, int)
+        ``(i, n)``: only the segments of the features whose index is ``i`` modulo ``n``
+        (``n`` processes share the work; default all).
     **kwargs
         ``n_pairs``, ``n_directions``, ``progress`` of :func:`g_band_batch`.
 
@@ -755,6 +758,8 @@ def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.
     _check_result(res)
     vp = np.asarray(db.vertex_point, np.int64)
     a = _segments(db)
+    if part[1] > 1 and a.size:
+        a = a[np.asarray(db.shape.layer.vertex_feature)[a] % part[1] == part[0]]
     if a.size:
         a = a[(vp[a] >= 0) & (vp[a + 1] >= 0) & (vp[a] != vp[a + 1])]
     pa, pb = vp[a], vp[a + 1]

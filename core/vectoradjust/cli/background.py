@@ -14,11 +14,13 @@ an error is raised where it would have been raised without the child.
 from __future__ import annotations
 
 import multiprocessing
+import multiprocessing.connection
 import os
+import time
 import traceback
 from typing import Callable, Optional
 
-__all__ = ["Background", "workers"]
+__all__ = ["Background", "gather", "workers"]
 
 
 def workers() -> int:
@@ -33,8 +35,13 @@ def workers() -> int:
 
 
 def _child(conn, fn, args, kwargs) -> None:
+    last = [0.0]
+
     def progress(fraction: float, message: str = "") -> None:
-        conn.send(("progress", float(fraction), str(message)))
+        now = time.monotonic()
+        if now - last[0] >= 0.2:  # a few messages a second are plenty for a bar
+            last[0] = now
+            conn.send(("progress", float(fraction), str(message)))
 
     try:
         value = fn(*args, progress=progress, **kwargs)
@@ -67,6 +74,7 @@ class Background:
         self.proc = None
         self.conn = None
         self.failure: Optional[str] = None
+        self.done, self.value = False, None
         if not (enabled and workers() > 1
                 and "fork" in multiprocessing.get_all_start_methods()):
             return
@@ -86,22 +94,29 @@ class Background:
         """Wait for the child (forwarding its progress) and return ``fn``'s result; run
         ``fn`` here instead when there is no child or it failed."""
         say = progress or (lambda fraction, message="": None)
-        if self.proc is not None:
-            try:
-                while True:
-                    kind, *rest = self.conn.recv()
-                    if kind == "progress":
-                        say(*rest)
-                        continue
-                    if kind == "result":
-                        return rest[0]
-                    self.failure = rest[0]
-                    break
-            except EOFError:  # the child died (e.g. out of memory)
-                self.failure = f"the child process ended with code {self.proc.exitcode}"
-            finally:
-                self.close()
+        while self.proc is not None and not self._receive(say):
+            pass
+        if self.done:
+            return self.value
         return self.fn(*self.args, progress=say, **self.kwargs)
+
+    def _receive(self, say) -> bool:
+        """Read one message of the child; True when it has ended (result or failure)."""
+        try:
+            kind, *rest = self.conn.recv()
+        except EOFError:  # the child died (e.g. out of memory)
+            self.failure = f"the child process ended with code {self.proc.exitcode}"
+            self.close()
+            return True
+        if kind == "progress":
+            say(*rest)
+            return False
+        if kind == "result":
+            self.done, self.value = True, rest[0]
+        else:
+            self.failure = rest[0]
+        self.close()
+        return True
 
     def close(self) -> None:
         """Stop the child if it still runs (e.g. the parent was interrupted)."""
@@ -114,3 +129,27 @@ class Background:
                 self.proc.terminate()
                 self.proc.join()
             self.proc = None
+
+
+def gather(jobs: list, progress: Optional[Callable] = None) -> list:
+    """The results of several :class:`Background` jobs, in order.
+
+    Their pipes are read as messages arrive (a child never waits for the parent to
+    finish reading another), and their progress is forwarded as the mean fraction.
+    """
+    say = progress or (lambda fraction, message="": None)
+    frac = [0.0] * len(jobs)
+
+    def sayer(i):
+        def s(fraction, message=""):
+            frac[i] = fraction
+            say(sum(frac) / len(frac), message)
+        return s
+
+    live = {j.conn: (i, j) for i, j in enumerate(jobs) if j.proc is not None}
+    while live:
+        for conn in multiprocessing.connection.wait(list(live)):
+            i, j = live[conn]
+            if j._receive(sayer(i)):
+                del live[conn]
+    return [j.result(sayer(i)) for i, j in enumerate(jobs)]

@@ -103,14 +103,37 @@ def print_table(rows: list, out=None) -> None:
         print("  ".join(v.rjust(w) for v, w in zip(c, widths)), file=out)
 
 
+class _BandsAlongside:
+    """The uncertainty bands built by forked processes (one share of the features each)
+    while the parent runs the ``[truth]`` tests and writes the other layers."""
+
+    def __init__(self, result) -> None:
+        from vectoradjust.cli.background import Background, workers
+        from vectoradjust.files.derived_outputs import uncertainty_bands_frame
+
+        self.run = result
+        n = workers()
+        self.jobs = ([Background(uncertainty_bands_frame, result, part=(i, n))
+                      for i in range(n)] if n > 1 else
+                     [Background(uncertainty_bands_frame, result, enabled=False)])
+
+    def result(self, progress=None):
+        """The whole frame (waits for the processes, forwarding their progress)."""
+        from vectoradjust.cli.background import gather
+        from vectoradjust.files.derived_outputs import merge_band_parts
+
+        return merge_band_parts(self.run, gather(self.jobs, progress))
+
+    def close(self) -> None:
+        for j in self.jobs:
+            j.close()
+
+
 def _bands_alongside(result, wanted: bool):
-    """The uncertainty bands, started in a second process (None: not wanted)."""
+    """The uncertainty bands, started in other processes (None: not wanted)."""
     if not wanted or not result.databases:
         return None
-    from vectoradjust.cli.background import Background
-    from vectoradjust.files.derived_outputs import uncertainty_bands_frame
-
-    return Background(uncertainty_bands_frame, result)
+    return _BandsAlongside(result)
 
 
 def cmd_adjust(args) -> int:

@@ -29,6 +29,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "BAND_FIELDS",
     "uncertainty_bands_frame",
+    "merge_band_parts",
     "write_uncertainty_bands",
     "write_equal_error_map",
     "write_conflation_rasters",
@@ -40,7 +41,7 @@ EQUAL_ERROR_NODATA = -9999.0
 
 
 def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progress=None,
-                            is_cancelled=None, **kwargs):
+                            is_cancelled=None, part: tuple = (0, 1), **kwargs):
     """GeoDataFrame of the uncertainty bands: one (Multi)Polygon per road feature.
 
     Each feature's band is the union of the G-bands of its segments whose two end points
@@ -57,6 +58,10 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
         (their bands) and per chunk of whole features (their union).
     is_cancelled : callable, optional
         Polled as often; true raises :class:`vectoradjust.errors.CancelledError`.
+    part : (int, int)
+        ``(i, n)``: only the features whose index is ``i`` modulo ``n``, with their
+        index in a column ``_feature`` (:func:`merge_band_parts` puts ``n`` parts
+        together in the order of one whole frame); default all, no extra column.
     **kwargs
         ``n_pairs``, ``n_directions`` of :func:`vectoradjust.accuracy.derived.g_band_batch`.
 
@@ -70,6 +75,7 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
     import pandas as pd
 
     cols: dict = {f: [] for f in BAND_FIELDS}
+    order: list = []
     geoms: list = []
     dbs = list(run.databases)
     for i, d in enumerate(dbs):
@@ -83,7 +89,7 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
                          f"uncertainty bands: {name} {what} {100 * fraction:3.0f} %")
 
         step(0.0)
-        sb = segment_bands(run, d, confidence, progress=step, **kwargs)
+        sb = segment_bands(run, d, confidence, part=part, progress=step, **kwargs)
         if not sb.rings:
             continue
         feats, counts = np.unique(sb.feature, return_counts=True)
@@ -94,11 +100,29 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
         cols["feature_id"] += [str(f) for f in fids[feats]]
         cols["confidence"] += [float(confidence)] * len(feats)
         cols["NSeg"] += counts.tolist()
+        order += feats.tolist()
+    if part[1] > 1:
+        cols["_feature"] = order
     frame = pd.DataFrame(cols)
     frame["NSeg"] = frame["NSeg"].astype("int64")
     frame["confidence"] = frame["confidence"].astype(float)
     return gpd.GeoDataFrame(frame, geometry=gpd.GeoSeries(geoms, crs=run.data.crs),
                             crs=run.data.crs)
+
+
+def merge_band_parts(run: AdjustmentRun, parts: list):
+    """The frames of :func:`uncertainty_bands_frame` ``part = (i, n)``, ``i = 0 .. n - 1``,
+    as one frame in the order of the whole one (database, then feature)."""
+    import pandas as pd
+
+    parts = [p for p in parts if p is not None]
+    if len(parts) == 1 and "_feature" not in parts[0].columns:
+        return parts[0]
+    frame = pd.concat(parts, ignore_index=True)
+    rank = {d.name: i for i, d in enumerate(run.databases)}
+    key = frame["database"].map(rank).to_numpy(np.int64) * (1 << 40) + frame["_feature"]
+    frame = frame.iloc[np.argsort(key.to_numpy(), kind="stable")].reset_index(drop=True)
+    return frame.drop(columns="_feature")
 
 
 def _feature_unions(sb, group: np.ndarray, n: int, step, chunk: int = 50_000) -> list:
