@@ -12,7 +12,7 @@ import pytest
 from vectoradjust.cli.background import Background, gather, workers
 from vectoradjust.errors import VectorAdjustError
 
-fork_only = pytest.mark.skipif(sys.platform == "win32", reason="fork start method")
+fork_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forks on Linux only")
 
 
 def _work(n, progress=None, parent=None):

@@ -1,14 +1,15 @@
 """Run one stage of a command in a forked child process while the parent goes on.
 
-The command line has a second core to use: ``adjust`` builds the uncertainty bands (the
-longest stage after the solve) in a child while the parent runs the ``[truth]`` tests and
-writes the other layers. The child is a ``fork`` of the parent (it sees the adjusted run
-without copying it), sends its progress and then its result back through a pipe, and the
-parent waits for it only where it needs the result.
+The command line has more cores to use: ``adjust`` builds the uncertainty bands (the
+longest stage after the solve) in children, one share of the features each, while the
+parent runs the ``[truth]`` tests and writes the other layers. A child is a ``fork`` of
+the parent (it sees the adjusted run without copying it), sends its progress and then its
+result back through a pipe, and the parent waits only where it needs the result.
 
-Where ``fork`` is not available (Windows, or ``VECTORADJUST_WORKERS=1``) or the child
-fails, the stage runs in the parent as before: the outputs are the same either way, and
-an error is raised where it would have been raised without the child.
+Where ``fork`` is not safe or not available (anything but Linux: macOS's system
+libraries may not survive a fork; Windows has none), with ``VECTORADJUST_WORKERS=1``, or
+when a child fails, the stage runs in the parent as before: the outputs are the same
+either way, and an error is raised where it would have been raised without the child.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import multiprocessing
 import multiprocessing.connection
 import os
+import sys
 import time
 import traceback
 from typing import Callable, Optional
@@ -75,7 +77,7 @@ class Background:
         self.conn = None
         self.failure: Optional[str] = None
         self.done, self.value = False, None
-        if not (enabled and workers() > 1
+        if not (enabled and workers() > 1 and sys.platform.startswith("linux")
                 and "fork" in multiprocessing.get_all_start_methods()):
             return
         ctx = multiprocessing.get_context("fork")
