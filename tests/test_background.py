@@ -41,6 +41,14 @@ def test_result_and_progress_come_from_the_child(monkeypatch):
     assert seen == [(0.5, "half way")] and bg.proc is None
 
 
+@pytest.mark.parametrize("bad", ["0", "two", "-1", "1.5"])
+def test_a_wrong_worker_count_is_a_clear_error(monkeypatch, bad):
+    monkeypatch.setenv("VECTORADJUST_WORKERS", bad)
+    with pytest.raises(VectorAdjustError, match="VECTORADJUST_WORKERS") as err:
+        workers()
+    assert "unset it" in err.value.mend
+
+
 def test_one_worker_runs_in_the_parent(monkeypatch):
     monkeypatch.setenv("VECTORADJUST_WORKERS", "1")
     assert workers() == 1

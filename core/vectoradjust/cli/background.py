@@ -22,13 +22,25 @@ import time
 import traceback
 from typing import Callable, Optional
 
+from vectoradjust.errors import VectorAdjustError
+
 __all__ = ["Background", "gather", "workers"]
 
 
 def workers() -> int:
-    """Processes the command line may use: ``VECTORADJUST_WORKERS``, else the CPUs."""
+    """Processes the command line may use: ``VECTORADJUST_WORKERS``, else the CPUs.
+
+    Raises
+    ------
+    VectorAdjustError
+        ``VECTORADJUST_WORKERS`` is set but not a whole number >= 1.
+    """
     env = os.environ.get("VECTORADJUST_WORKERS", "").strip()
-    if env.isdigit() and int(env) >= 1:
+    if env:
+        if not (env.isdigit() and int(env) >= 1):
+            raise VectorAdjustError(
+                f"VECTORADJUST_WORKERS={env!r} is not a whole number >= 1",
+                "Set it to the number of processes to use (1: no second process), or unset it")
         return int(env)
     try:
         return max(1, len(os.sched_getaffinity(0)))
