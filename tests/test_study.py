@@ -484,3 +484,51 @@ def test_column_writer_chunks_write_the_same_file(tmp_path, monkeypatch):
     write_csv(cols, tmp_path / "chunks.csv")
     one = (tmp_path / "one.csv").read_bytes()
     assert one == (tmp_path / "chunks.csv").read_bytes() and one.count(b"\r\n") == 24
+
+
+@pytest.mark.io
+def test_arrow_csv_writer_reads_back_as_the_plain_writer(tmp_path, monkeypatch):
+    """The pyarrow path of write_csv against the plain (Python) one: same header, text,
+    empty cells and integers; floats read back exactly (shortest round-trip text)."""
+    pytest.importorskip("pyarrow")
+    import vectoradjust.files.study as st
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(5e5, 1e3, 200)
+    x[::13] = np.nan
+    cols = {"database": np.array(["OSM"] * 100 + ["TNM"] * 100, dtype=object),
+            "point_id": np.array([f"p{i}" for i in range(200)], dtype=object),
+            "X": x, "n": np.arange(200), "maybe": np.array([None, 1.5] * 100, dtype=object)}
+    calls = []
+    write_csv(cols, tmp_path / "arrow.csv", progress=calls.append)
+    monkeypatch.setattr(st, "_arrow_csv", lambda *a: False)
+    write_csv(cols, tmp_path / "plain.csv")
+    with open(tmp_path / "arrow.csv", newline="") as fa, open(tmp_path / "plain.csv",
+                                                              newline="") as fb:
+        a, b = list(csv.reader(fa)), list(csv.reader(fb))
+    assert calls and calls[-1] == 1.0
+    assert len(a) == len(b) == 201 and a[0] == b[0] == list(cols)
+    assert b"\r\n" in (tmp_path / "arrow.csv").read_bytes()[:40]
+    assert [r[:2] + r[3:4] for r in a] == [r[:2] + r[3:4] for r in b]
+    assert [r[4] for r in a] == [r[4] for r in b]  # None -> empty, 1.5 -> "1.5"
+    back = np.array([float(r[2]) if r[2] else np.nan for r in a[1:]])
+    np.testing.assert_array_equal(back, x)  # exact: no digit lost
+    assert '"' not in (tmp_path / "arrow.csv").read_text()  # nothing needed quoting
+
+
+@pytest.mark.io
+def test_arrow_csv_writer_quotes_text_that_needs_it_and_falls_back(tmp_path):
+    pytest.importorskip("pyarrow")
+    import vectoradjust.files.study as st
+
+    cols = {"id": np.array(['a,b', 'say "x"', "plain"], dtype=object), "v": np.ones(3)}
+    write_csv(cols, tmp_path / "q.csv")
+    with open(tmp_path / "q.csv", newline="") as fh:
+        rows = list(csv.reader(fh))
+    assert rows == [["id", "v"], ["a,b", "1"], ['say "x"', "1"], ["plain", "1"]]
+    # text and numbers in one column, or booleans: the plain writer, same cells
+    mixed = {"m": np.array(["x", 2.5, None], dtype=object), "b": np.array([True, False, True])}
+    assert not st._arrow_csv(mixed, tmp_path / "no.csv", None)
+    write_csv(mixed, tmp_path / "m.csv")
+    assert (tmp_path / "m.csv").read_text().splitlines() == ["m,b", "x,True", "2.5,False",
+                                                             ",True"]

@@ -477,13 +477,75 @@ def _column_text(values) -> list:
     return [_cell(x) for x in a.tolist()]
 
 
+def _arrow_array(values):
+    """One column as a pyarrow array whose CSV text is that of :func:`_column_text`
+    (NaN and None as nulls: empty cells), or None when pyarrow cannot take it as is."""
+    import pyarrow as pa
+
+    a = np.asarray(values)
+    if a.dtype.kind == "f":
+        return pa.array(a, mask=np.isnan(a))
+    if a.dtype.kind in "iu":
+        return pa.array(a)
+    if a.dtype.kind != "O":  # booleans, bytes, numpy strings: the plain writer
+        return None
+    try:
+        arr = pa.array(a, from_pandas=True)  # None and NaN are nulls
+    except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError):
+        return None  # mixed kinds (text and numbers): the plain writer
+    ok = pa.types.is_string(arr.type) or pa.types.is_floating(arr.type) or \
+        pa.types.is_integer(arr.type) or pa.types.is_null(arr.type)
+    return arr if ok else None
+
+
+def _arrow_csv(columns: dict, path: Path, progress) -> bool:
+    """Write a column table with pyarrow's CSV writer (C++, about 3x faster than Python
+    formatting); False (nothing written) when pyarrow is missing or a column is of a
+    kind it would write differently (e.g. booleans as ``true``).
+
+    The cells are those of the plain writer, except floats: the shortest text that reads
+    back as the same double (up to 17 significant digits) instead of 15 digits. Text is
+    quoted only in a file where some cell needs it (then every text cell is).
+    """
+    try:
+        import pyarrow as pa
+        import pyarrow.compute as pc
+        import pyarrow.csv as pcsv
+    except ImportError:
+        return False
+    arrays = [_arrow_array(c) for c in columns.values()]
+    if any(a is None for a in arrays):
+        return False
+    special = any(pc.any(pc.match_substring_regex(a, '[,"\r\n]')).as_py()
+                  for a in arrays if pa.types.is_string(a.type))
+    table = pa.table(arrays, names=[str(k) for k in columns])
+    try:
+        options = pcsv.WriteOptions(include_header=False, eol="\r\n",
+                                    quoting_style="needed" if special else "none")
+    except TypeError:  # an older pyarrow without eol / quoting_style
+        return False
+    n = table.num_rows
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        csv.writer(fh).writerow(list(columns))
+    with open(path, "ab") as fh, pcsv.CSVWriter(fh, table.schema, write_options=options) as w:
+        for i in range(0, max(n, 1), _CSV_CHUNK):
+            w.write_table(table.slice(i, _CSV_CHUNK))
+            if progress is not None:
+                progress(min(1.0, (i + _CSV_CHUNK) / max(n, 1)))
+    return True
+
+
 def write_csv(rows, path, progress: Optional[Callable[[float], None]] = None) -> Path:
     """Write a table as CSV: a list of dict rows (the union of their keys as columns) or
-    a dict of equal-length column arrays (formatted column by column in chunks of rows;
-    float columns with 15 significant digits). None and NaN are written as empty cells;
-    ``progress(fraction)`` after each chunk of a column table."""
+    a dict of equal-length column arrays (written by pyarrow's CSV writer when it is
+    installed: floats as the shortest text that reads back as the same number; else
+    formatted column by column in chunks of rows, floats with 15 significant digits).
+    None and NaN are written as empty cells; ``progress(fraction)`` after each chunk of
+    a column table."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    if isinstance(rows, dict) and _arrow_csv(rows, path, progress):
+        return path
     if isinstance(rows, dict):  # columns: formatted a chunk of rows at a time
         cols = [np.asarray(c) for c in rows.values()]
         n = len(cols[0]) if cols else 0
