@@ -243,6 +243,7 @@ def run(
     vectors: Optional[list] = None,
     progress: Optional[Progress] = None,
     is_cancelled: Optional[Callable[[], bool]] = None,
+    on_adjusted: Optional[Callable[[AdjustmentRun], None]] = None,
 ) -> AdjustmentRun:
     """Adjust the road vectors of a project.
 
@@ -258,6 +259,11 @@ def run(
         ``progress(fraction, message)``.
     is_cancelled : callable, optional
         Polled between iterations.
+    on_adjusted : callable, optional
+        ``on_adjusted(run)`` as soon as the adjustment, the control points' and the
+        vertices' tables are final, before the statistics, the control-only run and the
+        conflation: the command line starts the uncertainty bands (which need no more)
+        in other processes there. ``run.summary`` is still empty at that point.
 
     Returns
     -------
@@ -290,6 +296,8 @@ def run(
     tabulate_control(out, cls.ctrl_of_obs, cls.is_check, cls.img_of_obs, setup.imap)
     for d in out.databases:
         tabulate_database(out, d)
+    if on_adjusted is not None:
+        on_adjusted(out)
     report(0.78, "feature length accuracy")
     _derived(out)
     report(0.81, "statistics, reliability and accuracy statements")

@@ -48,14 +48,19 @@ def workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: seconds between two progress messages of a child: the parent may read its pipe only
+#: after minutes of other work, and a full pipe (64 KiB) would stop the child
+PROGRESS_INTERVAL = 1.0
+
+
 def _child(conn, fn, args, kwargs) -> None:
     last = [0.0]
 
     def progress(fraction: float, message: str = "") -> None:
         now = time.monotonic()
-        if now - last[0] >= 0.2:  # a few messages a second are plenty for a bar
+        if now - last[0] >= PROGRESS_INTERVAL:  # ~100 bytes a second at most
             last[0] = now
-            conn.send(("progress", float(fraction), str(message)))
+            conn.send(("progress", float(fraction), str(message)[:200]))
 
     try:
         value = fn(*args, progress=progress, **kwargs)

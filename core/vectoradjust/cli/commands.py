@@ -129,9 +129,9 @@ class _BandsAlongside:
             j.close()
 
 
-def _bands_alongside(result, wanted: bool):
-    """The uncertainty bands, started in other processes (None: not wanted)."""
-    if not wanted or not result.databases:
+def _bands_alongside(result, args):
+    """The uncertainty bands, started in other processes (None: ``--no-bands``)."""
+    if getattr(args, "no_bands", False) or not result.databases:
         return None
     return _BandsAlongside(result)
 
@@ -151,8 +151,15 @@ def cmd_adjust(args) -> int:
     # not turned into tie points
     spec = load_project(args.project)
     data = load_project_data(spec, progress=lambda f, m: bar(0.02 * f, m))
-    result = run(data, vectors=args.vectors, progress=bar)
-    bands = _bands_alongside(result, not getattr(args, "no_bands", False))
+    started: list = []  # the bands start in other processes once the adjustment is final
+    try:
+        result = run(data, vectors=args.vectors, progress=bar,
+                     on_adjusted=lambda r: started.append(_bands_alongside(r, args)))
+    except BaseException:
+        for b in (b for b in started if b is not None):
+            b.close()
+        raise
+    bands = started[0] if started else None
     try:
         truth = cli_buffer.project_truth(spec)
         if truth is not None:  # true centrelines: buffer test before/after the adjustment
