@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 
+import numpy as np
 import pytest
 
 pytest.importorskip("geopandas")
@@ -73,3 +74,13 @@ def test_a_rerun_without_statements_removes_the_old_csv(sample_run, tmp_path):
     (tmp_path / "x" / FEATURE_ACCURACY_CSV).write_text("old", encoding="utf-8")
     move_feature_statements({"accuracy": {"features": {}}}, tmp_path / "x")
     assert not (tmp_path / "x" / FEATURE_ACCURACY_CSV).exists()
+
+
+def test_json_cells_of_numbers_text_and_flags():
+    from vectoradjust.files.jsonfile import _json_cells
+
+    f = _json_cells([1.5, None, float("inf"), 2])
+    assert f.dtype == float and f[0] == 1.5 and f[3] == 2.0 and np.isnan(f[1:3]).all()
+    assert _json_cells([3, 4]).tolist() == [3, 4]  # whole numbers stay whole numbers
+    assert _json_cells([True, None]).tolist() == [True, None]  # flags are not numbers
+    assert _json_cells(["a", 1.0]).tolist() == ["a", 1.0]

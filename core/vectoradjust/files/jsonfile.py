@@ -81,7 +81,13 @@ def _get(row: dict, path: tuple):
 
 
 def _json_cells(values: list) -> np.ndarray:
-    """A column of JSON-ready values as an object array (NaN/inf written as empty)."""
+    """A column of JSON-ready values as an object array (NaN/inf written as empty); a
+    column of floats and None (no booleans, no text) as floats, NaN for None/NaN/inf."""
+    kinds = {type(v) for v in values}
+    if kinds and kinds <= {float, int, type(None)} and kinds & {float, type(None)}:
+        arr = np.array(values, dtype=float)  # None -> NaN
+        arr[~np.isfinite(arr)] = np.nan
+        return arr
     arr = np.empty(len(values), dtype=object)
     arr[:] = [clean_json(v) if not isinstance(v, (str, int, type(None))) else v
               for v in values]
