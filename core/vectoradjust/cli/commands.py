@@ -138,12 +138,14 @@ def _bands_alongside(result, args):
 
 def cmd_adjust(args) -> int:
     from vectoradjust.cli.background import workers
+    from vectoradjust.cli.memory import keep_freed_memory
     from vectoradjust.files.outputs import write_outputs
     from vectoradjust.files.project import load_project
     from vectoradjust.files.readers import load_project_data
     from vectoradjust.pipeline import run
 
     workers()  # a wrong VECTORADJUST_WORKERS is said before the work, not after it
+    keep_freed_memory()
     bar = ProgressBar("adjust", enabled=not args.quiet)
     bar(0.0, "reading inputs")
     # every database is read, so that measurements of the databases not selected with
