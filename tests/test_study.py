@@ -526,9 +526,13 @@ def test_arrow_csv_writer_quotes_text_that_needs_it_and_falls_back(tmp_path):
     with open(tmp_path / "q.csv", newline="") as fh:
         rows = list(csv.reader(fh))
     assert rows == [["id", "v"], ["a,b", "1"], ['say "x"', "1"], ["plain", "1"]]
-    # text and numbers in one column, or booleans: the plain writer, same cells
-    mixed = {"m": np.array(["x", 2.5, None], dtype=object), "b": np.array([True, False, True])}
+    # numpy text and booleans: as the plain writer writes them
+    flags = {"u": np.array(["p1", "p22", "p3"]), "b": np.array([True, False, True])}
+    assert st._arrow_csv(flags, tmp_path / "f.csv", None)
+    assert (tmp_path / "f.csv").read_text().splitlines() == ["u,b", "p1,True", "p22,False",
+                                                             "p3,True"]
+    # text and numbers in one column: the plain writer, same cells
+    mixed = {"m": np.array(["x", 2.5, None], dtype=object), "n": np.array([1, 2, 3])}
     assert not st._arrow_csv(mixed, tmp_path / "no.csv", None)
     write_csv(mixed, tmp_path / "m.csv")
-    assert (tmp_path / "m.csv").read_text().splitlines() == ["m,b", "x,True", "2.5,False",
-                                                             ",True"]
+    assert (tmp_path / "m.csv").read_text().splitlines() == ["m,n", "x,1", "2.5,2", ",3"]

@@ -487,7 +487,11 @@ def _arrow_array(values):
         return pa.array(a, mask=np.isnan(a))
     if a.dtype.kind in "iu":
         return pa.array(a)
-    if a.dtype.kind != "O":  # booleans, bytes, numpy strings: the plain writer
+    if a.dtype.kind == "U":  # numpy text
+        return pa.array(a.tolist(), type=pa.string())
+    if a.dtype.kind == "b":  # as the plain writer: True / False
+        return pa.array(np.where(a, "True", "False").tolist(), type=pa.string())
+    if a.dtype.kind != "O":  # bytes and the like: the plain writer
         return None
     try:
         arr = pa.array(a, from_pandas=True)  # None and NaN are nulls
