@@ -84,6 +84,11 @@ def test_adjust_writes_the_same_bands_with_and_without_the_child(sample_dir, tmp
                      str(tmp_path / n), "-q"]) == 0
         layers[n] = pyogrio.read_dataframe(tmp_path / n / "adjusted.gpkg",
                                            layer="uncertainty_bands")
+        info = pyogrio.read_info(tmp_path / n / "adjusted.gpkg", layer="uncertainty_bands")
+        layers[n + "info"] = (info["geometry_type"], list(info["fields"]),
+                              list(info["dtypes"]), info["crs"])
+    assert layers["1info"] == layers["2info"] == layers["3info"]  # the same layer schema
+    assert layers["1info"][0] == "MultiPolygon" and layers["1info"][3] == "EPSG:32616"
     a = layers["1"]
     assert len(a) > 10
     for b in (layers["2"], layers["3"]):  # shares of the features, put back in order

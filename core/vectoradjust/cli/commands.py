@@ -109,20 +109,23 @@ class _BandsAlongside:
 
     def __init__(self, result) -> None:
         from vectoradjust.cli.background import Background, workers
-        from vectoradjust.files.derived_outputs import uncertainty_bands_frame
+        from vectoradjust.files import derived_outputs as do
 
         self.run = result
         n = workers()
-        self.jobs = ([Background(uncertainty_bands_frame, result, part=(i, n))
-                      for i in range(n)] if n > 1 else
-                     [Background(uncertainty_bands_frame, result, enabled=False)])
+        # Arrow tables of WKB come back (a tenth of the memory of shapely polygons)
+        self.arrow = do.arrow_layers()
+        make = do.uncertainty_bands_table if self.arrow else do.uncertainty_bands_frame
+        self.jobs = ([Background(make, result, part=(i, n)) for i in range(n)] if n > 1 else
+                     [Background(make, result, enabled=False)])
 
     def result(self, progress=None):
-        """The whole frame (waits for the processes, forwarding their progress)."""
+        """The whole layer (waits for the processes, forwarding their progress)."""
         from vectoradjust.cli.background import gather
-        from vectoradjust.files.derived_outputs import merge_band_parts
+        from vectoradjust.files import derived_outputs as do
 
-        return merge_band_parts(self.run, gather(self.jobs, progress))
+        merge = do.merge_band_tables if self.arrow else do.merge_band_parts
+        return merge(self.run, gather(self.jobs, progress))
 
     def close(self) -> None:
         for j in self.jobs:

@@ -273,7 +273,9 @@ def _write_layer(gdf, path: Path, layer: Optional[str], fmt: str) -> list:
     """Write one layer; returns GDAL's warnings as run warnings instead of printing them."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        if fmt == "gpkg":
+        if hasattr(gdf, "write"):  # a LayerTable (Arrow, WKB): straight to GDAL
+            gdf.write(path, layer, "GPKG" if fmt == "gpkg" else "ESRI Shapefile")
+        elif fmt == "gpkg":
             gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio", **_arrow_writing())
         else:
             gdf.to_file(path, driver="ESRI Shapefile", engine="pyogrio", encoding="UTF-8")
