@@ -10,7 +10,9 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import shutil
 import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
@@ -107,36 +109,45 @@ class _BandsAlongside:
     """The uncertainty bands built by forked processes (one share of the features each)
     while the parent runs the ``[truth]`` tests and writes the other layers."""
 
-    def __init__(self, result) -> None:
+    def __init__(self, result, out_dir) -> None:
         from vectoradjust.cli.background import Background, workers
         from vectoradjust.files import derived_outputs as do
 
-        self.run = result
+        self.run, self.folder = result, None
         n = workers()
-        # Arrow tables of WKB come back (a tenth of the memory of shapely polygons)
-        self.arrow = do.arrow_layers()
-        make = do.uncertainty_bands_table if self.arrow else do.uncertainty_bands_frame
-        self.jobs = ([Background(make, result, part=(i, n)) for i in range(n)] if n > 1 else
-                     [Background(make, result, enabled=False)])
+        if do.arrow_layers():  # each process writes its share to a file the parent maps
+            try:
+                Path(out_dir).mkdir(parents=True, exist_ok=True)
+                self.folder = tempfile.mkdtemp(prefix=".vectoradjust-bands-", dir=out_dir)
+            except OSError:  # not writable: write_outputs says so, with what to do
+                self.folder = None
+        if self.folder is not None:
+            make, kw = do.uncertainty_bands_file, {"folder": self.folder}
+        else:  # the polygons come back through the pipe
+            make, kw = do.uncertainty_bands_frame, {}
+        self.jobs = ([Background(make, result, part=(i, n), **kw) for i in range(n)] if n > 1
+                     else [Background(make, result, enabled=False, **kw)])
 
     def result(self, progress=None):
         """The whole layer (waits for the processes, forwarding their progress)."""
         from vectoradjust.cli.background import gather
         from vectoradjust.files import derived_outputs as do
 
-        merge = do.merge_band_tables if self.arrow else do.merge_band_parts
+        merge = do.merge_band_files if self.folder else do.merge_band_parts
         return merge(self.run, gather(self.jobs, progress))
 
     def close(self) -> None:
         for j in self.jobs:
             j.close()
+        if self.folder is not None:
+            shutil.rmtree(self.folder, ignore_errors=True)
 
 
 def _bands_alongside(result, args):
     """The uncertainty bands, started in other processes (None: ``--no-bands``)."""
     if getattr(args, "no_bands", False) or not result.databases:
         return None
-    return _BandsAlongside(result)
+    return _BandsAlongside(result, args.out)
 
 
 def cmd_adjust(args) -> int:

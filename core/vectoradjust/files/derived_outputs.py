@@ -31,8 +31,8 @@ __all__ = [
     "uncertainty_bands_frame",
     "merge_band_parts",
     "LayerTable",
-    "uncertainty_bands_table",
-    "merge_band_tables",
+    "uncertainty_bands_file",
+    "merge_band_files",
     "write_uncertainty_bands",
     "write_equal_error_map",
     "write_conflation_rasters",
@@ -209,24 +209,27 @@ def _union_per_feature(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarr
 
 
 class LayerTable:
-    """A layer as an Arrow table with WKB geometries: no shapely object, sent between
-    processes at the size of its WKB and written by GDAL's Arrow interface.
+    """A layer as Arrow record batches with WKB geometries, written by GDAL's Arrow
+    interface: no shapely object in the process that writes it.
 
     Parameters
     ----------
-    table : pyarrow.Table
-        Attribute columns and a binary ``geometry`` column (WKB).
+    batches : callable
+        ``batches()`` returns a ``pyarrow.RecordBatchReader`` of the rows in order
+        (attribute columns and a binary ``geometry`` column).
     crs : str
         The layer's CRS (anything pyproj reads).
     geometry_type : str
         OGR geometry type of the layer, e.g. ``"MultiPolygon"``.
+    rows : int
+        Number of features.
     """
 
-    def __init__(self, table, crs: str, geometry_type: str) -> None:
-        self.table, self.crs, self.geometry_type = table, crs, geometry_type
+    def __init__(self, batches, crs: str, geometry_type: str, rows: int) -> None:
+        self.batches, self.crs, self.geometry_type, self.rows = batches, crs, geometry_type, rows
 
     def __len__(self) -> int:
-        return self.table.num_rows
+        return self.rows
 
     def write(self, path, layer: Optional[str], driver: str) -> None:
         """Write the layer (replaces a layer of the same name; shapefiles as UTF-8)."""
@@ -234,13 +237,13 @@ class LayerTable:
         from pyproj import CRS
 
         kw = {"encoding": "UTF-8"} if driver == "ESRI Shapefile" else {}
-        write_arrow(self.table, str(path), layer=layer, driver=driver,
+        write_arrow(self.batches(), str(path), layer=layer, driver=driver,
                     geometry_name="geometry", geometry_type=self.geometry_type,
                     crs=CRS.from_user_input(self.crs).to_wkt("WKT1_GDAL"), **kw)
 
 
 def arrow_layers() -> bool:
-    """True when layers can go between processes and to GDAL as Arrow tables."""
+    """True when layers can go between processes and to GDAL as Arrow data."""
     try:
         import pyarrow  # noqa: F401
         from pyogrio.raw import write_arrow  # noqa: F401
@@ -249,43 +252,62 @@ def arrow_layers() -> bool:
     return True
 
 
-def uncertainty_bands_table(run: AdjustmentRun, confidence: float = 0.9, progress=None,
-                            is_cancelled=None, part: tuple = (0, 1), **kwargs) -> LayerTable:
-    """:func:`uncertainty_bands_frame` as a :class:`LayerTable` (a band process's result:
-    a tenth of the memory of the shapely polygons when the parent receives it)."""
+#: rows of the bands layer put in order and written at a time
+BAND_BATCH = 20_000
+
+
+def uncertainty_bands_file(run: AdjustmentRun, folder, confidence: float = 0.9,
+                           progress=None, is_cancelled=None, part: tuple = (0, 1),
+                           **kwargs) -> str:
+    """:func:`uncertainty_bands_frame` written to an Arrow IPC file in ``folder`` (a band
+    process's result: the main process maps the file instead of receiving polygons).
+
+    Columns :data:`BAND_FIELDS`, ``_feature`` (the feature's index) and ``geometry``
+    (WKB). Returns the file's path.
+    """
     import pyarrow as pa
     import shapely
 
     frame = uncertainty_bands_frame(run, confidence, progress, is_cancelled, part, **kwargs)
-    cols = {c: frame[c].to_numpy() for c in frame.columns if c != "geometry"}
-    arrays = [pa.array(cols["database"].tolist(), type=pa.string()),
-              pa.array(cols["feature_id"].tolist(), type=pa.string()),
-              pa.array(cols["confidence"], type=pa.float64()),
-              pa.array(cols["NSeg"], type=pa.int64())]
-    names = list(BAND_FIELDS)
-    if "_feature" in cols:
-        arrays.append(pa.array(cols["_feature"], type=pa.int64()))
-        names.append("_feature")
+    n = len(frame)
+    order = frame["_feature"].to_numpy() if "_feature" in frame.columns else np.arange(n)
+    arrays = [pa.array(frame["database"].to_numpy(object), type=pa.string()),
+              pa.array(frame["feature_id"].to_numpy(object), type=pa.string()),
+              pa.array(frame["confidence"].to_numpy(float), type=pa.float64()),
+              pa.array(frame["NSeg"].to_numpy(np.int64), type=pa.int64()),
+              pa.array(np.asarray(order, np.int64), type=pa.int64())]
     wkb = shapely.to_wkb(np.asarray(frame.geometry.values), output_dimension=2)
-    arrays.append(pa.array(wkb.tolist(), type=pa.binary()))
-    names.append("geometry")
-    return LayerTable(pa.table(arrays, names=names), str(run.data.crs), "MultiPolygon")
+    del frame
+    arrays.append(pa.array(wkb, type=pa.binary()))
+    del wkb
+    table = pa.table(arrays, names=[*BAND_FIELDS, "_feature", "geometry"])
+    path = Path(folder) / f"bands_{part[0]}_of_{part[1]}.arrow"
+    with pa.OSFile(str(path), "wb") as sink, pa.ipc.new_file(sink, table.schema) as w:
+        w.write_table(table, max_chunksize=BAND_BATCH)
+    return str(path)
 
 
-def merge_band_tables(run: AdjustmentRun, parts: list) -> LayerTable:
-    """The tables of :func:`uncertainty_bands_table` ``part = (i, n)`` as one, in the
-    order of the whole layer (database, then feature), as :func:`merge_band_parts`."""
+def merge_band_files(run: AdjustmentRun, paths: list) -> LayerTable:
+    """The files of :func:`uncertainty_bands_file` (parts ``(i, n)``) as one layer in the
+    order of the whole one (database, then feature), as :func:`merge_band_parts`; the
+    files are memory-mapped and put in order a batch at a time when written."""
     import pyarrow as pa
 
-    parts = [p for p in parts if p is not None]
-    table = pa.concat_tables([p.table for p in parts])
-    if "_feature" in table.column_names:
-        rank = {d.name: i for i, d in enumerate(run.databases)}
-        db = np.array([rank[x] for x in table.column("database").to_pylist()], np.int64)
-        key = db * (1 << 40) + table.column("_feature").to_numpy()
-        table = table.take(pa.array(np.argsort(key, kind="stable")))
-        table = table.drop(["_feature"])
-    return LayerTable(table, parts[0].crs, parts[0].geometry_type)
+    tables = [pa.ipc.open_file(pa.memory_map(p)).read_all() for p in paths if p]
+    table = pa.concat_tables(tables)
+    rank = {d.name: i for i, d in enumerate(run.databases)}
+    db = np.array([rank[x] for x in table.column("database").to_pylist()], np.int64)
+    key = db * (1 << 40) + table.column("_feature").to_numpy()
+    order = np.argsort(key, kind="stable")
+    table = table.drop(["_feature"])
+
+    def batches():
+        def gen():
+            for i in range(0, len(order), BAND_BATCH):
+                yield from table.take(pa.array(order[i:i + BAND_BATCH])).to_batches()
+        return pa.RecordBatchReader.from_batches(table.schema, gen())
+
+    return LayerTable(batches, str(run.data.crs), "MultiPolygon", table.num_rows)
 
 
 def write_uncertainty_bands(run: AdjustmentRun, path, layer: str = "uncertainty_bands",
