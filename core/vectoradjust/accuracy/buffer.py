@@ -16,7 +16,7 @@ Straight parts (offsets parallel to a reference segment) are exact.
 quantity without polygons, linear in the size of the data: the buffer of a line is the
 union of the capsules (points within ``x``) of its segments, so the part of a tested
 segment inside it is a union of intervals of its parameter, one per nearby reference
-segment (found with an STRtree), computed in closed form and merged with numpy. It is
+segment (found by sorting boxes on a grid), computed in closed form and merged with numpy. It is
 the exact round buffer: it differs from the polygon method only where a tested line
 crosses a round cap or join, by at most the chord error above (the polygon is that
 much too narrow there).
@@ -288,6 +288,51 @@ def covered_length(seg: np.ndarray, start: np.ndarray, end: np.ndarray,
     return float(np.sum(new * seg_length[seg]))
 
 
+def _cells(lo: np.ndarray, hi: np.ndarray, size: float) -> tuple:
+    """The grid cells ``(ix, iy)`` every box ``lo .. hi`` (n, 2) covers, and its row."""
+    c0 = np.floor(lo / size).astype(np.int64)
+    c1 = np.floor(hi / size).astype(np.int64)
+    nx, ny = c1[:, 0] - c0[:, 0] + 1, c1[:, 1] - c0[:, 1] + 1
+    count = nx * ny
+    row = np.repeat(np.arange(len(lo)), count)
+    k = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+    return c0[row, 0] + k // ny[row], c0[row, 1] + k % ny[row], row
+
+
+class _Grid:
+    """Boxes on a uniform grid, to find the pairs of overlapping boxes by sorting
+    (:meth:`pairs`): a superset of the segments within a distance, without GEOS."""
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, size: float) -> None:
+        self.lo, self.hi, self.size = lo, hi, size
+        ix, iy, row = _cells(lo, hi, size)
+        self.span = int(iy.max() - iy.min() + 3) if len(iy) else 1
+        self.y0 = int(iy.min()) - 1 if len(iy) else 0
+        key = ix * self.span + (iy - self.y0)
+        order = np.argsort(key, kind="stable")
+        self.key, self.row = key[order], row[order]
+
+    def pairs(self, lo: np.ndarray, hi: np.ndarray) -> tuple:
+        """``(i, j)``: every box ``i`` of ``lo .. hi`` overlapping the grid's box ``j``,
+        each pair once (in the cell holding the low corner of the overlap)."""
+        ix, iy, row = _cells(lo, hi, self.size)
+        inside = (iy >= self.y0) & (iy < self.y0 + self.span)
+        ix, iy, row = ix[inside], iy[inside], row[inside]
+        key = ix * self.span + (iy - self.y0)
+        a = np.searchsorted(self.key, key, side="left")
+        b = np.searchsorted(self.key, key, side="right")
+        n = b - a
+        i = np.repeat(row, n)
+        cell = np.repeat(key, n)
+        j = self.row[np.repeat(a - np.cumsum(n) + n, n) + np.arange(int(n.sum()))]
+        olo = np.maximum(lo[i], self.lo[j])
+        ohi = np.minimum(hi[i], self.hi[j])
+        ok = np.all(olo <= ohi, axis=1)  # the boxes overlap (not only share a cell)
+        c = np.floor(olo[ok] / self.size).astype(np.int64)
+        once = c[:, 0] * self.span + (c[:, 1] - self.y0) == cell[ok]
+        return i[ok][once], j[ok][once]
+
+
 class SegmentBuffer:
     """Exact round buffers of reference lines, for measuring tested segments against.
 
@@ -296,41 +341,56 @@ class SegmentBuffer:
     reference : numpy.ndarray, shape (n, 2, 2)
         Reference segments (:func:`line_segments`).
 
-    The segments go into an STRtree once; :meth:`inside` finds the reference
-    segments within the largest width of each tested segment and merges the
-    intervals of :func:`capsule_intervals`.
+    The segments' boxes go on a uniform grid once (numpy sorting, no GEOS); :meth:`inside`
+    pairs every tested segment with the reference segments whose boxes, grown by the
+    largest width, overlap its box, and merges the intervals of
+    :func:`capsule_intervals` (empty for the pairs farther apart). Reference segments
+    longer than four cells are cut into pieces: the buffer of a segment is the union of
+    its pieces' buffers, so the intervals are the same.
     """
 
     def __init__(self, reference: np.ndarray) -> None:
-        import shapely
-
         ref = np.asarray(reference, float).reshape(-1, 2, 2)
         self.origin = ref[0, 0].copy() if len(ref) else np.zeros(2)
-        self.ref = ref - self.origin
-        self.tree = None
-        #: tested segments per STRtree query (the pairs of one query are held at once)
+        ref = ref - self.origin
+        #: tested segments per query (the pairs of one query are held at once)
         self.chunk = 50_000
-        if len(ref):
-            geoms = shapely.linestrings(self.ref.reshape(-1, 2),
-                                        indices=np.repeat(np.arange(len(ref)), 2))
-            self.tree = shapely.STRtree(geoms)
+        self._grids: dict = {}
+        ext = np.abs(ref[:, 1] - ref[:, 0]).max(axis=1) if len(ref) else np.ones(1)
+        #: grid cell: the median reference segment's extent (a few cells per segment)
+        self.cell = float(max(np.median(ext), 1e-6))
+        pieces = np.maximum(np.ceil(ext / (4 * self.cell)), 1).astype(np.int64)
+        if len(ref) and pieces.max() > 1:
+            row = np.repeat(np.arange(len(ref)), pieces)
+            k = np.arange(int(pieces.sum())) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+            t0, t1 = (k / pieces[row])[:, None], ((k + 1) / pieces[row])[:, None]
+            a, d = ref[row, 0], ref[row, 1] - ref[row, 0]
+            ref = np.stack([a + t0 * d, np.where(t1 >= 1, ref[row, 1], a + t1 * d)], axis=1)
+        self.ref = ref
+
+    def _grid(self, distance: float) -> _Grid:
+        """The reference boxes grown by ``distance``, on the grid (kept per distance)."""
+        if distance not in self._grids:
+            lo = self.ref.min(axis=1) - distance
+            hi = self.ref.max(axis=1) + distance
+            self._grids = {distance: _Grid(lo, hi, max(self.cell, distance))}
+        return self._grids[distance]
 
     def inside(self, tested: np.ndarray, widths) -> np.ndarray:
         """Length of the tested segments ``(n, 2, 2)`` inside each width's buffer."""
-        import shapely
-
         widths = np.asarray(widths, float).reshape(-1)
         out = np.zeros(len(widths))
         seg = np.asarray(tested, float).reshape(-1, 2, 2) - self.origin
-        if self.tree is None or not len(seg) or not np.any(widths > 0):
+        if not len(self.ref) or not len(seg) or not np.any(widths > 0):
             return out
         if len(seg) > self.chunk:  # bounded memory: the pairs of one chunk at a time
             for k in range(0, len(seg), self.chunk):
                 out += self.inside(seg[k:k + self.chunk] + self.origin, widths)
             return out
         length = np.hypot(*(seg[:, 1] - seg[:, 0]).T)
-        geoms = shapely.linestrings(seg.reshape(-1, 2), indices=np.repeat(np.arange(len(seg)), 2))
-        i, j = self.tree.query(geoms, predicate="dwithin", distance=float(widths.max()))
+        # candidates: tested boxes overlapping the reference boxes grown by the widest
+        # buffer (every pair within that distance, and some farther that add nothing)
+        i, j = self._grid(float(widths.max())).pairs(seg.min(axis=1), seg.max(axis=1))
         p, q = seg[i, 0], seg[i, 1]
         a, b = self.ref[j, 0], self.ref[j, 1]
         for k, x in enumerate(widths):

@@ -125,7 +125,7 @@ def _check(is_cancelled) -> None:
 
 
 def _truth_buffers(truth, is_cancelled=None):
-    """The true lines' segments in an STRtree, for the exact round buffers of every width.
+    """The true lines' segments on a grid of boxes, for the exact round buffers of every width.
 
     :class:`vectoradjust.accuracy.buffer.SegmentBuffer`: built once for every database,
     before and after; linear in the number of segments (no union of all lines).
