@@ -71,3 +71,21 @@ def test_long_reference_segments_are_cut_without_changing_the_buffer():
     assert len(buf.ref) > len(ref)  # the diagonal was cut
     np.testing.assert_allclose(buf.inside(tst, [1.0, 2.0]),
                                _reference_inside(ref, tst, [1.0, 2.0]), rtol=1e-12)
+
+
+def test_nearest_distance_equals_brute_force_within_the_radius():
+    rng = np.random.default_rng(9)
+    ref = _random_segments(rng, 400)
+    xy = np.concatenate([ref[:200, 0] + rng.normal(0, 3, (200, 2)),
+                         rng.uniform(-500, 1500, (300, 2))])
+    xy[7] = np.nan
+    buf = SegmentBuffer(ref + [506000.0, 4474000.0])
+    got = buf.nearest_distance(xy + [506000.0, 4474000.0], radius=20.0)
+    a, d = ref[None, :, 0], ref[None, :, 1] - ref[None, :, 0]
+    w = xy[:, None] - a
+    t = np.clip(np.einsum("nmk,nmk->nm", w, d) / np.einsum("nmk,nmk->nm", d, d), 0, 1)
+    brute = np.hypot(*np.moveaxis(w - t[..., None] * d, -1, 0)).min(axis=1)
+    near = brute <= 20.0
+    assert np.isnan(got[7]) and near.sum() > 200 and (~near).sum() > 20
+    np.testing.assert_allclose(got[near], brute[near], rtol=0, atol=1e-9)
+    assert np.isnan(got[~near & np.isfinite(brute)]).all()  # farther: left to the caller

@@ -25,7 +25,7 @@ much too narrow there).
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 
@@ -299,6 +299,14 @@ def _cells(lo: np.ndarray, hi: np.ndarray, size: float) -> tuple:
     return c0[row, 0] + k // ny[row], c0[row, 1] + k % ny[row], row
 
 
+def _group_min(best: np.ndarray, index: np.ndarray, values: np.ndarray) -> None:
+    """``best[index] = min(best[index], values)`` with repeated indices (sort + reduceat)."""
+    order = np.argsort(index, kind="stable")
+    idx, val = index[order], values[order]
+    start = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])
+    best[idx[start]] = np.minimum(best[idx[start]], np.minimum.reduceat(val, start))
+
+
 class _Grid:
     """Boxes on a uniform grid, to find the pairs of overlapping boxes by sorting
     (:meth:`pairs`): a superset of the segments within a distance, without GEOS."""
@@ -375,6 +383,35 @@ class SegmentBuffer:
             hi = self.ref.max(axis=1) + distance
             self._grids = {distance: _Grid(lo, hi, max(self.cell, distance))}
         return self._grids[distance]
+
+    def nearest_distance(self, xy: np.ndarray, radius: Optional[float] = None) -> np.ndarray:
+        """Distance of each point ``xy`` (n, 2) to the nearest reference segment, where
+        it is at most ``radius`` (default: one grid cell); NaN for the farther points
+        (the caller asks another index for those) and for points without coordinates."""
+        pts = np.asarray(xy, float).reshape(-1, 2) - self.origin
+        out = np.full(len(pts), np.nan)
+        ok = np.flatnonzero(np.isfinite(pts).all(axis=1))
+        if not len(self.ref) or not len(ok):
+            return out
+        r = float(self.cell if radius is None else radius)
+        grid = self._grid(r)
+        for k in range(0, len(ok), self.chunk):
+            rows = ok[k:k + self.chunk]
+            p = pts[rows]
+            i, j = grid.pairs(p, p)
+            if not len(i):
+                continue
+            a, b = self.ref[j, 0], self.ref[j, 1]
+            d, w = b - a, p[i] - a
+            dd = np.einsum("ij,ij->i", d, d)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.clip(np.where(dd > 0, np.einsum("ij,ij->i", w, d) / dd, 0.0), 0.0, 1.0)
+            dist = np.hypot(*(w - t[:, None] * d).T)
+            best = np.full(len(rows), np.inf)
+            _group_min(best, i, dist)
+            best[best > r] = np.inf
+            out[rows] = np.where(np.isfinite(best), best, np.nan)
+        return out
 
     def inside(self, tested: np.ndarray, widths) -> np.ndarray:
         """Length of the tested segments ``(n, 2, 2)`` inside each width's buffer."""

@@ -300,8 +300,10 @@ def drive_truth_lines(run, distances, truth_path, as_columns: bool = False):
 
 
 def truth_line_distances(run, truth_path, as_columns: bool = False):
-    """:func:`drive_truth_lines` with the true centrelines read by geopandas and the
-    distances of shapely (an STR-tree nearest query); the same rows and summary entry."""
+    """:func:`drive_truth_lines` with the true centrelines read by geopandas; the
+    distances from their segments on a grid of boxes (numpy), for the points farther
+    than its radius from shapely's STR-tree nearest query; the same rows and summary
+    entry."""
     import shapely
     from pyproj import CRS
 
@@ -309,10 +311,17 @@ def truth_line_distances(run, truth_path, as_columns: bool = False):
     parts = [p for g in truth if g is not None and not g.is_empty for p in shapely.get_parts(g)]
     if not parts:
         return None if as_columns else []
-    tree = shapely.STRtree(parts)
+    near = _truth_buffers(truth)  # the segments on a grid (numpy): most points are near
+    tree = None
 
     def distances(xy):
-        return tree.query_nearest(shapely.points(xy), return_distance=True,
-                                  all_matches=False)[1]
+        nonlocal tree
+        d = near.nearest_distance(xy)
+        far = np.flatnonzero(np.isnan(d) & np.isfinite(xy).all(axis=1))
+        if len(far):  # farther than the grid's radius: GEOS's nearest query
+            tree = tree if tree is not None else shapely.STRtree(parts)
+            d[far] = tree.query_nearest(shapely.points(xy[far]), return_distance=True,
+                                        all_matches=False)[1]
+        return d
 
     return drive_truth_lines(run, distances, truth_path, as_columns)
