@@ -113,3 +113,18 @@ def test_gather_reads_every_child_as_it_talks(monkeypatch):
     assert gather(jobs, lambda f, m: seen.append(f)) == [0, 10, 20]
     assert all(j.proc is None for j in jobs)
     assert seen == sorted(seen)  # the mean of fractions that only grow
+
+
+def test_preload_imports_in_a_thread_and_leaves_failures_for_later():
+    import sys
+
+    from vectoradjust.cli.background import Preload
+
+    name = "wave"  # a standard module nothing here imports
+    sys.modules.pop(name, None)
+    p = Preload(["vectoradjust_no_such_module_xyz", name])
+    p.wait()  # the failing import ends the thread quietly ...
+    assert "vectoradjust_no_such_module_xyz" not in sys.modules
+    p = Preload([name])
+    p.wait()
+    assert name in sys.modules and not p.thread.is_alive()

@@ -14,17 +14,19 @@ either way, and an error is raised where it would have been raised without the c
 
 from __future__ import annotations
 
+import importlib
 import multiprocessing
 import multiprocessing.connection
 import os
 import sys
+import threading
 import time
 import traceback
 from typing import Callable, Optional
 
 from vectoradjust.errors import VectorAdjustError
 
-__all__ = ["Background", "gather", "workers"]
+__all__ = ["Background", "Preload", "gather", "workers"]
 
 
 def workers() -> int:
@@ -172,3 +174,30 @@ def gather(jobs: list, progress: Optional[Callable] = None) -> list:
             if j._receive(sayer(i)):
                 del live[conn]
     return [j.result(sayer(i)) for i, j in enumerate(jobs)]
+
+
+class Preload:
+    """Import modules in a thread while the main thread computes.
+
+    The adjustment spends most of its time in numpy, which lets other threads run, so
+    the libraries needed only at the end (matplotlib for the report) are loaded on the
+    idle core meanwhile. :meth:`wait` before a ``fork``: a child must not inherit a
+    module half imported by a thread it does not have. An import that fails is left to
+    fail again, with its message, where the module is used.
+    """
+
+    def __init__(self, names) -> None:
+        self.thread = threading.Thread(target=self._load, args=(tuple(names),), daemon=True)
+        self.thread.start()
+
+    @staticmethod
+    def _load(names) -> None:
+        for name in names:
+            try:
+                importlib.import_module(name)
+            except Exception:  # noqa: BLE001 - reported where the module is used
+                return
+
+    def wait(self) -> None:
+        """Until every import has ended."""
+        self.thread.join()

@@ -143,15 +143,17 @@ class _BandsAlongside:
             shutil.rmtree(self.folder, ignore_errors=True)
 
 
-def _bands_alongside(result, args):
+def _bands_alongside(result, args, preload=None):
     """The uncertainty bands, started in other processes (None: ``--no-bands``)."""
     if getattr(args, "no_bands", False) or not result.databases:
         return None
+    if preload is not None:  # no module half imported in the children
+        preload.wait()
     return _BandsAlongside(result, args.out)
 
 
 def cmd_adjust(args) -> int:
-    from vectoradjust.cli.background import workers
+    from vectoradjust.cli.background import Preload, workers
     from vectoradjust.cli.memory import keep_freed_memory
     from vectoradjust.files.outputs import write_outputs
     from vectoradjust.files.project import load_project
@@ -160,6 +162,8 @@ def cmd_adjust(args) -> int:
 
     workers()  # a wrong VECTORADJUST_WORKERS is said before the work, not after it
     keep_freed_memory()
+    # the report's plotting library loads on the other core while the adjustment runs
+    warm = Preload(("matplotlib.figure", "matplotlib.backends.backend_agg"))
     bar = ProgressBar("adjust", enabled=not args.quiet)
     bar(0.0, "reading inputs")
     # every database is read, so that measurements of the databases not selected with
@@ -170,7 +174,7 @@ def cmd_adjust(args) -> int:
     started: list = []  # the bands start in other processes once the adjustment is final
     try:
         result = run(data, vectors=args.vectors, progress=bar,
-                     on_adjusted=lambda r: started.append(_bands_alongside(r, args)))
+                     on_adjusted=lambda r: started.append(_bands_alongside(r, args, warm)))
     except BaseException:
         for b in (b for b in started if b is not None):
             b.close()
