@@ -22,3 +22,15 @@ def test_python_m_vectoradjust_is_the_cli():
                           "--out", "x"], env=env, capture_output=True, text=True, timeout=120)
     assert bad.returncode != 0 and "Traceback" not in bad.stderr
     assert "no_such.toml" in bad.stderr + bad.stdout
+
+
+def test_adjust_into_a_folder_that_cannot_be_made_is_said_before_the_work(tmp_path, capsys):
+    from vectoradjust.cli import main
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    project = Path(__file__).resolve().parents[1] / "resources" / "sample" / "project.toml"
+    assert main(["adjust", str(project), "--out", str(blocker / "out"), "-q"]) == 1
+    err = capsys.readouterr().err
+    assert "Cannot write into the output directory" in err and "--out" in err
+    assert "Traceback" not in err

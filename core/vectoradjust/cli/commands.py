@@ -152,6 +152,21 @@ def _bands_alongside(result, args, preload=None):
     return _BandsAlongside(result, args.out)
 
 
+def _output_folder(path) -> Path:
+    """``--out`` created now, before the work, or a clear error (not a traceback later)."""
+    from vectoradjust.errors import InputFileError
+
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = tempfile.NamedTemporaryFile(dir=out, prefix=".vectoradjust-probe-")
+        probe.close()
+    except OSError as exc:
+        raise InputFileError(f"Cannot write into the output directory {str(out)!r} ({exc})",
+                             "Choose a writable directory with --out") from exc
+    return out
+
+
 def cmd_adjust(args) -> int:
     from vectoradjust.cli.background import Preload, workers
     from vectoradjust.cli.memory import keep_freed_memory
@@ -161,6 +176,7 @@ def cmd_adjust(args) -> int:
     from vectoradjust.pipeline import run
 
     workers()  # a wrong VECTORADJUST_WORKERS is said before the work, not after it
+    _output_folder(args.out)
     keep_freed_memory()
     # the report's plotting library loads on the other core while the adjustment runs
     warm = Preload(("matplotlib.figure", "matplotlib.backends.backend_agg"))
