@@ -498,14 +498,18 @@ def _nugget_posterior_mean(theta, kind: str, setup, resid, noise, n_grid: int = 
 
 
 def _solve_chunk(models: list, xy_m, dist, idx) -> list:
-    """Simple kriging of one chunk for each ``(cov, resid, noise)`` of ``models`` (same
-    measured points and neighbours): prediction (b, c) and signal error variance (b,)."""
+    """Simple kriging of one chunk for each ``(cov, resid, noise[, carry])`` of ``models``
+    (same measured points and neighbours): prediction (b, c), signal error variance (b,)
+    and the kriging weights' sums of ``carry`` (b, f) (None without ``carry``)."""
     out = []
     dd = None
     diag = np.arange(idx.shape[1])
-    for cov, resid, noise in models:
+    for cov, resid, noise, *rest in models:
+        carry = rest[0] if rest else None
+        nc = 0 if carry is None else carry.shape[1]
         if cov.sill <= 0 or cov.length <= 0:  # no correlated signal: the trend alone
-            out.append((np.zeros((len(idx), resid.shape[1])), np.zeros(len(idx))))
+            out.append((np.zeros((len(idx), resid.shape[1])), np.zeros(len(idx)),
+                        None if carry is None else np.zeros((len(idx), nc))))
             continue
         if dd is None:  # the neighbours' distances, once for all models
             px, py = xy_m[idx, 0], xy_m[idx, 1]  # (b, k)
@@ -515,7 +519,8 @@ def _solve_chunk(models: list, xy_m, dist, idx) -> list:
         c = cov(dist)
         w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
         out.append((np.einsum("bk,bkc->bc", w, resid[idx]),
-                    np.maximum(cov.sill - np.einsum("bk,bk->b", w, c), 0.0)))
+                    np.maximum(cov.sill - np.einsum("bk,bk->b", w, c), 0.0),
+                    None if carry is None else np.einsum("bk,bkf->bf", w, carry[idx])))
     return out
 
 
@@ -555,20 +560,25 @@ def krige(cov: CovarianceModel, xy_m: np.ndarray, resid: np.ndarray, noise: np.n
     nearest : numpy.ndarray, shape (n,)
         Distance to the nearest measured point used.
     """
-    (res,), nearest = _krige_many([(cov, resid, noise)], xy_m, xy_p, k, skip_self, chunk,
-                                  progress, is_cancelled)
+    (res,), nearest = _krige_many([(cov, resid, noise, None)], xy_m, xy_p, k, skip_self,
+                                  chunk, progress, is_cancelled)
     return res[0], res[1], nearest
 
 
 def _krige_many(models: list, xy_m, xy_p, k: int, skip_self: bool = False,
                 chunk: int = 20000, progress=None, is_cancelled=None):
-    """:func:`krige` for several ``(cov, resid, noise)`` on the same measured points: one
-    KD-tree query and one distance matrix per chunk. Returns ``[(pred, var)], nearest``."""
+    """:func:`krige` for several ``(cov, resid, noise[, carry])`` on the same measured
+    points: one KD-tree query and one distance matrix per chunk. ``carry`` (m, f), per
+    measured point, is summed with the kriging weights (the trend's design, whose error
+    the prediction carries only by ``G(x) - sum w_i G(x_i)``, :func:`_trend_cov`).
+    Returns ``[(pred, var, wsum)], nearest`` (``wsum`` None without ``carry``)."""
     from scipy.spatial import cKDTree
 
     n = len(xy_p)
     k = int(min(k, len(xy_m) - (1 if skip_self else 0)))
-    out = [(np.zeros((n, r.shape[1])), np.full(n, float(c.sill))) for c, r, _ in models]
+    out = [(np.zeros((n, m[1].shape[1])), np.full(n, float(m[0].sill)),
+            None if len(m) < 4 or m[3] is None else np.zeros((n, m[3].shape[1])))
+           for m in models]
     nearest = np.full(n, np.inf)
     if n == 0 or k < 1:
         return out, nearest
@@ -578,8 +588,10 @@ def _krige_many(models: list, xy_m, xy_p, k: int, skip_self: bool = False,
             raise CancelledError("The conflation was cancelled", "Run it again when ready")
         e = min(s + chunk, n)
         dist, idx = _neighbours(tree, xy_p[s:e], k, skip_self)
-        for (pred, var), (p, v) in zip(out, _solve_chunk(models, xy_m, dist, idx)):
+        for (pred, var, ws), (p, v, w) in zip(out, _solve_chunk(models, xy_m, dist, idx)):
             pred[s:e], var[s:e] = p, v
+            if ws is not None:
+                ws[s:e] = w
         nearest[s:e] = dist[:, 0]
         if progress is not None:
             progress(e / n)
@@ -628,9 +640,64 @@ def _cv_stats(cov: CovarianceModel, resid, noise, pred, var, factor: float) -> d
 
 
 # --------------------------------------------------------------------------- a run
+@dataclass
+class _Trend:
+    """The trend at the object points and what its error is made of.
+
+    ``t`` (n, 3) the trend; ``g`` (n, 3, q) its design in the estimated parameters (the
+    database offset's, then one per applied mean) and ``c`` (q, q) their covariance, so
+    that the trend's error is ``g dT``; ``fixed`` (3,) the variance no prediction
+    reduces (a mean not applied stays in every vertex); ``covered`` (3,) the axes of
+    the offset model; ``mean`` and ``mean_var`` (3,) the applied means and their
+    variances (0 elsewhere).
+    """
+
+    t: np.ndarray
+    g: np.ndarray
+    c: np.ndarray
+    fixed: np.ndarray
+    covered: np.ndarray
+    mean: np.ndarray
+    mean_var: np.ndarray
+
+    def cov(self, sel=slice(None)) -> np.ndarray:
+        """Covariance (n, 3, 3) of the trend alone (no field) at the points ``sel``."""
+        g = self.g[sel]
+        return np.einsum("niq,qr,njr->nij", g, self.c, g) + np.diag(self.fixed)
+
+
+def _trend_design(rec: Optional[dict], xyz: np.ndarray, mean: np.ndarray,
+                  mean_var: np.ndarray):
+    """``t``, ``g``, ``c`` of :class:`_Trend` at ``xyz``: the offset's ``-G(x) T`` and
+    the means of the axes ``mean_var > 0``."""
+    from vectoradjust.adjust.offsets import _kind_design
+
+    n = len(xyz)
+    t = np.zeros((n, 3))
+    gs, cs = [np.zeros((n, 3, 0))], []
+    if rec is not None:
+        g = _kind_design(rec["kind"], xyz, np.asarray(rec["center"], float))
+        t = -np.einsum("niq,q->ni", g, np.asarray(rec["values"], float))
+        gs.append(g)
+        cs.append(np.asarray(rec["cofactor"], float) * float(rec["variance_factor"]))
+    for a in np.flatnonzero(np.asarray(mean_var) > 0):
+        t[:, a] = mean[a]
+        col = np.zeros((n, 3, 1))
+        col[:, a, 0] = 1.0
+        gs.append(col)
+        cs.append(np.array([[float(mean_var[a])]]))
+    g = np.concatenate(gs, axis=2)
+    c = np.zeros((g.shape[2], g.shape[2]))
+    i = 0
+    for b in cs:
+        c[i:i + len(b), i:i + len(b)] = b
+        i += len(b)
+    return t, g, c
+
+
 def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.ndarray,
-           mean_var: Optional[np.ndarray] = None):
-    """Trend ``t`` (n, 3) and its covariance (n, 3, 3) at every object point.
+           mean_var: Optional[np.ndarray] = None) -> _Trend:
+    """The trend at every object point (:class:`_Trend`).
 
     ``-G(x) T`` of the estimated offset (database minus images, so the displacement is
     its negative); axes the offset model does not cover get the measured points' mean
@@ -640,32 +707,49 @@ def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.n
     adjustment is strained, must not move good database heights (DEM heights). Its
     variance is ``mean_var`` (3,; default ``common``), the variance of the points' mean
     (:func:`_mean_variance`), at least the scatter's; where the mean is not applied, the
-    vertex keeps an error of about ``m``, so its variance is ``m^2 + mean_var``.
+    vertex keeps an error of about ``m``, so its variance is ``m^2 + mean_var``, and no
+    prediction removes it (``fixed``).
     """
-    from vectoradjust.adjust.offsets import _kind_design
-
-    n = len(db_xyz)
-    t = np.zeros((n, 3))
-    tcov = np.zeros((n, 3, 3))
-    covered = np.zeros(3, bool)
+    g0 = np.zeros((1, 3, 0))
     if rec is not None:
-        g = _kind_design(rec["kind"], db_xyz, np.asarray(rec["center"], float))
-        vals = np.asarray(rec["values"], float)
-        c_t = np.asarray(rec["cofactor"], float) * float(rec["variance_factor"])
-        t = -np.einsum("niq,q->ni", g, vals)
-        tcov = np.einsum("niq,qr,njr->nij", g, c_t, g)
-        covered = np.abs(g).sum(axis=(0, 2)) > 0
+        from vectoradjust.adjust.offsets import _kind_design
+
+        g0 = _kind_design(rec["kind"], db_xyz[:1], np.asarray(rec["center"], float))
+    covered = np.abs(g0).sum(axis=(0, 2)) > 0 if len(db_xyz) else np.zeros(3, bool)
     mean_var = common if mean_var is None else mean_var
+    mean, applied_var, fixed = np.zeros(3), np.zeros(3), np.zeros(3)
     for a in np.flatnonzero(~covered):
         col = dm[:, a][np.isfinite(dm[:, a])]
         if col.size:
             m, scatter = float(col.mean()), col.var() / col.size
             var = max(scatter, float(mean_var[a]))
             if abs(m) > 1.96 * np.sqrt(max(scatter, float(common[a]))):
-                t[:, a], tcov[:, a, a] = m, var
+                mean[a], applied_var[a] = m, max(var, 1e-300)
             else:
-                t[:, a], tcov[:, a, a] = 0.0, m * m + var
-    return t, tcov, covered
+                fixed[a] = m * m + var
+    t, g, c = _trend_design(rec, db_xyz, mean, applied_var)
+    return _Trend(t, g, c, fixed, covered, mean, applied_var)
+
+
+def _trend_cov(tr: _Trend, sel, ws_h: Optional[np.ndarray], ws_v: Optional[np.ndarray]):
+    """Covariance (n, 3, 3) of the trend's error in the prediction at the points ``sel``.
+
+    The prediction ``t(x) + sum w_i (d_i - t(x_i))`` carries the trend's error ``g dT``
+    as ``(g(x) - sum w_i g(x_i)) dT``: near measured points (``sum w`` about 1) the
+    collocation has put the field back around the measured displacements and the
+    trend's error cancels; far from them (``w`` about 0) it counts in full. ``ws_h``
+    (n, 2 q) and ``ws_v`` (n, q) are the kriging weights' sums of ``g`` over the
+    measured points (:func:`_krige_many`, horizontal and vertical weights); the error's
+    correlation with the neighbours' own data is left out (it is small beyond the
+    neighbourhood that fixed ``T``). Plus ``fixed``.
+    """
+    h = tr.g[sel].copy()
+    q = h.shape[2]
+    if ws_h is not None:
+        h[:, :2, :] -= ws_h.reshape(len(h), 2, q)
+    if ws_v is not None:
+        h[:, 2, :] -= ws_v
+    return np.einsum("niq,qr,njr->nij", h, tr.c, h) + np.diag(tr.fixed)
 
 
 @dataclass
@@ -677,15 +761,19 @@ class _Field:
     nearest: np.ndarray
     cov: Optional[CovarianceModel]
     cv: dict
+    wsum: Optional[np.ndarray] = None  # kriging weights' sums of the trend's design
 
 
-def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel):
+def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel, carry=None):
     """Fit, predict and cross-validate the horizontal and the vertical field.
 
     Each group (X and Y sharing one covariance function; Z) uses the measured points
     where it is finite; when both use the same points the KD-tree queries and the
-    neighbours' distance matrices are shared.
+    neighbours' distance matrices are shared. ``carry`` (horizontal (m, fh), vertical
+    (m, fv)) is summed with each group's kriging weights (``_Field.wsum``; no field:
+    None, the weights are zero).
     """
+    carry = carry or (None, None)
     groups = [(resid[:, :2], noise[:, :2].mean(axis=1), CE90_CIRCULAR),
               (resid[:, 2:], noise[:, 2], LE90)]
     n_u = len(xy_u)
@@ -699,16 +787,17 @@ def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel):
     batches = ([live] if len(live) == 2 and np.array_equal(*oks) else [[i] for i in live])
     for b, batch in enumerate(batches):
         ok = oks[batch[0]]
-        models = [(covs[i], groups[i][0][ok], groups[i][1][ok]) for i in batch]
+        models = [(covs[i], groups[i][0][ok], groups[i][1][ok],
+                   None if carry[i] is None else carry[i][ok]) for i in batch]
         part = (b, len(batches))
         res, nearest = _krige_many(models, xy_m[ok], xy_u, s.k, progress=lambda f, p=part:
                                    report((p[0] + f) / p[1]), is_cancelled=cancel)
-        loo, _ = _krige_many(models, xy_m[ok], xy_m[ok], s.k, skip_self=True,
-                             is_cancelled=cancel)
-        for i, (pred, var), (lp, lv), m in zip(batch, res, loo, models):
+        loo, _ = _krige_many([m[:3] for m in models], xy_m[ok], xy_m[ok], s.k,
+                             skip_self=True, is_cancelled=cancel)
+        for i, (pred, var, ws), (lp, lv, _), m in zip(batch, res, loo, models):
             cv = (_cv_stats(covs[i], m[1], m[2], lp, lv, groups[i][2]) if ok.sum() >= 3 else
                   {"count": int(ok.sum()), "rmse": None})
-            fields[i] = _Field(pred, var, nearest, covs[i], cv)
+            fields[i] = _Field(pred, var, nearest, covs[i], cv, ws)
     return fields[0], fields[1]
 
 
@@ -886,28 +975,31 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     dm = x_img - db[m_obj]
     noise = photo + d.spec.identification_variance
     common = np.nanmean(np.einsum("nii->ni", out.result.point_cov[obj_pt[m_obj]]), axis=0)
-    t, tcov, covered = _trend(rec, db, dm, common, _mean_variance(out.result, obj_pt[m_obj]))
+    tr = _trend(rec, db, dm, common, _mean_variance(out.result, obj_pt[m_obj]))
+    t, covered = tr.t, tr.covered
     # the field models the deviations from the mean; a mean not applied (above) must
     # not come back through a long-range field
     resid = dm - t[m_obj] - np.where(covered, 0.0, np.nanmean(dm - t[m_obj], axis=0))
     xy_m, xy_u = db[m_obj, :2], db[u_obj, :2]
-    fh, fv = _fields(xy_m, resid, noise, xy_u, s, report, cancel)
+    g_m = tr.g[m_obj]
+    fh, fv = _fields(xy_m, resid, noise, xy_u, s, report, cancel,
+                     (g_m[:, :2, :].reshape(len(m_obj), -1), g_m[:, 2, :]))
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
-    cov = tcov[u_obj].copy()
+    cov = _trend_cov(tr, u_obj, fh.wsum, fv.wsum)
     nug_h = fh.cov.nugget if fh.cov is not None else np.nan
     nug_v = fv.cov.nugget if fv.cov is not None else np.nan
     cov[:, 0, 0] += fh.var + nug_h
     cov[:, 1, 1] += fh.var + nug_h
     cov[:, 2, 2] += fv.var + nug_v
-    mean = np.where(covered, 0.0, t[0] if len(t) else 0.0)
-    mean_var = np.where(covered, 0.0, tcov[0].diagonal() if len(t) else 0.0)
-    model = FieldModel(xy_m, resid, noise, fh.cov, fv.cov, rec, mean, mean_var, s.k)
+    model = FieldModel(xy_m, resid, noise, fh.cov, fv.cov, rec, tr.mean, tr.mean_var, s.k,
+                       tr.fixed)
     info = {"trend": {"offset": rec.get("kind") if rec else None,
                       "axes_from_offset": [a for a, c in zip("XYZ", covered) if c],
                       "axes_from_mean": [a for a, c in zip("XYZ", covered) if not c],
                       "mean": [None if c else float(t[0, a]) if len(t) else None
                                for a, c in enumerate(covered)],
-                      "mean_sigma": [None if c else float(np.sqrt(tcov[0, a, a]))
+                      "mean_sigma": [None if c else float(np.sqrt(tr.mean_var[a]
+                                                                  + tr.fixed[a]))
                                      if len(t) else None for a, c in enumerate(covered)]},
             "covariance": {"horizontal": fh.cov.as_dict() if fh.cov else None,
                            "vertical": fv.cov.as_dict() if fv.cov else None},
@@ -931,10 +1023,12 @@ class FieldModel:
     rec : dict or None
         The offset record (trend ``-G T``).
     mean : numpy.ndarray, shape (3,)
-        Trend value of the axes the offset does not cover (0 on the others) ...
+        Applied mean of the axes the offset does not cover (0 on the others) ...
     mean_var : numpy.ndarray, shape (3,)
-        ... and its variance.
+        ... and its variance (0: not applied).
     k : int
+    fixed : numpy.ndarray, shape (3,)
+        Variance of a mean not applied (it stays in every vertex).
     """
 
     xy: np.ndarray
@@ -946,30 +1040,37 @@ class FieldModel:
     mean: np.ndarray
     mean_var: np.ndarray
     k: int
+    fixed: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def predict(self, xy: np.ndarray):
         """Displacement (n, 3) and its variance per axis (n, 3) at ``xy`` (n, 2).
 
         The same prediction as the vertices get (trend + collocation, with the
-        database's white noise), NaN where a component has no field.
+        database's white noise and the trend's error as the prediction carries it,
+        :func:`_trend_cov`), NaN where a component has no field.
         """
-        xyz = np.column_stack([xy, np.zeros(len(xy))])
-        dm = np.broadcast_to(self.mean, (1, 3)).copy()
-        t, tcov, _ = _trend(self.rec, xyz, dm, self.mean_var)
-        disp = t.copy()
-        var = np.einsum("nii->ni", tcov).copy()
-        for cols, cov in (((0, 1), self.cov_h), ((2,), self.cov_v)):
-            c = list(cols)
+        def design(p):
+            return _trend_design(self.rec, np.column_stack([p, np.zeros(len(p))]),
+                                 self.mean, self.mean_var)
+
+        t, g, c = design(xy)
+        tr = _Trend(t, g, c, np.asarray(self.fixed, float), np.zeros(3, bool), self.mean,
+                    self.mean_var)
+        g_m = design(self.xy)[1]
+        disp, var, ws = t.copy(), np.zeros((len(xy), 3)), [None, None]
+        for i, (cols, cov) in enumerate((([0, 1], self.cov_h), ([2], self.cov_v))):
             if cov is None:
-                disp[:, c] = np.nan
-                var[:, c] = np.nan
+                disp[:, cols] = np.nan
+                var[:, cols] = np.nan
                 continue
-            ok = np.isfinite(self.resid[:, c]).all(axis=1)
-            pred, kv, _ = krige(cov, self.xy[ok], self.resid[ok][:, c],
-                                self.noise[ok][:, c].mean(axis=1), xy, self.k)
-            disp[:, c] += pred
-            var[:, c] += (kv + cov.nugget)[:, None]
-        return disp, var
+            ok = np.isfinite(self.resid[:, cols]).all(axis=1)
+            carry = g_m[ok][:, cols, :].reshape(int(ok.sum()), -1)
+            ((pred, kv, ws[i]),), _ = _krige_many(
+                [(cov, self.resid[ok][:, cols], self.noise[ok][:, cols].mean(axis=1), carry)],
+                self.xy[ok], xy, self.k)
+            disp[:, cols] += pred
+            var[:, cols] += (kv + cov.nugget)[:, None]
+        return disp, var + np.einsum("nii->ni", _trend_cov(tr, slice(None), *ws))
 
 
 def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
