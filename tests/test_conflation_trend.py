@@ -22,6 +22,7 @@ from vectoradjust.accuracy.conflation import (
     _Trend,
     _trend_cov,
     _trend_design,
+    _trend_field_cov,
 )
 from vectoradjust.adjust.shapepoints import lookup
 from vectoradjust.pipeline import run
@@ -86,7 +87,12 @@ def test_trend_variance_through_the_prediction_covers_90_percent(n_measured):
     r = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
     chol = np.linalg.cholesky(cov(r) + 1e-9 * np.eye(len(xy)))
     n = n_measured
-    vt = (cov(r[:n, :n]).sum() + n * (cov.nugget + known)) / n ** 2
+    # the mean's variance: each point's own part (the adjustment's cofactor) plus what
+    # the field's correlation adds (_trend_field_cov); together 1'(C + N)1 / n^2
+    g_m = np.zeros((n, 3, 1))
+    g_m[:, 0, 0] = 1.0
+    vt = (cov.sill + cov.nugget + known) / n + _trend_field_cov(g_m, xy[:n], (cov, None))[0, 0]
+    assert vt == pytest.approx((cov(r[:n, :n]).sum() + n * (cov.nugget + known)) / n ** 2)
     g = np.zeros((n_u, 3, 1))
     g[:, 0, 0] = 1.0
     tr = _Trend(np.zeros((n_u, 3)), g, np.array([[vt]]), np.zeros(3), np.ones(3, bool),
@@ -125,3 +131,29 @@ def test_whole_run_coverage_pooled_over_seeds(name):
         inside += int(np.sum(e <= v["CE90"][u]))
         count += int(u.sum())
     assert 0.87 <= inside / count <= 0.93
+
+
+def test_field_part_of_the_trend_variance_is_that_of_the_least_squares_estimate():
+    """Definition: ``T = A sum g_i' s_i`` (``A = (sum g'g)^-1``) of a field ``s`` with
+    covariance ``C`` has ``Cov T = A (sum_ij g_i' C_ij g_j) A``; the function gives its
+    off-diagonal (i != j) part, exactly on all points, unbiased on a subset."""
+    rng = np.random.default_rng(11)
+    m = 400
+    xy = rng.uniform(0, 1500, (m, 2))
+    xyz = np.column_stack([xy, np.zeros(m)])
+    rec = {"kind": "similarity", "center": [700.0, 800.0], "values": np.zeros(4),
+           "cofactor": np.eye(4), "variance_factor": 1.0}
+    _, g, _ = _trend_design(rec, xyz, np.zeros(3), np.r_[0.0, 0.0, 1.0])  # + a height mean
+    ch = CovarianceModel("gaussian", 4.0, 200.0, 0.1)
+    cv = CovarianceModel("exponential", 0.3, 400.0, 0.01)
+    r = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
+    a = np.linalg.inv(np.einsum("naq,nar->qr", g, g))
+    mid = sum(g[:, i, :].T @ (c(r) - np.diag(np.full(m, c.sill))) @ g[:, i, :]
+              for i, c in ((0, ch), (1, ch), (2, cv)))
+    want = a @ mid @ a
+    assert np.allclose(_trend_field_cov(g, xy, (ch, cv)), want, rtol=1e-9, atol=1e-10)
+    sub = np.mean([_trend_field_cov(g, xy, (ch, cv), max_points=150, seed=s)
+                   for s in range(30)], axis=0)
+    d = np.sqrt(np.diag(want))
+    assert np.allclose(sub / np.outer(d, d), want / np.outer(d, d), atol=0.05)
+    assert np.all(_trend_field_cov(g, xy, (None, None)) == 0)

@@ -33,7 +33,7 @@ vertical are separate fields. Numpy and scipy only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Optional
 
 import numpy as np
@@ -752,6 +752,43 @@ def _trend_cov(tr: _Trend, sel, ws_h: Optional[np.ndarray], ws_v: Optional[np.nd
     return np.einsum("niq,qr,njr->nij", h, tr.c, h) + np.diag(tr.fixed)
 
 
+def _trend_field_cov(g_m: np.ndarray, xy_m: np.ndarray, covs, max_points: int = 1500,
+                     seed: int = 0) -> np.ndarray:
+    """Covariance (q, q) the correlated field adds to the estimated trend's error.
+
+    The offset (and an applied mean) is estimated from the measured points as if their
+    database errors were independent (the adjustment's cofactor holds each point's own
+    variance); the field correlates them, so the estimate also carries the field's
+    weighted mean over the measured points: ``A (sum_{i != j} g_i' C(r_ij) g_j) A`` with
+    ``A = (sum g_i' g_i)^-1`` (the offset's least-squares weights; a mean: ``1/n``) and
+    ``C`` the fitted signal covariance of the row's component (``covs``: horizontal for
+    X and Y, vertical for Z). The pair sum is taken on a random subset of at most
+    ``max_points`` points and scaled by the number of pairs (an unbiased estimate).
+    """
+    m, q = g_m.shape[0], g_m.shape[2]
+    if q == 0 or m < 2 or all(c is None or c.sill <= 0 or c.length <= 0 for c in covs):
+        return np.zeros((q, q))
+    from scipy.spatial.distance import pdist, squareform
+
+    a = np.linalg.pinv(np.einsum("naq,nar->qr", g_m, g_m))
+    pick = (np.sort(np.random.default_rng(seed).choice(m, max_points, replace=False))
+            if m > max_points else np.arange(m))
+    ns = len(pick)
+    dist = squareform(pdist(xy_m[pick]))
+    mid = np.zeros((q, q))
+    for rows, cov in (((0, 1), covs[0]), ((2,), covs[1])):
+        if cov is None or cov.sill <= 0 or cov.length <= 0:
+            continue
+        k = cov(dist)
+        np.fill_diagonal(k, 0.0)
+        for r in rows:
+            gr = g_m[pick, r, :]
+            mid += gr.T @ k @ gr
+    mid *= m * (m - 1) / (ns * (ns - 1))
+    out = a @ mid @ a
+    return 0.5 * (out + out.T)
+
+
 @dataclass
 class _Field:
     """One component group's field at the unmeasured object points."""
@@ -985,6 +1022,8 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     fh, fv = _fields(xy_m, resid, noise, xy_u, s, report, cancel,
                      (g_m[:, :2, :].reshape(len(m_obj), -1), g_m[:, 2, :]))
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
+    extra = _trend_field_cov(g_m, xy_m, (fh.cov, fv.cov))
+    tr = replace(tr, c=tr.c + extra)
     cov = _trend_cov(tr, u_obj, fh.wsum, fv.wsum)
     nug_h = fh.cov.nugget if fh.cov is not None else np.nan
     nug_v = fv.cov.nugget if fv.cov is not None else np.nan
@@ -992,7 +1031,7 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     cov[:, 1, 1] += fh.var + nug_h
     cov[:, 2, 2] += fv.var + nug_v
     model = FieldModel(xy_m, resid, noise, fh.cov, fv.cov, rec, tr.mean, tr.mean_var, s.k,
-                       tr.fixed)
+                       tr.fixed, extra)
     info = {"trend": {"offset": rec.get("kind") if rec else None,
                       "axes_from_offset": [a for a, c in zip("XYZ", covered) if c],
                       "axes_from_mean": [a for a, c in zip("XYZ", covered) if not c],
@@ -1029,6 +1068,9 @@ class FieldModel:
     k : int
     fixed : numpy.ndarray, shape (3,)
         Variance of a mean not applied (it stays in every vertex).
+    trend_field_cov : numpy.ndarray, optional
+        What the field adds to the trend parameters' covariance
+        (:func:`_trend_field_cov`).
     """
 
     xy: np.ndarray
@@ -1041,6 +1083,7 @@ class FieldModel:
     mean_var: np.ndarray
     k: int
     fixed: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    trend_field_cov: Optional[np.ndarray] = None
 
     def predict(self, xy: np.ndarray):
         """Displacement (n, 3) and its variance per axis (n, 3) at ``xy`` (n, 2).
@@ -1054,6 +1097,8 @@ class FieldModel:
                                  self.mean, self.mean_var)
 
         t, g, c = design(xy)
+        if self.trend_field_cov is not None:
+            c = c + self.trend_field_cov
         tr = _Trend(t, g, c, np.asarray(self.fixed, float), np.zeros(3, bool), self.mean,
                     self.mean_var)
         g_m = design(self.xy)[1]
