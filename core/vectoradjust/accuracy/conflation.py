@@ -220,7 +220,8 @@ def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
 
 
 def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
-                   kind: str = "auto", k: int = 12, max_targets: int = 1000) -> CovarianceModel:
+                   kind: str = "auto", k: int = 12, max_targets: int = 1000,
+                   corr: Optional[np.ndarray] = None) -> CovarianceModel:
     """Fit the covariance function and the database's white noise to the residuals.
 
     Two steps. (1) Weighted least squares on the empirical semivariogram,
@@ -252,6 +253,11 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     max_targets : int
         The score is summed over at most this many held-out points (a random subset;
         all points serve as neighbours).
+    corr : numpy.ndarray, shape (n, r), optional
+        The points' noise shared with each other: covariance ``corr corr'`` (part of
+        ``known_noise`` on the diagonal), e.g. the images' height error through their
+        orientation (:func:`_orientation_basis`); a field must not take it for the
+        database's.
 
     Returns
     -------
@@ -270,7 +276,7 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
                                {**fit, "status": "too few pairs: white noise only"})
     # the measured points' own noise is part of the nugget: it cannot be smaller
     floor = min(noise, 0.999 * float(gam.max()))
-    setup = _loo_setup(xy, k, max_targets)
+    setup = _loo_setup(xy, k, max_targets, corr=corr)
     scale = max(total, float(gam.max()), 1e-12)
     best = None
     for kd in (("exponential", "gaussian") if kind == "auto" else (kind,)):
@@ -345,7 +351,30 @@ def _neighbours(tree, xy: np.ndarray, k: int, skip_self: bool):
     return dist, idx
 
 
-def _loo_setup(xy: np.ndarray, k: int, max_targets: int, seed: int = 0):
+def _system(cov: CovarianceModel, dd, dist, noise_nb, u_nb=None, u_tgt=None):
+    """Kriging matrix (b, k, k) and right side (b, k) of ``k`` neighbours.
+
+    ``C(dd) + diag(n_db + noise)`` against ``C(dist)``; with ``u_nb`` (b, k, r) the
+    neighbours' noise is correlated, ``u u'`` (the images' shared error, e.g. of their
+    orientation; ``noise`` holds each point's whole variance, so the diagonal keeps it),
+    and a target that is itself a measured point (leave-one-out; ``u_tgt`` (b, r))
+    shares it with them: the right side gains ``u_nb u_tgt``.
+    """
+    diag = np.arange(dd.shape[1])
+    a = cov(dd)
+    c = cov(dist)
+    if u_nb is None:
+        a[:, diag, diag] += cov.nugget + noise_nb
+        return a, c
+    own = np.einsum("bkr,bkr->bk", u_nb, u_nb)
+    a += np.matmul(u_nb, np.swapaxes(u_nb, 1, 2))
+    a[:, diag, diag] += cov.nugget + np.maximum(noise_nb - own, 0.0)
+    if u_tgt is not None:
+        c = c + np.einsum("bkr,br->bk", u_nb, u_tgt)
+    return a, c
+
+
+def _loo_setup(xy: np.ndarray, k: int, max_targets: int, seed: int = 0, corr=None):
     """Targets (a random subset of at most ``max_targets`` points), their ``k`` nearest
     other points (all points serve as neighbours) and the distances: fixed while the
     parameters of :func:`_loo_score` change."""
@@ -359,26 +388,26 @@ def _loo_setup(xy: np.ndarray, k: int, max_targets: int, seed: int = 0):
     dist, idx = _neighbours(cKDTree(xy), xy[tgt], k, skip_self=True)
     px, py = xy[idx, 0], xy[idx, 1]
     dd = np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :])
-    return tgt, dist, idx, dd
+    return tgt, dist, idx, dd, corr
 
 
 def _loo_score(theta, kind: str, setup, resid: np.ndarray, noise: np.ndarray) -> float:
     """Negative leave-one-out log predictive density (per component, constants dropped)
     of ``theta = (nugget_db, sill, length)``: ``sum log s2 + e^2 / s2`` with ``e`` the
     held-out point's error and ``s2`` its predicted variance (kriging variance + database
-    noise + the point's own noise)."""
-    tgt, dist, idx, dd = setup
+    noise + the point's own noise; with ``corr`` in ``setup`` the noise shared with the
+    neighbours, :func:`_system`)."""
+    tgt, dist, idx, dd, corr = setup
     cov = CovarianceModel(kind, theta[1], theta[2], theta[0])
-    diag = np.arange(idx.shape[1])
-    a = cov(dd)
-    a[:, diag, diag] += cov.nugget + noise[idx]
-    c = cov(dist)
+    a, c = _system(cov, dd, dist, noise[idx], None if corr is None else corr[idx],
+                   None if corr is None else corr[tgt])
     try:
         w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
     except np.linalg.LinAlgError:  # a singular system: no admissible parameters
         return float("inf")
     e = resid[tgt] - np.einsum("bk,bkc->bc", w, resid[idx])
-    s2 = np.maximum(cov.sill - np.einsum("bk,bk->b", w, c), 0.0) + cov.nugget + noise[tgt]
+    sig = cov.sill - np.einsum("bk,bk->b", w, c)
+    s2 = (np.maximum(sig, 0.0) if corr is None else sig) + cov.nugget + noise[tgt]
     if not np.all(s2 > 0):  # a perfect prediction claimed: not admissible
         return float("inf")
     return float(np.sum(resid.shape[1] * np.log(s2) + (e ** 2).sum(axis=1) / s2))
@@ -497,15 +526,19 @@ def _nugget_posterior_mean(theta, kind: str, setup, resid, noise, n_grid: int = 
     return float(np.sum(w * grid) / np.sum(w))
 
 
-def _solve_chunk(models: list, xy_m, dist, idx) -> list:
-    """Simple kriging of one chunk for each ``(cov, resid, noise[, carry])`` of ``models``
-    (same measured points and neighbours): prediction (b, c), signal error variance (b,)
-    and the kriging weights' sums of ``carry`` (b, f) (None without ``carry``)."""
+def _solve_chunk(models: list, xy_m, dist, idx, tgt=None) -> list:
+    """Simple kriging of one chunk for each ``(cov, resid, noise[, carry[, u]])`` of
+    ``models`` (same measured points and neighbours): prediction (b, c), signal error
+    variance (b,) and the kriging weights' sums of ``carry`` (b, f) (None without
+    ``carry``). ``u`` (m, r): the measured points' shared noise (:func:`_system`);
+    ``tgt`` (b,): the targets' own indices when they are measured points (leave-one-out),
+    whose noise is shared with their neighbours (the variance is then relative to
+    the held-out point's own noise, which the caller adds)."""
     out = []
     dd = None
-    diag = np.arange(idx.shape[1])
     for cov, resid, noise, *rest in models:
         carry = rest[0] if rest else None
+        u = rest[1] if len(rest) > 1 else None
         nc = 0 if carry is None else carry.shape[1]
         if cov.sill <= 0 or cov.length <= 0:  # no correlated signal: the trend alone
             out.append((np.zeros((len(idx), resid.shape[1])), np.zeros(len(idx)),
@@ -514,12 +547,12 @@ def _solve_chunk(models: list, xy_m, dist, idx) -> list:
         if dd is None:  # the neighbours' distances, once for all models
             px, py = xy_m[idx, 0], xy_m[idx, 1]  # (b, k)
             dd = np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :])
-        a = cov(dd)
-        a[:, diag, diag] += cov.nugget + noise[idx]
-        c = cov(dist)
+        u_t = None if u is None or tgt is None else u[tgt]
+        a, c = _system(cov, dd, dist, noise[idx], None if u is None else u[idx], u_t)
         w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
+        sig = cov.sill - np.einsum("bk,bk->b", w, c)
         out.append((np.einsum("bk,bkc->bc", w, resid[idx]),
-                    np.maximum(cov.sill - np.einsum("bk,bk->b", w, c), 0.0),
+                    np.maximum(sig, 0.0) if u_t is None else sig,
                     None if carry is None else np.einsum("bk,bkf->bf", w, carry[idx])))
     return out
 
@@ -588,7 +621,8 @@ def _krige_many(models: list, xy_m, xy_p, k: int, skip_self: bool = False,
             raise CancelledError("The conflation was cancelled", "Run it again when ready")
         e = min(s + chunk, n)
         dist, idx = _neighbours(tree, xy_p[s:e], k, skip_self)
-        for (pred, var, ws), (p, v, w) in zip(out, _solve_chunk(models, xy_m, dist, idx)):
+        tgt = np.arange(s, e) if skip_self else None
+        for (pred, var, ws), (p, v, w) in zip(out, _solve_chunk(models, xy_m, dist, idx, tgt)):
             pred[s:e], var[s:e] = p, v
             if ws is not None:
                 ws[s:e] = w
@@ -801,22 +835,27 @@ class _Field:
     wsum: Optional[np.ndarray] = None  # kriging weights' sums of the trend's design
 
 
-def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel, carry=None):
+def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel, carry=None,
+            corr_v=None):
     """Fit, predict and cross-validate the horizontal and the vertical field.
 
     Each group (X and Y sharing one covariance function; Z) uses the measured points
     where it is finite; when both use the same points the KD-tree queries and the
     neighbours' distance matrices are shared. ``carry`` (horizontal (m, fh), vertical
     (m, fv)) is summed with each group's kriging weights (``_Field.wsum``; no field:
-    None, the weights are zero).
+    None, the weights are zero). ``corr_v`` (m, r): the images' height error the
+    measured points share (:func:`_orientation_basis`), in the vertical fit and system.
     """
     carry = carry or (None, None)
+    corr = (None, corr_v)
     groups = [(resid[:, :2], noise[:, :2].mean(axis=1), CE90_CIRCULAR),
               (resid[:, 2:], noise[:, 2], LE90)]
     n_u = len(xy_u)
     oks = [np.isfinite(r).all(axis=1) for r, _, _ in groups]
-    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model, s.k)
-            if ok.sum() >= s.min_points else None for ok, (r, nz, _) in zip(oks, groups)]
+    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model, s.k,
+                           corr=None if u is None else u[ok])
+            if ok.sum() >= s.min_points else None
+            for ok, (r, nz, _), u in zip(oks, groups, corr)]
     live = [i for i, c in enumerate(covs) if c is not None]
     fields = [_Field(np.full((n_u, r.shape[1]), np.nan), np.full(n_u, np.nan),
                      np.full(n_u, np.inf), None, {"count": int(ok.sum()), "rmse": None})
@@ -825,11 +864,12 @@ def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel, car
     for b, batch in enumerate(batches):
         ok = oks[batch[0]]
         models = [(covs[i], groups[i][0][ok], groups[i][1][ok],
-                   None if carry[i] is None else carry[i][ok]) for i in batch]
+                   None if carry[i] is None else carry[i][ok],
+                   None if corr[i] is None else corr[i][ok]) for i in batch]
         part = (b, len(batches))
         res, nearest = _krige_many(models, xy_m[ok], xy_u, s.k, progress=lambda f, p=part:
                                    report((p[0] + f) / p[1]), is_cancelled=cancel)
-        loo, _ = _krige_many([m[:3] for m in models], xy_m[ok], xy_m[ok], s.k,
+        loo, _ = _krige_many([(*m[:3], None, m[4]) for m in models], xy_m[ok], xy_m[ok], s.k,
                              skip_self=True, is_cancelled=cancel)
         for i, (pred, var, ws), (lp, lv, _), m in zip(batch, res, loo, models):
             cv = (_cv_stats(covs[i], m[1], m[2], lp, lv, groups[i][2]) if ok.sum() >= 3 else
@@ -962,6 +1002,50 @@ def image_only(result, problem, pts: np.ndarray, min_share: float = 0.1,
     return xyz, np.where(bad, np.nan, var)
 
 
+def _orientation_basis(result, problem, pts: np.ndarray, scale: float, axis: int = 2,
+                       max_rank: int = 40) -> Optional[np.ndarray]:
+    """The images' shared error of the image-only positions (:func:`image_only`) of the
+    points ``pts`` on one axis, as a basis ``U`` (p, r): covariance ``U U'``.
+
+    The adjusted points share the orientation's error: ``Z S^-1 Z'`` of their joint
+    covariance (:meth:`BundleResult.joint_covariance`, ``Z = N_pp^-1 N_pe`` per point);
+    the image-only position carries it through ``T = P_img^-1 Q^-1`` (the undoing of
+    the prior's pull). Its rank is at most the orientation's 6 parameters per image;
+    the directions above ``1e-6`` of the largest eigenvalue are kept, at most
+    ``max_rank``. Scaled by the images' variance factor ``scale``. None when the run
+    kept no factorisation (nothing shared is then modelled).
+    """
+    if any(getattr(result, a, None) is None for a in ("s_inv", "npp_inv", "nep_obs")):
+        return None
+    import scipy.sparse as sps
+
+    prob = result.problem
+    pts = np.asarray(pts, np.int64)
+    p, n6 = len(pts), 6 * prob.n_images
+    q = result.point_cov[pts] / result.variance_factor
+    good = np.isfinite(q).all(axis=(1, 2))
+    q_inv = np.linalg.pinv(np.where(good[:, None, None], q, np.eye(3)), hermitian=True)
+    row = np.einsum("nj,njk->nk", np.linalg.pinv(q_inv - problem.prior_weight[pts],
+                                                 hermitian=True)[:, axis], q_inv)  # T[axis]
+    pos = np.full(prob.n_points, -1, np.int64)
+    pos[pts] = np.arange(p)
+    sel = np.flatnonzero(pos[prob.obs_point] >= 0)
+    i = pos[prob.obs_point[sel]]
+    contrib = np.einsum("kab,kcb->kac", result.npp_inv[prob.obs_point[sel]],
+                        result.nep_obs[sel])  # (s, 3, 6): N_pp^-1 N_pe
+    vals = np.einsum("kc,kcj->kj", row[i], contrib)
+    z = sps.coo_matrix((vals.ravel(), (np.repeat(i, 6), (6 * prob.obs_image[sel][:, None]
+                                                          + np.arange(6)).ravel())),
+                       shape=(p, n6)).tocsr()
+    lam, vec = np.linalg.eigh(0.5 * (result.s_inv + result.s_inv.T))
+    half = vec * np.sqrt(np.maximum(lam, 0.0))  # S^-1 = half half'
+    ev, ew = np.linalg.eigh(half.T @ (z.T @ z).toarray() @ half)  # (6n, 6n)
+    keep = np.flatnonzero(ev > 1e-6 * max(float(ev[-1]), 1e-300))[::-1][:max_rank]
+    u = np.asarray(z @ (half @ ew[:, keep])) * np.sqrt(scale)
+    u[~good] = 0.0
+    return u
+
+
 def _image_scale(out) -> float:
     """Variance factor of the images' share: 1 with ``covariance_scale = "a-priori"``,
     else the image coordinates' ``v'Pv / r`` (summary ``variance_factors``), at least 1."""
@@ -1019,8 +1103,9 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     resid = dm - t[m_obj] - np.where(covered, 0.0, np.nanmean(dm - t[m_obj], axis=0))
     xy_m, xy_u = db[m_obj, :2], db[u_obj, :2]
     g_m = tr.g[m_obj]
+    corr_v = _orientation_basis(out.result, out.problem, obj_pt[m_obj], _image_scale(out))
     fh, fv = _fields(xy_m, resid, noise, xy_u, s, report, cancel,
-                     (g_m[:, :2, :].reshape(len(m_obj), -1), g_m[:, 2, :]))
+                     (g_m[:, :2, :].reshape(len(m_obj), -1), g_m[:, 2, :]), corr_v)
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
     extra = _trend_field_cov(g_m, xy_m, (fh.cov, fv.cov))
     tr = replace(tr, c=tr.c + extra)
@@ -1031,7 +1116,7 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     cov[:, 1, 1] += fh.var + nug_h
     cov[:, 2, 2] += fv.var + nug_v
     model = FieldModel(xy_m, resid, noise, fh.cov, fv.cov, rec, tr.mean, tr.mean_var, s.k,
-                       tr.fixed, extra)
+                       tr.fixed, extra, corr_v)
     info = {"trend": {"offset": rec.get("kind") if rec else None,
                       "axes_from_offset": [a for a, c in zip("XYZ", covered) if c],
                       "axes_from_mean": [a for a, c in zip("XYZ", covered) if not c],
@@ -1071,6 +1156,8 @@ class FieldModel:
     trend_field_cov : numpy.ndarray, optional
         What the field adds to the trend parameters' covariance
         (:func:`_trend_field_cov`).
+    corr_v : numpy.ndarray, shape (m, r), optional
+        The images' height error the measured points share (:func:`_orientation_basis`).
     """
 
     xy: np.ndarray
@@ -1084,6 +1171,7 @@ class FieldModel:
     k: int
     fixed: np.ndarray = field(default_factory=lambda: np.zeros(3))
     trend_field_cov: Optional[np.ndarray] = None
+    corr_v: Optional[np.ndarray] = None
 
     def predict(self, xy: np.ndarray):
         """Displacement (n, 3) and its variance per axis (n, 3) at ``xy`` (n, 2).
@@ -1110,9 +1198,10 @@ class FieldModel:
                 continue
             ok = np.isfinite(self.resid[:, cols]).all(axis=1)
             carry = g_m[ok][:, cols, :].reshape(int(ok.sum()), -1)
+            u = None if i == 0 or self.corr_v is None else self.corr_v[ok]
             ((pred, kv, ws[i]),), _ = _krige_many(
-                [(cov, self.resid[ok][:, cols], self.noise[ok][:, cols].mean(axis=1), carry)],
-                self.xy[ok], xy, self.k)
+                [(cov, self.resid[ok][:, cols], self.noise[ok][:, cols].mean(axis=1), carry,
+                  u)], self.xy[ok], xy, self.k)
             disp[:, cols] += pred
             var[:, cols] += (kv + cov.nugget)[:, None]
         return disp, var + np.einsum("nii->ni", _trend_cov(tr, slice(None), *ws))
