@@ -288,10 +288,13 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
         if best is None or score < best[2]:
             best = (kd, theta, score, wls)
     kd, theta, score, wls = best
-    white = _fit_white(setup, resid, noise_pt, scale)
+    white = _fit_white(kd, setup, resid, noise_pt, scale)
+    status = "fitted"
+    if white[1] <= score + 4.0:  # a signal must earn its two parameters (AIC)
+        theta, score, status = np.array([white[0], 0.0, 0.0]), white[1], "white noise (AIC)"
     nug = _nugget_posterior_mean(theta, kd, setup, resid, noise_pt)
     return CovarianceModel(kd, float(theta[1]), float(theta[2]), nug, noise,
-                           {**fit, "status": "fitted", "fitted_nugget": wls["nugget"],
+                           {**fit, "status": status, "fitted_nugget": wls["nugget"],
                             "semivariogram_fit": wls, "loo_score": score,
                             "loo_score_white": white[1], "nugget_best": float(theta[0]),
                             "loo_targets": int(len(setup[0]))})
@@ -478,9 +481,16 @@ def _lattice_min(f, x, lo, hi, step: float = 0.05, max_moves: int = 200):
     return cur * step, float(best)
 
 
-def _fit_white(setup, resid, noise, scale: float):
+def _fit_white(kind: str, setup, resid, noise, scale: float):
     """The white-noise-only model (no signal): ``n_db`` minimising :func:`_loo_score`
-    on a fine logarithmic grid (one parameter) and its score."""
+    on a logarithmic grid (one parameter) and its score. Without shared noise the
+    held-out point's prediction is 0 and the score is closed-form (400 values); with it
+    the neighbours still predict the shared part (:func:`_loo_score`, 71 values)."""
+    if setup[4] is not None:
+        grid = np.geomspace(1e-6 * scale, 10 * scale, 71)
+        sc = np.array([_loo_score((g, 0.0, 0.0), kind, setup, resid, noise) for g in grid])
+        i = int(np.argmin(sc))
+        return float(grid[i]), float(sc[i])
     grid = np.geomspace(1e-6 * scale, 10 * scale, 400)
     tgt = setup[0]
     r2 = (resid[tgt] ** 2).sum(axis=1)
@@ -1010,10 +1020,11 @@ def _orientation_basis(result, problem, pts: np.ndarray, scale: float, axis: int
     The adjusted points share the orientation's error: ``Z S^-1 Z'`` of their joint
     covariance (:meth:`BundleResult.joint_covariance`, ``Z = N_pp^-1 N_pe`` per point);
     the image-only position carries it through ``T = P_img^-1 Q^-1`` (the undoing of
-    the prior's pull). Its rank is at most the orientation's 6 parameters per image;
-    the directions above ``1e-6`` of the largest eigenvalue are kept, at most
-    ``max_rank``. Scaled by the images' variance factor ``scale``. None when the run
-    kept no factorisation (nothing shared is then modelled).
+    the prior's pull). Its rank is at most the orientation's 6 parameters per image:
+    with at most ``max_rank`` of them ``U = Z L`` (``S^-1 = L L'``) exactly; with more,
+    the directions above ``1e-6`` of the largest eigenvalue, at most ``max_rank``.
+    Scaled by the images' variance factor ``scale``. None when the run kept no
+    factorisation (nothing shared is then modelled).
     """
     if any(getattr(result, a, None) is None for a in ("s_inv", "npp_inv", "nep_obs")):
         return None
@@ -1037,11 +1048,19 @@ def _orientation_basis(result, problem, pts: np.ndarray, scale: float, axis: int
     z = sps.coo_matrix((vals.ravel(), (np.repeat(i, 6), (6 * prob.obs_image[sel][:, None]
                                                           + np.arange(6)).ravel())),
                        shape=(p, n6)).tocsr()
-    lam, vec = np.linalg.eigh(0.5 * (result.s_inv + result.s_inv.T))
-    half = vec * np.sqrt(np.maximum(lam, 0.0))  # S^-1 = half half'
-    ev, ew = np.linalg.eigh(half.T @ (z.T @ z).toarray() @ half)  # (6n, 6n)
-    keep = np.flatnonzero(ev > 1e-6 * max(float(ev[-1]), 1e-300))[::-1][:max_rank]
-    u = np.asarray(z @ (half @ ew[:, keep])) * np.sqrt(scale)
+    s_inv = 0.5 * (result.s_inv + result.s_inv.T)
+    try:  # S^-1 = half half' (Cholesky: unique, the same on every numpy build)
+        half = np.linalg.cholesky(s_inv)
+    except np.linalg.LinAlgError:
+        lam, vec = np.linalg.eigh(s_inv)
+        half = vec * np.sqrt(np.maximum(lam, 0.0))
+    if n6 <= max_rank:  # few images: exact, no eigen-decomposition
+        u = np.asarray(z @ half)
+    else:
+        ev, ew = np.linalg.eigh(half.T @ (z.T @ z).toarray() @ half)  # (6n, 6n)
+        keep = np.flatnonzero(ev > 1e-6 * max(float(ev[-1]), 1e-300))[::-1][:max_rank]
+        u = np.asarray(z @ (half @ ew[:, keep]))
+    u = u * np.sqrt(scale)
     u[~good] = 0.0
     return u
 
