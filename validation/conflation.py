@@ -166,8 +166,8 @@ def use_true_covariance() -> None:
 
     fit = conf.fit_covariance
 
-    def true_fit(xy, resid, known, kind="auto", k=12, max_targets=1000):
-        f = fit(xy, resid, known, kind, k, max_targets)
+    def true_fit(xy, resid, known, kind="auto", k=12, max_targets=1000, corr=None):
+        f = fit(xy, resid, known, kind, k, max_targets, corr=corr)
         if resid.shape[1] != 2:  # heights: fitted
             return f
         sill = _TRUE["amplitude"] ** 2
