@@ -33,7 +33,7 @@ vertical are separate fields. Numpy and scipy only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Optional
 
 import numpy as np
@@ -220,7 +220,8 @@ def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
 
 
 def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
-                   kind: str = "auto", k: int = 12, max_targets: int = 1000) -> CovarianceModel:
+                   kind: str = "auto", k: int = 12, max_targets: int = 1000,
+                   corr: Optional[np.ndarray] = None) -> CovarianceModel:
     """Fit the covariance function and the database's white noise to the residuals.
 
     Two steps. (1) Weighted least squares on the empirical semivariogram,
@@ -252,6 +253,11 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     max_targets : int
         The score is summed over at most this many held-out points (a random subset;
         all points serve as neighbours).
+    corr : numpy.ndarray, shape (n, r), optional
+        The points' noise shared with each other: covariance ``corr corr'`` (part of
+        ``known_noise`` on the diagonal), e.g. the images' height error through their
+        orientation (:func:`_orientation_basis`); a field must not take it for the
+        database's.
 
     Returns
     -------
@@ -270,7 +276,7 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
                                {**fit, "status": "too few pairs: white noise only"})
     # the measured points' own noise is part of the nugget: it cannot be smaller
     floor = min(noise, 0.999 * float(gam.max()))
-    setup = _loo_setup(xy, k, max_targets)
+    setup = _loo_setup(xy, k, max_targets, corr=corr)
     scale = max(total, float(gam.max()), 1e-12)
     best = None
     for kd in (("exponential", "gaussian") if kind == "auto" else (kind,)):
@@ -282,10 +288,13 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
         if best is None or score < best[2]:
             best = (kd, theta, score, wls)
     kd, theta, score, wls = best
-    white = _fit_white(setup, resid, noise_pt, scale)
+    white = _fit_white(kd, setup, resid, noise_pt, scale)
+    status = "fitted"
+    if white[1] <= score + 4.0:  # a signal must earn its two parameters (AIC)
+        theta, score, status = np.array([white[0], 0.0, 0.0]), white[1], "white noise (AIC)"
     nug = _nugget_posterior_mean(theta, kd, setup, resid, noise_pt)
     return CovarianceModel(kd, float(theta[1]), float(theta[2]), nug, noise,
-                           {**fit, "status": "fitted", "fitted_nugget": wls["nugget"],
+                           {**fit, "status": status, "fitted_nugget": wls["nugget"],
                             "semivariogram_fit": wls, "loo_score": score,
                             "loo_score_white": white[1], "nugget_best": float(theta[0]),
                             "loo_targets": int(len(setup[0]))})
@@ -345,7 +354,30 @@ def _neighbours(tree, xy: np.ndarray, k: int, skip_self: bool):
     return dist, idx
 
 
-def _loo_setup(xy: np.ndarray, k: int, max_targets: int, seed: int = 0):
+def _system(cov: CovarianceModel, dd, dist, noise_nb, u_nb=None, u_tgt=None):
+    """Kriging matrix (b, k, k) and right side (b, k) of ``k`` neighbours.
+
+    ``C(dd) + diag(n_db + noise)`` against ``C(dist)``; with ``u_nb`` (b, k, r) the
+    neighbours' noise is correlated, ``u u'`` (the images' shared error, e.g. of their
+    orientation; ``noise`` holds each point's whole variance, so the diagonal keeps it),
+    and a target that is itself a measured point (leave-one-out; ``u_tgt`` (b, r))
+    shares it with them: the right side gains ``u_nb u_tgt``.
+    """
+    diag = np.arange(dd.shape[1])
+    a = cov(dd)
+    c = cov(dist)
+    if u_nb is None:
+        a[:, diag, diag] += cov.nugget + noise_nb
+        return a, c
+    own = np.einsum("bkr,bkr->bk", u_nb, u_nb)
+    a += np.matmul(u_nb, np.swapaxes(u_nb, 1, 2))
+    a[:, diag, diag] += cov.nugget + np.maximum(noise_nb - own, 0.0)
+    if u_tgt is not None:
+        c = c + np.einsum("bkr,br->bk", u_nb, u_tgt)
+    return a, c
+
+
+def _loo_setup(xy: np.ndarray, k: int, max_targets: int, seed: int = 0, corr=None):
     """Targets (a random subset of at most ``max_targets`` points), their ``k`` nearest
     other points (all points serve as neighbours) and the distances: fixed while the
     parameters of :func:`_loo_score` change."""
@@ -359,26 +391,26 @@ def _loo_setup(xy: np.ndarray, k: int, max_targets: int, seed: int = 0):
     dist, idx = _neighbours(cKDTree(xy), xy[tgt], k, skip_self=True)
     px, py = xy[idx, 0], xy[idx, 1]
     dd = np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :])
-    return tgt, dist, idx, dd
+    return tgt, dist, idx, dd, corr
 
 
 def _loo_score(theta, kind: str, setup, resid: np.ndarray, noise: np.ndarray) -> float:
     """Negative leave-one-out log predictive density (per component, constants dropped)
     of ``theta = (nugget_db, sill, length)``: ``sum log s2 + e^2 / s2`` with ``e`` the
     held-out point's error and ``s2`` its predicted variance (kriging variance + database
-    noise + the point's own noise)."""
-    tgt, dist, idx, dd = setup
+    noise + the point's own noise; with ``corr`` in ``setup`` the noise shared with the
+    neighbours, :func:`_system`)."""
+    tgt, dist, idx, dd, corr = setup
     cov = CovarianceModel(kind, theta[1], theta[2], theta[0])
-    diag = np.arange(idx.shape[1])
-    a = cov(dd)
-    a[:, diag, diag] += cov.nugget + noise[idx]
-    c = cov(dist)
+    a, c = _system(cov, dd, dist, noise[idx], None if corr is None else corr[idx],
+                   None if corr is None else corr[tgt])
     try:
         w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
     except np.linalg.LinAlgError:  # a singular system: no admissible parameters
         return float("inf")
     e = resid[tgt] - np.einsum("bk,bkc->bc", w, resid[idx])
-    s2 = np.maximum(cov.sill - np.einsum("bk,bk->b", w, c), 0.0) + cov.nugget + noise[tgt]
+    sig = cov.sill - np.einsum("bk,bk->b", w, c)
+    s2 = (np.maximum(sig, 0.0) if corr is None else sig) + cov.nugget + noise[tgt]
     if not np.all(s2 > 0):  # a perfect prediction claimed: not admissible
         return float("inf")
     return float(np.sum(resid.shape[1] * np.log(s2) + (e ** 2).sum(axis=1) / s2))
@@ -449,9 +481,16 @@ def _lattice_min(f, x, lo, hi, step: float = 0.05, max_moves: int = 200):
     return cur * step, float(best)
 
 
-def _fit_white(setup, resid, noise, scale: float):
+def _fit_white(kind: str, setup, resid, noise, scale: float):
     """The white-noise-only model (no signal): ``n_db`` minimising :func:`_loo_score`
-    on a fine logarithmic grid (one parameter) and its score."""
+    on a logarithmic grid (one parameter) and its score. Without shared noise the
+    held-out point's prediction is 0 and the score is closed-form (400 values); with it
+    the neighbours still predict the shared part (:func:`_loo_score`, 71 values)."""
+    if setup[4] is not None:
+        grid = np.geomspace(1e-6 * scale, 10 * scale, 71)
+        sc = np.array([_loo_score((g, 0.0, 0.0), kind, setup, resid, noise) for g in grid])
+        i = int(np.argmin(sc))
+        return float(grid[i]), float(sc[i])
     grid = np.geomspace(1e-6 * scale, 10 * scale, 400)
     tgt = setup[0]
     r2 = (resid[tgt] ** 2).sum(axis=1)
@@ -497,25 +536,34 @@ def _nugget_posterior_mean(theta, kind: str, setup, resid, noise, n_grid: int = 
     return float(np.sum(w * grid) / np.sum(w))
 
 
-def _solve_chunk(models: list, xy_m, dist, idx) -> list:
-    """Simple kriging of one chunk for each ``(cov, resid, noise)`` of ``models`` (same
-    measured points and neighbours): prediction (b, c) and signal error variance (b,)."""
+def _solve_chunk(models: list, xy_m, dist, idx, tgt=None) -> list:
+    """Simple kriging of one chunk for each ``(cov, resid, noise[, carry[, u]])`` of
+    ``models`` (same measured points and neighbours): prediction (b, c), signal error
+    variance (b,) and the kriging weights' sums of ``carry`` (b, f) (None without
+    ``carry``). ``u`` (m, r): the measured points' shared noise (:func:`_system`);
+    ``tgt`` (b,): the targets' own indices when they are measured points (leave-one-out),
+    whose noise is shared with their neighbours (the variance is then relative to
+    the held-out point's own noise, which the caller adds)."""
     out = []
     dd = None
-    diag = np.arange(idx.shape[1])
-    for cov, resid, noise in models:
+    for cov, resid, noise, *rest in models:
+        carry = rest[0] if rest else None
+        u = rest[1] if len(rest) > 1 else None
+        nc = 0 if carry is None else carry.shape[1]
         if cov.sill <= 0 or cov.length <= 0:  # no correlated signal: the trend alone
-            out.append((np.zeros((len(idx), resid.shape[1])), np.zeros(len(idx))))
+            out.append((np.zeros((len(idx), resid.shape[1])), np.zeros(len(idx)),
+                        None if carry is None else np.zeros((len(idx), nc))))
             continue
         if dd is None:  # the neighbours' distances, once for all models
             px, py = xy_m[idx, 0], xy_m[idx, 1]  # (b, k)
             dd = np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :])
-        a = cov(dd)
-        a[:, diag, diag] += cov.nugget + noise[idx]
-        c = cov(dist)
+        u_t = None if u is None or tgt is None else u[tgt]
+        a, c = _system(cov, dd, dist, noise[idx], None if u is None else u[idx], u_t)
         w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
+        sig = cov.sill - np.einsum("bk,bk->b", w, c)
         out.append((np.einsum("bk,bkc->bc", w, resid[idx]),
-                    np.maximum(cov.sill - np.einsum("bk,bk->b", w, c), 0.0)))
+                    np.maximum(sig, 0.0) if u_t is None else sig,
+                    None if carry is None else np.einsum("bk,bkf->bf", w, carry[idx])))
     return out
 
 
@@ -555,20 +603,25 @@ def krige(cov: CovarianceModel, xy_m: np.ndarray, resid: np.ndarray, noise: np.n
     nearest : numpy.ndarray, shape (n,)
         Distance to the nearest measured point used.
     """
-    (res,), nearest = _krige_many([(cov, resid, noise)], xy_m, xy_p, k, skip_self, chunk,
-                                  progress, is_cancelled)
+    (res,), nearest = _krige_many([(cov, resid, noise, None)], xy_m, xy_p, k, skip_self,
+                                  chunk, progress, is_cancelled)
     return res[0], res[1], nearest
 
 
 def _krige_many(models: list, xy_m, xy_p, k: int, skip_self: bool = False,
                 chunk: int = 20000, progress=None, is_cancelled=None):
-    """:func:`krige` for several ``(cov, resid, noise)`` on the same measured points: one
-    KD-tree query and one distance matrix per chunk. Returns ``[(pred, var)], nearest``."""
+    """:func:`krige` for several ``(cov, resid, noise[, carry])`` on the same measured
+    points: one KD-tree query and one distance matrix per chunk. ``carry`` (m, f), per
+    measured point, is summed with the kriging weights (the trend's design, whose error
+    the prediction carries only by ``G(x) - sum w_i G(x_i)``, :func:`_trend_cov`).
+    Returns ``[(pred, var, wsum)], nearest`` (``wsum`` None without ``carry``)."""
     from scipy.spatial import cKDTree
 
     n = len(xy_p)
     k = int(min(k, len(xy_m) - (1 if skip_self else 0)))
-    out = [(np.zeros((n, r.shape[1])), np.full(n, float(c.sill))) for c, r, _ in models]
+    out = [(np.zeros((n, m[1].shape[1])), np.full(n, float(m[0].sill)),
+            None if len(m) < 4 or m[3] is None else np.zeros((n, m[3].shape[1])))
+           for m in models]
     nearest = np.full(n, np.inf)
     if n == 0 or k < 1:
         return out, nearest
@@ -578,8 +631,11 @@ def _krige_many(models: list, xy_m, xy_p, k: int, skip_self: bool = False,
             raise CancelledError("The conflation was cancelled", "Run it again when ready")
         e = min(s + chunk, n)
         dist, idx = _neighbours(tree, xy_p[s:e], k, skip_self)
-        for (pred, var), (p, v) in zip(out, _solve_chunk(models, xy_m, dist, idx)):
+        tgt = np.arange(s, e) if skip_self else None
+        for (pred, var, ws), (p, v, w) in zip(out, _solve_chunk(models, xy_m, dist, idx, tgt)):
             pred[s:e], var[s:e] = p, v
+            if ws is not None:
+                ws[s:e] = w
         nearest[s:e] = dist[:, 0]
         if progress is not None:
             progress(e / n)
@@ -628,9 +684,64 @@ def _cv_stats(cov: CovarianceModel, resid, noise, pred, var, factor: float) -> d
 
 
 # --------------------------------------------------------------------------- a run
+@dataclass
+class _Trend:
+    """The trend at the object points and what its error is made of.
+
+    ``t`` (n, 3) the trend; ``g`` (n, 3, q) its design in the estimated parameters (the
+    database offset's, then one per applied mean) and ``c`` (q, q) their covariance, so
+    that the trend's error is ``g dT``; ``fixed`` (3,) the variance no prediction
+    reduces (a mean not applied stays in every vertex); ``covered`` (3,) the axes of
+    the offset model; ``mean`` and ``mean_var`` (3,) the applied means and their
+    variances (0 elsewhere).
+    """
+
+    t: np.ndarray
+    g: np.ndarray
+    c: np.ndarray
+    fixed: np.ndarray
+    covered: np.ndarray
+    mean: np.ndarray
+    mean_var: np.ndarray
+
+    def cov(self, sel=slice(None)) -> np.ndarray:
+        """Covariance (n, 3, 3) of the trend alone (no field) at the points ``sel``."""
+        g = self.g[sel]
+        return np.einsum("niq,qr,njr->nij", g, self.c, g) + np.diag(self.fixed)
+
+
+def _trend_design(rec: Optional[dict], xyz: np.ndarray, mean: np.ndarray,
+                  mean_var: np.ndarray):
+    """``t``, ``g``, ``c`` of :class:`_Trend` at ``xyz``: the offset's ``-G(x) T`` and
+    the means of the axes ``mean_var > 0``."""
+    from vectoradjust.adjust.offsets import _kind_design
+
+    n = len(xyz)
+    t = np.zeros((n, 3))
+    gs, cs = [np.zeros((n, 3, 0))], []
+    if rec is not None:
+        g = _kind_design(rec["kind"], xyz, np.asarray(rec["center"], float))
+        t = -np.einsum("niq,q->ni", g, np.asarray(rec["values"], float))
+        gs.append(g)
+        cs.append(np.asarray(rec["cofactor"], float) * float(rec["variance_factor"]))
+    for a in np.flatnonzero(np.asarray(mean_var) > 0):
+        t[:, a] = mean[a]
+        col = np.zeros((n, 3, 1))
+        col[:, a, 0] = 1.0
+        gs.append(col)
+        cs.append(np.array([[float(mean_var[a])]]))
+    g = np.concatenate(gs, axis=2)
+    c = np.zeros((g.shape[2], g.shape[2]))
+    i = 0
+    for b in cs:
+        c[i:i + len(b), i:i + len(b)] = b
+        i += len(b)
+    return t, g, c
+
+
 def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.ndarray,
-           mean_var: Optional[np.ndarray] = None):
-    """Trend ``t`` (n, 3) and its covariance (n, 3, 3) at every object point.
+           mean_var: Optional[np.ndarray] = None) -> _Trend:
+    """The trend at every object point (:class:`_Trend`).
 
     ``-G(x) T`` of the estimated offset (database minus images, so the displacement is
     its negative); axes the offset model does not cover get the measured points' mean
@@ -640,32 +751,86 @@ def _trend(rec: Optional[dict], db_xyz: np.ndarray, dm: np.ndarray, common: np.n
     adjustment is strained, must not move good database heights (DEM heights). Its
     variance is ``mean_var`` (3,; default ``common``), the variance of the points' mean
     (:func:`_mean_variance`), at least the scatter's; where the mean is not applied, the
-    vertex keeps an error of about ``m``, so its variance is ``m^2 + mean_var``.
+    vertex keeps an error of about ``m``, so its variance is ``m^2 + mean_var``, and no
+    prediction removes it (``fixed``).
     """
-    from vectoradjust.adjust.offsets import _kind_design
-
-    n = len(db_xyz)
-    t = np.zeros((n, 3))
-    tcov = np.zeros((n, 3, 3))
-    covered = np.zeros(3, bool)
+    g0 = np.zeros((1, 3, 0))
     if rec is not None:
-        g = _kind_design(rec["kind"], db_xyz, np.asarray(rec["center"], float))
-        vals = np.asarray(rec["values"], float)
-        c_t = np.asarray(rec["cofactor"], float) * float(rec["variance_factor"])
-        t = -np.einsum("niq,q->ni", g, vals)
-        tcov = np.einsum("niq,qr,njr->nij", g, c_t, g)
-        covered = np.abs(g).sum(axis=(0, 2)) > 0
+        from vectoradjust.adjust.offsets import _kind_design
+
+        g0 = _kind_design(rec["kind"], db_xyz[:1], np.asarray(rec["center"], float))
+    covered = np.abs(g0).sum(axis=(0, 2)) > 0 if len(db_xyz) else np.zeros(3, bool)
     mean_var = common if mean_var is None else mean_var
+    mean, applied_var, fixed = np.zeros(3), np.zeros(3), np.zeros(3)
     for a in np.flatnonzero(~covered):
         col = dm[:, a][np.isfinite(dm[:, a])]
         if col.size:
             m, scatter = float(col.mean()), col.var() / col.size
             var = max(scatter, float(mean_var[a]))
             if abs(m) > 1.96 * np.sqrt(max(scatter, float(common[a]))):
-                t[:, a], tcov[:, a, a] = m, var
+                mean[a], applied_var[a] = m, max(var, 1e-300)
             else:
-                t[:, a], tcov[:, a, a] = 0.0, m * m + var
-    return t, tcov, covered
+                fixed[a] = m * m + var
+    t, g, c = _trend_design(rec, db_xyz, mean, applied_var)
+    return _Trend(t, g, c, fixed, covered, mean, applied_var)
+
+
+def _trend_cov(tr: _Trend, sel, ws_h: Optional[np.ndarray], ws_v: Optional[np.ndarray]):
+    """Covariance (n, 3, 3) of the trend's error in the prediction at the points ``sel``.
+
+    The prediction ``t(x) + sum w_i (d_i - t(x_i))`` carries the trend's error ``g dT``
+    as ``(g(x) - sum w_i g(x_i)) dT``: near measured points (``sum w`` about 1) the
+    collocation has put the field back around the measured displacements and the
+    trend's error cancels; far from them (``w`` about 0) it counts in full. ``ws_h``
+    (n, 2 q) and ``ws_v`` (n, q) are the kriging weights' sums of ``g`` over the
+    measured points (:func:`_krige_many`, horizontal and vertical weights); the error's
+    correlation with the neighbours' own data is left out (it is small beyond the
+    neighbourhood that fixed ``T``). Plus ``fixed``.
+    """
+    h = tr.g[sel].copy()
+    q = h.shape[2]
+    if ws_h is not None:
+        h[:, :2, :] -= ws_h.reshape(len(h), 2, q)
+    if ws_v is not None:
+        h[:, 2, :] -= ws_v
+    return np.einsum("niq,qr,njr->nij", h, tr.c, h) + np.diag(tr.fixed)
+
+
+def _trend_field_cov(g_m: np.ndarray, xy_m: np.ndarray, covs, max_points: int = 1500,
+                     seed: int = 0) -> np.ndarray:
+    """Covariance (q, q) the correlated field adds to the estimated trend's error.
+
+    The offset (and an applied mean) is estimated from the measured points as if their
+    database errors were independent (the adjustment's cofactor holds each point's own
+    variance); the field correlates them, so the estimate also carries the field's
+    weighted mean over the measured points: ``A (sum_{i != j} g_i' C(r_ij) g_j) A`` with
+    ``A = (sum g_i' g_i)^-1`` (the offset's least-squares weights; a mean: ``1/n``) and
+    ``C`` the fitted signal covariance of the row's component (``covs``: horizontal for
+    X and Y, vertical for Z). The pair sum is taken on a random subset of at most
+    ``max_points`` points and scaled by the number of pairs (an unbiased estimate).
+    """
+    m, q = g_m.shape[0], g_m.shape[2]
+    if q == 0 or m < 2 or all(c is None or c.sill <= 0 or c.length <= 0 for c in covs):
+        return np.zeros((q, q))
+    from scipy.spatial.distance import pdist, squareform
+
+    a = np.linalg.pinv(np.einsum("naq,nar->qr", g_m, g_m))
+    pick = (np.sort(np.random.default_rng(seed).choice(m, max_points, replace=False))
+            if m > max_points else np.arange(m))
+    ns = len(pick)
+    dist = squareform(pdist(xy_m[pick]))
+    mid = np.zeros((q, q))
+    for rows, cov in (((0, 1), covs[0]), ((2,), covs[1])):
+        if cov is None or cov.sill <= 0 or cov.length <= 0:
+            continue
+        k = cov(dist)
+        np.fill_diagonal(k, 0.0)
+        for r in rows:
+            gr = g_m[pick, r, :]
+            mid += gr.T @ k @ gr
+    mid *= m * (m - 1) / (ns * (ns - 1))
+    out = a @ mid @ a
+    return 0.5 * (out + out.T)
 
 
 @dataclass
@@ -677,21 +842,30 @@ class _Field:
     nearest: np.ndarray
     cov: Optional[CovarianceModel]
     cv: dict
+    wsum: Optional[np.ndarray] = None  # kriging weights' sums of the trend's design
 
 
-def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel):
+def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel, carry=None,
+            corr_v=None):
     """Fit, predict and cross-validate the horizontal and the vertical field.
 
     Each group (X and Y sharing one covariance function; Z) uses the measured points
     where it is finite; when both use the same points the KD-tree queries and the
-    neighbours' distance matrices are shared.
+    neighbours' distance matrices are shared. ``carry`` (horizontal (m, fh), vertical
+    (m, fv)) is summed with each group's kriging weights (``_Field.wsum``; no field:
+    None, the weights are zero). ``corr_v`` (m, r): the images' height error the
+    measured points share (:func:`_orientation_basis`), in the vertical fit and system.
     """
+    carry = carry or (None, None)
+    corr = (None, corr_v)
     groups = [(resid[:, :2], noise[:, :2].mean(axis=1), CE90_CIRCULAR),
               (resid[:, 2:], noise[:, 2], LE90)]
     n_u = len(xy_u)
     oks = [np.isfinite(r).all(axis=1) for r, _, _ in groups]
-    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model, s.k)
-            if ok.sum() >= s.min_points else None for ok, (r, nz, _) in zip(oks, groups)]
+    covs = [fit_covariance(xy_m[ok], r[ok], nz[ok], s.model, s.k,
+                           corr=None if u is None else u[ok])
+            if ok.sum() >= s.min_points else None
+            for ok, (r, nz, _), u in zip(oks, groups, corr)]
     live = [i for i, c in enumerate(covs) if c is not None]
     fields = [_Field(np.full((n_u, r.shape[1]), np.nan), np.full(n_u, np.nan),
                      np.full(n_u, np.inf), None, {"count": int(ok.sum()), "rmse": None})
@@ -699,16 +873,18 @@ def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel):
     batches = ([live] if len(live) == 2 and np.array_equal(*oks) else [[i] for i in live])
     for b, batch in enumerate(batches):
         ok = oks[batch[0]]
-        models = [(covs[i], groups[i][0][ok], groups[i][1][ok]) for i in batch]
+        models = [(covs[i], groups[i][0][ok], groups[i][1][ok],
+                   None if carry[i] is None else carry[i][ok],
+                   None if corr[i] is None else corr[i][ok]) for i in batch]
         part = (b, len(batches))
         res, nearest = _krige_many(models, xy_m[ok], xy_u, s.k, progress=lambda f, p=part:
                                    report((p[0] + f) / p[1]), is_cancelled=cancel)
-        loo, _ = _krige_many(models, xy_m[ok], xy_m[ok], s.k, skip_self=True,
-                             is_cancelled=cancel)
-        for i, (pred, var), (lp, lv), m in zip(batch, res, loo, models):
+        loo, _ = _krige_many([(*m[:3], None, m[4]) for m in models], xy_m[ok], xy_m[ok], s.k,
+                             skip_self=True, is_cancelled=cancel)
+        for i, (pred, var, ws), (lp, lv, _), m in zip(batch, res, loo, models):
             cv = (_cv_stats(covs[i], m[1], m[2], lp, lv, groups[i][2]) if ok.sum() >= 3 else
                   {"count": int(ok.sum()), "rmse": None})
-            fields[i] = _Field(pred, var, nearest, covs[i], cv)
+            fields[i] = _Field(pred, var, nearest, covs[i], cv, ws)
     return fields[0], fields[1]
 
 
@@ -836,6 +1012,59 @@ def image_only(result, problem, pts: np.ndarray, min_share: float = 0.1,
     return xyz, np.where(bad, np.nan, var)
 
 
+def _orientation_basis(result, problem, pts: np.ndarray, scale: float, axis: int = 2,
+                       max_rank: int = 40) -> Optional[np.ndarray]:
+    """The images' shared error of the image-only positions (:func:`image_only`) of the
+    points ``pts`` on one axis, as a basis ``U`` (p, r): covariance ``U U'``.
+
+    The adjusted points share the orientation's error: ``Z S^-1 Z'`` of their joint
+    covariance (:meth:`BundleResult.joint_covariance`, ``Z = N_pp^-1 N_pe`` per point);
+    the image-only position carries it through ``T = P_img^-1 Q^-1`` (the undoing of
+    the prior's pull). Its rank is at most the orientation's 6 parameters per image:
+    with at most ``max_rank`` of them ``U = Z L`` (``S^-1 = L L'``) exactly; with more,
+    the directions above ``1e-6`` of the largest eigenvalue, at most ``max_rank``.
+    Scaled by the images' variance factor ``scale``. None when the run kept no
+    factorisation (nothing shared is then modelled).
+    """
+    if any(getattr(result, a, None) is None for a in ("s_inv", "npp_inv", "nep_obs")):
+        return None
+    import scipy.sparse as sps
+
+    prob = result.problem
+    pts = np.asarray(pts, np.int64)
+    p, n6 = len(pts), 6 * prob.n_images
+    q = result.point_cov[pts] / result.variance_factor
+    good = np.isfinite(q).all(axis=(1, 2))
+    q_inv = np.linalg.pinv(np.where(good[:, None, None], q, np.eye(3)), hermitian=True)
+    row = np.einsum("nj,njk->nk", np.linalg.pinv(q_inv - problem.prior_weight[pts],
+                                                 hermitian=True)[:, axis], q_inv)  # T[axis]
+    pos = np.full(prob.n_points, -1, np.int64)
+    pos[pts] = np.arange(p)
+    sel = np.flatnonzero(pos[prob.obs_point] >= 0)
+    i = pos[prob.obs_point[sel]]
+    contrib = np.einsum("kab,kcb->kac", result.npp_inv[prob.obs_point[sel]],
+                        result.nep_obs[sel])  # (s, 3, 6): N_pp^-1 N_pe
+    vals = np.einsum("kc,kcj->kj", row[i], contrib)
+    z = sps.coo_matrix((vals.ravel(), (np.repeat(i, 6), (6 * prob.obs_image[sel][:, None]
+                                                          + np.arange(6)).ravel())),
+                       shape=(p, n6)).tocsr()
+    s_inv = 0.5 * (result.s_inv + result.s_inv.T)
+    try:  # S^-1 = half half' (Cholesky: unique, the same on every numpy build)
+        half = np.linalg.cholesky(s_inv)
+    except np.linalg.LinAlgError:
+        lam, vec = np.linalg.eigh(s_inv)
+        half = vec * np.sqrt(np.maximum(lam, 0.0))
+    if n6 <= max_rank:  # few images: exact, no eigen-decomposition
+        u = np.asarray(z @ half)
+    else:
+        ev, ew = np.linalg.eigh(half.T @ (z.T @ z).toarray() @ half)  # (6n, 6n)
+        keep = np.flatnonzero(ev > 1e-6 * max(float(ev[-1]), 1e-300))[::-1][:max_rank]
+        u = np.asarray(z @ (half @ ew[:, keep]))
+    u = u * np.sqrt(scale)
+    u[~good] = 0.0
+    return u
+
+
 def _image_scale(out) -> float:
     """Variance factor of the images' share: 1 with ``covariance_scale = "a-priori"``,
     else the image coordinates' ``v'Pv / r`` (summary ``variance_factors``), at least 1."""
@@ -886,28 +1115,34 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     dm = x_img - db[m_obj]
     noise = photo + d.spec.identification_variance
     common = np.nanmean(np.einsum("nii->ni", out.result.point_cov[obj_pt[m_obj]]), axis=0)
-    t, tcov, covered = _trend(rec, db, dm, common, _mean_variance(out.result, obj_pt[m_obj]))
+    tr = _trend(rec, db, dm, common, _mean_variance(out.result, obj_pt[m_obj]))
+    t, covered = tr.t, tr.covered
     # the field models the deviations from the mean; a mean not applied (above) must
     # not come back through a long-range field
     resid = dm - t[m_obj] - np.where(covered, 0.0, np.nanmean(dm - t[m_obj], axis=0))
     xy_m, xy_u = db[m_obj, :2], db[u_obj, :2]
-    fh, fv = _fields(xy_m, resid, noise, xy_u, s, report, cancel)
+    g_m = tr.g[m_obj]
+    corr_v = _orientation_basis(out.result, out.problem, obj_pt[m_obj], _image_scale(out))
+    fh, fv = _fields(xy_m, resid, noise, xy_u, s, report, cancel,
+                     (g_m[:, :2, :].reshape(len(m_obj), -1), g_m[:, 2, :]), corr_v)
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
-    cov = tcov[u_obj].copy()
+    extra = _trend_field_cov(g_m, xy_m, (fh.cov, fv.cov))
+    tr = replace(tr, c=tr.c + extra)
+    cov = _trend_cov(tr, u_obj, fh.wsum, fv.wsum)
     nug_h = fh.cov.nugget if fh.cov is not None else np.nan
     nug_v = fv.cov.nugget if fv.cov is not None else np.nan
     cov[:, 0, 0] += fh.var + nug_h
     cov[:, 1, 1] += fh.var + nug_h
     cov[:, 2, 2] += fv.var + nug_v
-    mean = np.where(covered, 0.0, t[0] if len(t) else 0.0)
-    mean_var = np.where(covered, 0.0, tcov[0].diagonal() if len(t) else 0.0)
-    model = FieldModel(xy_m, resid, noise, fh.cov, fv.cov, rec, mean, mean_var, s.k)
+    model = FieldModel(xy_m, resid, noise, fh.cov, fv.cov, rec, tr.mean, tr.mean_var, s.k,
+                       tr.fixed, extra, corr_v)
     info = {"trend": {"offset": rec.get("kind") if rec else None,
                       "axes_from_offset": [a for a, c in zip("XYZ", covered) if c],
                       "axes_from_mean": [a for a, c in zip("XYZ", covered) if not c],
                       "mean": [None if c else float(t[0, a]) if len(t) else None
                                for a, c in enumerate(covered)],
-                      "mean_sigma": [None if c else float(np.sqrt(tcov[0, a, a]))
+                      "mean_sigma": [None if c else float(np.sqrt(tr.mean_var[a]
+                                                                  + tr.fixed[a]))
                                      if len(t) else None for a, c in enumerate(covered)]},
             "covariance": {"horizontal": fh.cov.as_dict() if fh.cov else None,
                            "vertical": fv.cov.as_dict() if fv.cov else None},
@@ -931,10 +1166,17 @@ class FieldModel:
     rec : dict or None
         The offset record (trend ``-G T``).
     mean : numpy.ndarray, shape (3,)
-        Trend value of the axes the offset does not cover (0 on the others) ...
+        Applied mean of the axes the offset does not cover (0 on the others) ...
     mean_var : numpy.ndarray, shape (3,)
-        ... and its variance.
+        ... and its variance (0: not applied).
     k : int
+    fixed : numpy.ndarray, shape (3,)
+        Variance of a mean not applied (it stays in every vertex).
+    trend_field_cov : numpy.ndarray, optional
+        What the field adds to the trend parameters' covariance
+        (:func:`_trend_field_cov`).
+    corr_v : numpy.ndarray, shape (m, r), optional
+        The images' height error the measured points share (:func:`_orientation_basis`).
     """
 
     xy: np.ndarray
@@ -946,30 +1188,42 @@ class FieldModel:
     mean: np.ndarray
     mean_var: np.ndarray
     k: int
+    fixed: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    trend_field_cov: Optional[np.ndarray] = None
+    corr_v: Optional[np.ndarray] = None
 
     def predict(self, xy: np.ndarray):
         """Displacement (n, 3) and its variance per axis (n, 3) at ``xy`` (n, 2).
 
         The same prediction as the vertices get (trend + collocation, with the
-        database's white noise), NaN where a component has no field.
+        database's white noise and the trend's error as the prediction carries it,
+        :func:`_trend_cov`), NaN where a component has no field.
         """
-        xyz = np.column_stack([xy, np.zeros(len(xy))])
-        dm = np.broadcast_to(self.mean, (1, 3)).copy()
-        t, tcov, _ = _trend(self.rec, xyz, dm, self.mean_var)
-        disp = t.copy()
-        var = np.einsum("nii->ni", tcov).copy()
-        for cols, cov in (((0, 1), self.cov_h), ((2,), self.cov_v)):
-            c = list(cols)
+        def design(p):
+            return _trend_design(self.rec, np.column_stack([p, np.zeros(len(p))]),
+                                 self.mean, self.mean_var)
+
+        t, g, c = design(xy)
+        if self.trend_field_cov is not None:
+            c = c + self.trend_field_cov
+        tr = _Trend(t, g, c, np.asarray(self.fixed, float), np.zeros(3, bool), self.mean,
+                    self.mean_var)
+        g_m = design(self.xy)[1]
+        disp, var, ws = t.copy(), np.zeros((len(xy), 3)), [None, None]
+        for i, (cols, cov) in enumerate((([0, 1], self.cov_h), ([2], self.cov_v))):
             if cov is None:
-                disp[:, c] = np.nan
-                var[:, c] = np.nan
+                disp[:, cols] = np.nan
+                var[:, cols] = np.nan
                 continue
-            ok = np.isfinite(self.resid[:, c]).all(axis=1)
-            pred, kv, _ = krige(cov, self.xy[ok], self.resid[ok][:, c],
-                                self.noise[ok][:, c].mean(axis=1), xy, self.k)
-            disp[:, c] += pred
-            var[:, c] += (kv + cov.nugget)[:, None]
-        return disp, var
+            ok = np.isfinite(self.resid[:, cols]).all(axis=1)
+            carry = g_m[ok][:, cols, :].reshape(int(ok.sum()), -1)
+            u = None if i == 0 or self.corr_v is None else self.corr_v[ok]
+            ((pred, kv, ws[i]),), _ = _krige_many(
+                [(cov, self.resid[ok][:, cols], self.noise[ok][:, cols].mean(axis=1), carry,
+                  u)], self.xy[ok], xy, self.k)
+            disp[:, cols] += pred
+            var[:, cols] += (kv + cov.nugget)[:, None]
+        return disp, var + np.einsum("nii->ni", _trend_cov(tr, slice(None), *ws))
 
 
 def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
