@@ -169,7 +169,6 @@ def _output_folder(path) -> Path:
 
 def cmd_adjust(args) -> int:
     from vectoradjust.cli.background import Preload, workers
-    from vectoradjust.cli.memory import keep_freed_memory
     from vectoradjust.files.outputs import write_outputs
     from vectoradjust.files.project import load_project
     from vectoradjust.files.readers import load_project_data
@@ -177,7 +176,6 @@ def cmd_adjust(args) -> int:
 
     workers()  # a wrong VECTORADJUST_WORKERS is said before the work, not after it
     _output_folder(args.out)
-    keep_freed_memory()
     # the report's plotting library loads on the other core while the adjustment runs
     warm = Preload(("matplotlib.figure", "matplotlib.backends.backend_agg"))
     bar = ProgressBar("adjust", enabled=not args.quiet)
