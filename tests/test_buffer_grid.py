@@ -89,3 +89,20 @@ def test_nearest_distance_equals_brute_force_within_the_radius():
     assert np.isnan(got[7]) and near.sum() > 200 and (~near).sum() > 20
     np.testing.assert_allclose(got[near], brute[near], rtol=0, atol=1e-9)
     assert np.isnan(got[~near & np.isfinite(brute)]).all()  # farther: left to the caller
+
+
+def test_long_tested_segments_against_dense_reference_lines():
+    """A database with 5 km segments (TIGER-like) against true lines sampled every 5 m:
+    the tested segments are cut into pieces of a few cells (their boxes would cover a
+    million cells each), and the lengths stay those of the GEOS pairs."""
+    from vectoradjust.accuracy.buffer import _cut
+
+    t = np.linspace(0.0, 1.0, 1001)[:, None]
+    line = t * [3000.0, 4000.0]  # 5 km, 5 m steps
+    ref = np.stack([line[:-1], line[1:]], axis=1)
+    tst = np.array([[[0.0, 0.8], [3000.0, 4000.8]], [[10.0, 0.0], [3010.0, 4000.0]],
+                    [[0.0, 1.6], [3000.0, 4001.6]]])
+    buf = SegmentBuffer(ref)
+    assert buf.cell < 10 and len(_cut(tst, 4 * buf.cell)) > 100 * len(tst)
+    np.testing.assert_allclose(buf.inside(tst, [1.0, 2.0, 10.0]),
+                               _reference_inside(ref, tst, [1.0, 2.0, 10.0]), rtol=1e-12)

@@ -299,6 +299,25 @@ def _cells(lo: np.ndarray, hi: np.ndarray, size: float) -> tuple:
     return c0[row, 0] + k // ny[row], c0[row, 1] + k % ny[row], row
 
 
+def _cut(seg: np.ndarray, step: float) -> np.ndarray:
+    """Segments ``(n, 2, 2)`` longer than ``step`` (per axis) cut into equal pieces.
+
+    Exact for the buffer test: a segment's buffer is the union of its pieces' buffers,
+    and a tested segment's length inside a buffer is the sum of its pieces'.
+    """
+    if not len(seg):
+        return seg
+    ext = np.abs(seg[:, 1] - seg[:, 0]).max(axis=1)
+    pieces = np.maximum(np.ceil(ext / step), 1).astype(np.int64)
+    if pieces.max() == 1:
+        return seg
+    row = np.repeat(np.arange(len(seg)), pieces)
+    k = np.arange(int(pieces.sum())) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    t0, t1 = (k / pieces[row])[:, None], ((k + 1) / pieces[row])[:, None]
+    a, d = seg[row, 0], seg[row, 1] - seg[row, 0]
+    return np.stack([a + t0 * d, np.where(t1 >= 1, seg[row, 1], a + t1 * d)], axis=1)
+
+
 def _group_min(best: np.ndarray, index: np.ndarray, values: np.ndarray) -> None:
     """``best[index] = min(best[index], values)`` with repeated indices (sort + reduceat)."""
     order = np.argsort(index, kind="stable")
@@ -352,9 +371,9 @@ class SegmentBuffer:
     The segments' boxes go on a uniform grid once (numpy sorting, no GEOS); :meth:`inside`
     pairs every tested segment with the reference segments whose boxes, grown by the
     largest width, overlap its box, and merges the intervals of
-    :func:`capsule_intervals` (empty for the pairs farther apart). Reference segments
-    longer than four cells are cut into pieces: the buffer of a segment is the union of
-    its pieces' buffers, so the intervals are the same.
+    :func:`capsule_intervals` (empty for the pairs farther apart). Segments longer than
+    four cells, reference and tested, are cut into pieces (:func:`_cut`, exact), so no
+    box covers more than a few cells.
     """
 
     def __init__(self, reference: np.ndarray) -> None:
@@ -365,16 +384,11 @@ class SegmentBuffer:
         self.chunk = 50_000
         self._grids: dict = {}
         ext = np.abs(ref[:, 1] - ref[:, 0]).max(axis=1) if len(ref) else np.ones(1)
-        #: grid cell: the median reference segment's extent (a few cells per segment)
-        self.cell = float(max(np.median(ext), 1e-6))
-        pieces = np.maximum(np.ceil(ext / (4 * self.cell)), 1).astype(np.int64)
-        if len(ref) and pieces.max() > 1:
-            row = np.repeat(np.arange(len(ref)), pieces)
-            k = np.arange(int(pieces.sum())) - np.repeat(np.cumsum(pieces) - pieces, pieces)
-            t0, t1 = (k / pieces[row])[:, None], ((k + 1) / pieces[row])[:, None]
-            a, d = ref[row, 0], ref[row, 1] - ref[row, 0]
-            ref = np.stack([a + t0 * d, np.where(t1 >= 1, ref[row, 1], a + t1 * d)], axis=1)
-        self.ref = ref
+        span = float(np.ptp(ref.reshape(-1, 2), axis=0).max()) if len(ref) else 1.0
+        #: grid cell: the median reference segment's extent (a few cells per segment),
+        #: at least 2^-20 of the extent (cell numbers stay far inside int64)
+        self.cell = float(max(np.median(ext), span / 2 ** 20, 1e-6))
+        self.ref = _cut(ref, 4 * self.cell)
 
     def _grid(self, distance: float) -> _Grid:
         """The reference boxes grown by ``distance``, on the grid (kept per distance)."""
@@ -424,10 +438,12 @@ class SegmentBuffer:
             for k in range(0, len(seg), self.chunk):
                 out += self.inside(seg[k:k + self.chunk] + self.origin, widths)
             return out
+        grid = self._grid(float(widths.max()))
+        seg = _cut(seg, 4 * grid.size)  # a long tested segment: pieces of a few cells
         length = np.hypot(*(seg[:, 1] - seg[:, 0]).T)
         # candidates: tested boxes overlapping the reference boxes grown by the widest
         # buffer (every pair within that distance, and some farther that add nothing)
-        i, j = self._grid(float(widths.max())).pairs(seg.min(axis=1), seg.max(axis=1))
+        i, j = grid.pairs(seg.min(axis=1), seg.max(axis=1))
         p, q = seg[i, 0], seg[i, 1]
         a, b = self.ref[j, 0], self.ref[j, 1]
         for k, x in enumerate(widths):
