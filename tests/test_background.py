@@ -128,3 +128,31 @@ def test_preload_imports_in_a_thread_and_leaves_failures_for_later():
     p = Preload([name])
     p.wait()
     assert name in sys.modules and not p.thread.is_alive()
+
+
+@pytest.mark.io
+def test_band_file_written_chunk_by_chunk_equals_the_frame(tmp_path, monkeypatch):
+    """The band file of a share is written as the features are united, a few at a time:
+    the same rows, order, attributes and polygons as the frame of the same share."""
+    pytest.importorskip("pyarrow")
+    import functools
+
+    import numpy as np
+    import pyarrow as pa
+    import shapely
+
+    from vectoradjust.files import derived_outputs as do
+    from vectoradjust.pipeline import run
+    from vectoradjust.simulate import make_scenario
+
+    r = run(make_scenario(3).to_project_data())
+    monkeypatch.setattr(do, "_union_chunks", functools.partial(do._union_chunks, chunk=7))
+    frame = do.uncertainty_bands_frame(r, part=(1, 2))
+    path = do.uncertainty_bands_file(r, tmp_path, part=(1, 2))
+    table = pa.ipc.open_file(pa.memory_map(path)).read_all()
+    assert table.num_rows == len(frame) > 5
+    assert len(pa.ipc.open_file(pa.memory_map(path)).get_batch(0)) < len(frame)  # chunks
+    for c in ("database", "feature_id", "confidence", "NSeg", "_feature"):
+        assert table.column(c).to_pylist() == frame[c].tolist()
+    back = shapely.from_wkb(table.column("geometry").to_numpy(zero_copy_only=False))
+    assert shapely.equals_exact(back, np.asarray(frame.geometry.values), 0.0).all()

@@ -80,6 +80,31 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
     cols: dict = {f: [] for f in BAND_FIELDS}
     order: list = []
     geoms: list = []
+    for name, feats, fids, counts, chunk in _band_chunks(run, confidence, progress,
+                                                         is_cancelled, part, **kwargs):
+        geoms += chunk
+        cols["database"] += [name] * len(feats)
+        cols["feature_id"] += [str(f) for f in fids]
+        cols["confidence"] += [float(confidence)] * len(feats)
+        cols["NSeg"] += counts.tolist()
+        order += feats.tolist()
+    if part[1] > 1:
+        cols["_feature"] = order
+    frame = pd.DataFrame(cols)
+    frame["NSeg"] = frame["NSeg"].astype("int64")
+    frame["confidence"] = frame["confidence"].astype(float)
+    return gpd.GeoDataFrame(frame, geometry=gpd.GeoSeries(geoms, crs=run.data.crs),
+                            crs=run.data.crs)
+
+
+def _band_chunks(run: AdjustmentRun, confidence: float, progress, is_cancelled,
+                 part: tuple, **kwargs):
+    """The bands of every database a chunk of whole features at a time.
+
+    Yields ``(database, feature indices, feature ids, segment counts, polygons)`` per
+    chunk of :func:`_union_chunks`, in the order of the layer (database, then feature):
+    a consumer that writes each chunk at once holds one chunk's polygons only.
+    """
     dbs = list(run.databases)
     for i, d in enumerate(dbs):
         def step(fraction, i=i, name=d.name, what="segments"):
@@ -96,21 +121,11 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
         if not sb.rings:
             continue
         feats, counts = np.unique(sb.feature, return_counts=True)
-        geoms += _feature_unions(sb, np.searchsorted(feats, sb.feature), len(feats),
-                                 lambda f, step=step: step(f, what="union"))
         fids = d.shape.layer.feature_ids
-        cols["database"] += [d.name] * len(feats)
-        cols["feature_id"] += [str(f) for f in fids[feats]]
-        cols["confidence"] += [float(confidence)] * len(feats)
-        cols["NSeg"] += counts.tolist()
-        order += feats.tolist()
-    if part[1] > 1:
-        cols["_feature"] = order
-    frame = pd.DataFrame(cols)
-    frame["NSeg"] = frame["NSeg"].astype("int64")
-    frame["confidence"] = frame["confidence"].astype(float)
-    return gpd.GeoDataFrame(frame, geometry=gpd.GeoSeries(geoms, crs=run.data.crs),
-                            crs=run.data.crs)
+        for g0, g1, chunk in _union_chunks(sb, np.searchsorted(feats, sb.feature), len(feats),
+                                           lambda f, step=step: step(f, what="union")):
+            yield d.name, feats[g0:g1], fids[feats[g0:g1]], counts[g0:g1], chunk
+        del sb
 
 
 def merge_band_parts(run: AdjustmentRun, parts: list):
@@ -129,7 +144,16 @@ def merge_band_parts(run: AdjustmentRun, parts: list):
 
 
 def _feature_unions(sb, group: np.ndarray, n: int, step, chunk: int = 50_000) -> list:
-    """The union of each feature's segment bands, in chunks of whole features.
+    """The union of each feature's segment bands (:func:`_union_chunks` put together)."""
+    out: list = []
+    for _, _, part in _union_chunks(sb, group, n, step, chunk):
+        out += part
+    return out
+
+
+def _union_chunks(sb, group: np.ndarray, n: int, step, chunk: int = 50_000):
+    """The union of each feature's segment bands, in chunks of whole features: yields
+    ``(g0, g1, polygons of the features g0 .. g1 - 1)``.
 
     ``group`` (s,) numbers the features ``0 .. n - 1``; the segments' rings are made
     polygons (``make_valid`` where a ring touches itself) and united
@@ -140,7 +164,6 @@ def _feature_unions(sb, group: np.ndarray, n: int, step, chunk: int = 50_000) ->
 
     order = np.argsort(group, kind="stable")
     starts = np.searchsorted(group[order], np.arange(n + 1))  # segments of each feature
-    out: list = []
     g0 = 0
     while g0 < n:
         g1 = int(np.searchsorted(starts, starts[g0] + chunk, side="right")) - 1
@@ -156,10 +179,9 @@ def _feature_unions(sb, group: np.ndarray, n: int, step, chunk: int = 50_000) ->
             sb.xy[take[np.repeat(ok, sizes)]], indices=np.repeat(np.arange(ok.sum()), sizes[ok])))
         bad = ~shapely.is_valid(polys)  # a ring may touch itself in degenerate cases
         polys[bad] = shapely.make_valid(polys[bad])
-        out += list(_union_per_feature(polys, group[seg] - g0, g1 - g0))
-        g0 = g1
+        yield g0, g1, list(_union_per_feature(polys, group[seg] - g0, g1 - g0))
         step(g1 / n)
-    return out
+        g0 = g1
 
 
 def _union_per_feature(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
@@ -260,7 +282,8 @@ def uncertainty_bands_file(run: AdjustmentRun, folder, confidence: float = 0.9,
                            progress=None, is_cancelled=None, part: tuple = (0, 1),
                            **kwargs) -> str:
     """:func:`uncertainty_bands_frame` written to an Arrow IPC file in ``folder`` (a band
-    process's result: the main process maps the file instead of receiving polygons).
+    process's result: the main process maps the file instead of receiving polygons),
+    a chunk of features at a time as they are united.
 
     Columns :data:`BAND_FIELDS`, ``_feature`` (the feature's index) and ``geometry``
     (WKB). Returns the file's path.
@@ -268,22 +291,23 @@ def uncertainty_bands_file(run: AdjustmentRun, folder, confidence: float = 0.9,
     import pyarrow as pa
     import shapely
 
-    frame = uncertainty_bands_frame(run, confidence, progress, is_cancelled, part, **kwargs)
-    n = len(frame)
-    order = frame["_feature"].to_numpy() if "_feature" in frame.columns else np.arange(n)
-    arrays = [pa.array(frame["database"].to_numpy(object), type=pa.string()),
-              pa.array(frame["feature_id"].to_numpy(object), type=pa.string()),
-              pa.array(frame["confidence"].to_numpy(float), type=pa.float64()),
-              pa.array(frame["NSeg"].to_numpy(np.int64), type=pa.int64()),
-              pa.array(np.asarray(order, np.int64), type=pa.int64())]
-    wkb = shapely.to_wkb(np.asarray(frame.geometry.values), output_dimension=2)
-    del frame
-    arrays.append(pa.array(wkb, type=pa.binary()))
-    del wkb
-    table = pa.table(arrays, names=[*BAND_FIELDS, "_feature", "geometry"])
+    schema = pa.schema([("database", pa.string()), ("feature_id", pa.string()),
+                        ("confidence", pa.float64()), ("NSeg", pa.int64()),
+                        ("_feature", pa.int64()), ("geometry", pa.binary())])
     path = Path(folder) / f"bands_{part[0]}_of_{part[1]}.arrow"
-    with pa.OSFile(str(path), "wb") as sink, pa.ipc.new_file(sink, table.schema) as w:
-        w.write_table(table, max_chunksize=BAND_BATCH)
+    with pa.OSFile(str(path), "wb") as sink, pa.ipc.new_file(sink, schema) as w:
+        # a chunk of features written as soon as it is united: the polygons of one chunk
+        # are held at a time, not those of the whole share
+        for name, feats, fids, counts, polys in _band_chunks(run, confidence, progress,
+                                                             is_cancelled, part, **kwargs):
+            wkb = shapely.to_wkb(np.asarray(polys, dtype=object), output_dimension=2)
+            w.write_table(pa.table([
+                pa.array([name] * len(feats), type=pa.string()),
+                pa.array([str(f) for f in fids], type=pa.string()),
+                pa.array(np.full(len(feats), float(confidence)), type=pa.float64()),
+                pa.array(np.asarray(counts, np.int64), type=pa.int64()),
+                pa.array(np.asarray(feats, np.int64), type=pa.int64()),
+                pa.array(wkb, type=pa.binary())], schema=schema), max_chunksize=BAND_BATCH)
     return str(path)
 
 
