@@ -128,6 +128,15 @@ def _band_chunks(run: AdjustmentRun, confidence: float, progress, is_cancelled,
         del sb
 
 
+def _layer_order(run: AdjustmentRun, databases: list, features: np.ndarray) -> np.ndarray:
+    """The order of band rows from several parts in the whole layer: by database (the
+    run's order), then by feature index."""
+    rank = {d.name: i for i, d in enumerate(run.databases)}
+    key = np.array([rank[x] for x in databases], np.int64) * (1 << 40) + \
+        np.asarray(features, np.int64)
+    return np.argsort(key, kind="stable")
+
+
 def merge_band_parts(run: AdjustmentRun, parts: list):
     """The frames of :func:`uncertainty_bands_frame` ``part = (i, n)``, ``i = 0 .. n - 1``,
     as one frame in the order of the whole one (database, then feature)."""
@@ -137,9 +146,8 @@ def merge_band_parts(run: AdjustmentRun, parts: list):
     if len(parts) == 1 and "_feature" not in parts[0].columns:
         return parts[0]
     frame = pd.concat(parts, ignore_index=True)
-    rank = {d.name: i for i, d in enumerate(run.databases)}
-    key = frame["database"].map(rank).to_numpy(np.int64) * (1 << 40) + frame["_feature"]
-    frame = frame.iloc[np.argsort(key.to_numpy(), kind="stable")].reset_index(drop=True)
+    order = _layer_order(run, frame["database"].tolist(), frame["_feature"].to_numpy())
+    frame = frame.iloc[order].reset_index(drop=True)
     return frame.drop(columns="_feature")
 
 
@@ -319,10 +327,8 @@ def merge_band_files(run: AdjustmentRun, paths: list) -> LayerTable:
 
     tables = [pa.ipc.open_file(pa.memory_map(p)).read_all() for p in paths if p]
     table = pa.concat_tables(tables)
-    rank = {d.name: i for i, d in enumerate(run.databases)}
-    db = np.array([rank[x] for x in table.column("database").to_pylist()], np.int64)
-    key = db * (1 << 40) + table.column("_feature").to_numpy()
-    order = np.argsort(key, kind="stable")
+    order = _layer_order(run, table.column("database").to_pylist(),
+                         table.column("_feature").to_numpy())
     table = table.drop(["_feature"])
 
     def batches():
