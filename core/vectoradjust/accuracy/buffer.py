@@ -395,7 +395,9 @@ class SegmentBuffer:
         if distance not in self._grids:
             lo = self.ref.min(axis=1) - distance
             hi = self.ref.max(axis=1) + distance
-            self._grids = {distance: _Grid(lo, hi, max(self.cell, distance))}
+            if len(self._grids) >= 2:  # the buffer's and the nearest query's: no more
+                self._grids.pop(next(iter(self._grids)))
+            self._grids[distance] = _Grid(lo, hi, max(self.cell, distance))
         return self._grids[distance]
 
     def nearest_distance(self, xy: np.ndarray, radius: Optional[float] = None) -> np.ndarray:

@@ -128,13 +128,23 @@ def _truth_buffers(truth, is_cancelled=None):
     """The true lines' segments on a grid of boxes, for the exact round buffers of every width.
 
     :class:`vectoradjust.accuracy.buffer.SegmentBuffer`: built once for every database,
-    before and after; linear in the number of segments (no union of all lines).
+    before and after, and for the distance table of the same lines (kept while
+    :func:`_truth_lines` returns the same array); linear in the number of segments.
     """
     from vectoradjust.accuracy.buffer import SegmentBuffer, line_segments
 
     _check(is_cancelled)
+    kept = _LAST_BUFFER.get("truth")
+    if kept is not None and kept[0] is truth:  # the lines of :func:`_truth_lines`, again
+        return kept[1]
     geoms = [g for g in truth if g is not None and not g.is_empty]
-    return SegmentBuffer(line_segments(geoms))
+    buffers = SegmentBuffer(line_segments(geoms))
+    _LAST_BUFFER["truth"] = (truth, buffers)
+    return buffers
+
+
+#: the segments of the last true lines (the buffer test and the distance table share them)
+_LAST_BUFFER: dict = {}
 
 
 def _range_segments(xy: np.ndarray, ranges: list) -> np.ndarray:
@@ -260,7 +270,7 @@ def project_truth(spec) -> Optional[tuple]:
 
 
 
-def drive_truth_lines(run, distances, truth_path, as_columns: bool = False):
+def drive_truth_lines(run, distances, truth_path, as_columns: bool = False, progress=None):
     """Each adjusted object point's distance to the nearest true centreline, before and
     after the adjustment, with any geometry engine (``distances(xy) -> (n,)`` array of
     the distances of the points ``xy`` (n, 2) to the nearest true line).
@@ -273,12 +283,17 @@ def drive_truth_lines(run, distances, truth_path, as_columns: bool = False):
     list of dict, or dict of numpy.ndarray
         One row per point: ``database, point_id, X, Y, AdjX, AdjY, D_before, D_after,
         Closer``; with ``as_columns`` the same table as columns (None without points).
+
+    ``progress(fraction, message)``, optional, before each database.
     """
     from vectoradjust.accuracy.tables import one_vertex_per_point
     from vectoradjust.files.study import rows_from_columns
 
     parts = []
-    for d, entry in zip(run.databases, run.summary.get("databases", [])):
+    n_db = max(len(run.databases), 1)
+    for i, (d, entry) in enumerate(zip(run.databases, run.summary.get("databases", []))):
+        if progress is not None:
+            progress(i / n_db, f"distances of {d.name} to the true centrelines")
         m = one_vertex_per_point(d.vertex_point)
         if not m.any():
             continue
@@ -299,7 +314,7 @@ def drive_truth_lines(run, distances, truth_path, as_columns: bool = False):
     return cols if as_columns else rows_from_columns(cols)
 
 
-def truth_line_distances(run, truth_path, as_columns: bool = False):
+def truth_line_distances(run, truth_path, as_columns: bool = False, progress=None):
     """:func:`drive_truth_lines` with the true centrelines read by geopandas; the
     distances from their segments on a grid of boxes (numpy), for the points farther
     than its radius from shapely's STR-tree nearest query; the same rows and summary
@@ -324,4 +339,4 @@ def truth_line_distances(run, truth_path, as_columns: bool = False):
                                         all_matches=False)[1]
         return d
 
-    return drive_truth_lines(run, distances, truth_path, as_columns)
+    return drive_truth_lines(run, distances, truth_path, as_columns, progress)
