@@ -95,8 +95,10 @@ def _covariance_scale_record(result, solution) -> dict:
     return rec
 
 
-def _summarise(out: AdjustmentRun, solution) -> None:
-    """summary.json's content, the QA field of the control points, accuracy statements."""
+def _summarise(out: AdjustmentRun, solution, report=None) -> None:
+    """summary.json's content, the QA field of the control points, accuracy statements
+    (``report(fraction, message)`` before each of the long parts)."""
+    say = report or (lambda fraction, message: None)
     data = out.data
     if data.qa:
         # production accuracy control: pass/fail of every control/check point
@@ -105,7 +107,9 @@ def _summarise(out: AdjustmentRun, solution) -> None:
         spec = spec_from_table(data.qa, source=data.source)
         out.control_points["QA"] = np.asarray(control_qa_field(out, spec), dtype=object)
     out.summary = run_summary(out)
+    say(0.83, "reliability: redundancy numbers and w-tests")
     out.summary["reliability"] = reliability_summary(out, data.settings)
+    say(0.85, "variance factors of the observation groups")
     out.summary["variance_factors"] = group_factors(out)
     out.summary["covariance_scale"] = _covariance_scale_record(out.result, solution)
     chi = out.summary["chi_square"]
@@ -121,6 +125,7 @@ def _summarise(out: AdjustmentRun, solution) -> None:
     _database_error_model(out, solution)
     from vectoradjust.accuracy.statements import accuracy_statements
 
+    say(0.87, "accuracy statements of every road feature")
     out.summary["accuracy"] = accuracy_statements(out)
 
 
@@ -282,6 +287,7 @@ def run(
     selected = _selected_databases(data, vectors)
     report(0.02, "classifying measurements")
     cls = classify_measurements(data, selected, warnings)
+    report(0.06, "assembling the bundle problem")
     setup = build_problem(data, cls, selected, warnings)
     image_ids = cls.image_ids[setup.img_used]
     solution = solve(setup, data.settings, image_ids=image_ids, meas=data.measurements,
@@ -301,7 +307,7 @@ def run(
     report(0.78, "feature length accuracy")
     _derived(out)
     report(0.81, "statistics, reliability and accuracy statements")
-    _summarise(out, solution)
+    _summarise(out, solution, report)
     _inputs(out)
     report(0.9, "roads against the control")
     _roads_and_control(out, cls, setup)

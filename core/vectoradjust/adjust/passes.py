@@ -364,6 +364,7 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
     # chord step: the reduced normal matrix hardly changes between these re-adjustments,
     # and Q_xx B is the expensive part); the cofactor and Q_xx B that go with the result
     # are computed once more at the final estimate
+    progress(0.7, "database offsets: Newton step (Q_xx B)")
     new, cof, gmax, qb, s_ztb = off.newton_step(result, model, values)
     exact = True  # cof, qb and s_ztb belong to the current result
     for _ in range(20):
@@ -384,6 +385,7 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
         g = off.misclosure(result, model)
         new, gmax = values + cof @ g, float(np.abs(g).max(initial=0.0))
     if not exact:
+        progress(0.7, "database offsets: their cofactor at the solution")
         _, cof, _, qb, s_ztb = off.newton_step(result, model, values)
     state["values"] = values
     state["cofactor"] = cof
@@ -471,6 +473,7 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
         progress(0.65, "data snooping")
         sol.result, sol.snooping = _snoop(setup, settings, adjust_kwargs, image_ids, meas,
                                           warnings)
+    progress(0.72, "variance factor of the observation groups")
     _scale_covariances(sol, setup, settings, kept)
     if model is not None:
         sol.offsets = _offset_record(model, state, sol.result)

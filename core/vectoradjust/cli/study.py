@@ -80,7 +80,8 @@ def truth_tables(run, spec, out_dir, label: str = "", progress=None) -> dict:
 
         say(0.5, "distances to the true centrelines")
         path, _ = project_truth(spec)
-        rows = truth_line_distances(run, path, as_columns=True)
+        rows = truth_line_distances(run, path, as_columns=True,
+                                    progress=lambda f, m: say(0.5 + 0.25 * f, m))
         if rows:
             written[f"{label}truth_line_points.csv"] = str(write_csv(
                 rows, out / "truth_line_points.csv",
