@@ -95,8 +95,40 @@ def test_adjust_writes_the_same_bands_with_and_without_the_child(sample_dir, tmp
         assert list(a.columns) == list(b.columns) and len(a) == len(b)
         assert a.geometry.geom_equals_exact(b.geometry, 0.0).all()
         assert (a.drop(columns="geometry") == b.drop(columns="geometry")).all().all()
-    assert ((tmp_path / "1" / "summary.json").read_text(encoding="utf-8")
-            == (tmp_path / "2" / "summary.json").read_text(encoding="utf-8"))
+    for name in ("summary.json", "report.html"):  # the report too, written by a child
+        assert ((tmp_path / "1" / name).read_text(encoding="utf-8")
+                == (tmp_path / "2" / name).read_text(encoding="utf-8"))
+
+
+@fork_only
+def test_report_written_alongside_shows_the_warnings_of_writing(sample_dir, tmp_path,
+                                                              monkeypatch):
+    """The report's process starts before the layers are written; a warning GDAL gives
+    while writing them still reaches the report (the parent writes it again)."""
+    pytest.importorskip("geopandas")
+    from vectoradjust.cli import commands, main
+    from vectoradjust.files import outputs
+
+    original = outputs._write_layer
+    monkeypatch.setattr(outputs, "_write_layer", lambda gdf, path, layer, fmt: original(
+        gdf, path, layer, fmt) + [f"a writer's note on {layer}"])
+    forked = []
+    real = commands._ReportAlongside.result
+
+    def result(self, progress=None):
+        forked.append(self.forked)
+        return real(self, progress)
+
+    monkeypatch.setattr(commands._ReportAlongside, "result", result)
+    reports = {}
+    for n in ("1", "2"):
+        monkeypatch.setenv("VECTORADJUST_WORKERS", n)
+        assert main(["adjust", str(sample_dir / "project.toml"), "--out", str(tmp_path / n),
+                     "-q", "--no-bands"]) == 0
+        reports[n] = (tmp_path / n / "report.html").read_text(encoding="utf-8")
+    assert forked == [False, True]  # in the parent with one worker, else in a child
+    assert "a writer&#x27;s note on features" in reports["2"]
+    assert reports["1"] == reports["2"]
 
 
 def _many_messages(i, progress=None):

@@ -167,6 +167,47 @@ def _output_folder(path) -> Path:
     return out
 
 
+def _qa_verdict(result, data):
+    """The accuracy-control verdict of a project with ``[qa]`` (a dict), else None."""
+    if not data.qa:
+        return None
+    from vectoradjust.qa.verdict import accuracy_control, spec_from_table
+
+    return accuracy_control(result, spec_from_table(data.qa, source=data.source)).as_dict()
+
+
+def _report(run, path, qa, progress=None):
+    from vectoradjust.files.report import write_report
+
+    return write_report(run, path, reliability=run.reliability, qa=qa, progress=progress)
+
+
+class _ReportAlongside:
+    """``report.html`` written by a forked process while the parent writes the layers.
+
+    Writing the layers may add GDAL's warnings to the run's; the report shows them, so
+    when they changed after the fork the parent writes the report again (the child's
+    would lack them). Without a child it is written by the parent at the end.
+    """
+
+    def __init__(self, run, out_dir, qa) -> None:
+        from vectoradjust.cli.background import Background
+
+        self.run, self.qa = run, qa
+        self.path = Path(out_dir) / "report.html"
+        self.warnings = list(run.summary.get("warnings") or [])
+        self.job = Background(_report, run, self.path, qa)
+        self.forked = self.job.forked  # (the job forgets its process once it has ended)
+
+    def result(self, progress=None) -> Path:
+        """The report written (waits for the child, forwarding its progress)."""
+        path = self.job.result(progress)
+        if self.forked and self.job.done and \
+                list(self.run.summary.get("warnings") or []) != self.warnings:
+            path = _report(self.run, self.path, self.qa, progress)
+        return path
+
+
 def cmd_adjust(args) -> int:
     from vectoradjust.cli.background import Preload, workers
     from vectoradjust.files.outputs import write_outputs
@@ -194,6 +235,7 @@ def cmd_adjust(args) -> int:
             b.close()
         raise
     bands = started[0] if started else None
+    report = None
     try:
         truth = cli_buffer.project_truth(spec)
         if truth is not None:  # true centrelines: buffer test before/after the adjustment
@@ -202,9 +244,16 @@ def cmd_adjust(args) -> int:
         truth_csv = cli_study.truth_tables(  # per-point truth tables
             result, spec, args.out,
             progress=ProgressBar("truth tables", enabled=not args.quiet))
+        qa_doc = _qa_verdict(result, data)
+        warm.wait()  # no module half imported in the report's process
+        report = _ReportAlongside(result, args.out, qa_doc)  # while the layers are written
         written = write_outputs(result, args.out, fmt=args.format,
                                 bands=bands.result if bands is not None else False,
                                 progress=ProgressBar("write", enabled=not args.quiet))
+    except BaseException:
+        if report is not None:  # the report's process is not left running
+            report.job.close()
+        raise
     finally:
         if bands is not None:
             bands.close()
@@ -213,19 +262,12 @@ def cmd_adjust(args) -> int:
         from vectoradjust.files.derived_outputs import write_conflation_rasters
 
         written.update(write_conflation_rasters(result, args.out))
-    from vectoradjust.files.report import write_report
-
-    qa_doc = None
-    if data.qa:  # [qa] in the project: the accuracy-control verdict goes with the outputs
+    if qa_doc is not None:  # [qa] in the project: the accuracy-control verdict goes along
         from vectoradjust.cli.qa import write_qa_json
-        from vectoradjust.qa.verdict import accuracy_control, spec_from_table
 
-        qa_doc = accuracy_control(result, spec_from_table(data.qa, source=data.source)).as_dict()
         written["qa.json"] = str(write_qa_json(qa_doc, args.out,
                                                extra={"project": str(args.project)}))
-    written["report.html"] = str(write_report(
-        result, Path(args.out) / "report.html", reliability=result.reliability, qa=qa_doc,
-        progress=ProgressBar("report", enabled=not args.quiet)))
+    written["report.html"] = str(report.result(ProgressBar("report", enabled=not args.quiet)))
     if not args.quiet:
         print(f"vectoradjust adjust: {args.project}")
         _print_summary(result.summary)
