@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Optional
 
 from vectoradjust import __version__
-from vectoradjust.accuracy.summary import compare_columns, compare_row
 from vectoradjust.cli import buffer as cli_buffer
 from vectoradjust.cli import many as cli_many
 from vectoradjust.cli import measure as cli_measure
@@ -30,6 +29,21 @@ from vectoradjust.cli.tools import run_command
 from vectoradjust.errors import NothingAdjustedError, VectorAdjustError
 
 __all__ = ["main", "ProgressBar", "sample_project_dir", "compare", "compare_row", "print_table"]
+
+
+def compare_row(summary: dict) -> dict:
+    """:func:`vectoradjust.accuracy.summary.compare_row` (imported when first used: the
+    command line starts reading its inputs without loading the statistics)."""
+    from vectoradjust.accuracy.summary import compare_row as row
+
+    return row(summary)
+
+
+def compare_columns(rows: list) -> list:
+    """:func:`vectoradjust.accuracy.summary.compare_columns` (imported when used)."""
+    from vectoradjust.accuracy.summary import compare_columns as cols
+
+    return cols(rows)
 
 
 def sample_project_dir() -> Path:
@@ -213,12 +227,13 @@ def cmd_adjust(args) -> int:
     from vectoradjust.files.outputs import write_outputs
     from vectoradjust.files.project import load_project
     from vectoradjust.files.readers import load_project_data
-    from vectoradjust.pipeline import run
 
     workers()  # a wrong VECTORADJUST_WORKERS is said before the work, not after it
     _output_folder(args.out)
-    # the report's plotting library loads on the other core while the adjustment runs
-    warm = Preload(("matplotlib.figure", "matplotlib.backends.backend_agg"))
+    # the adjustment's modules load on the other core while the inputs are read, the
+    # report's plotting library while the adjustment runs
+    warm = Preload(("vectoradjust.pipeline", "matplotlib.figure",
+                    "matplotlib.backends.backend_agg"))
     bar = ProgressBar("adjust", enabled=not args.quiet)
     bar(0.0, "reading inputs")
     # every database is read, so that measurements of the databases not selected with
@@ -226,6 +241,8 @@ def cmd_adjust(args) -> int:
     # not turned into tie points
     spec = load_project(args.project)
     data = load_project_data(spec, progress=lambda f, m: bar(0.02 * f, m))
+    from vectoradjust.pipeline import run
+
     started: list = []  # the bands start in other processes once the adjustment is final
     try:
         result = run(data, vectors=args.vectors, progress=bar,
