@@ -14,6 +14,7 @@ either way, and an error is raised where it would have been raised without the c
 
 from __future__ import annotations
 
+import gc
 import importlib
 import multiprocessing
 import multiprocessing.connection
@@ -102,7 +103,14 @@ class Background:
         ctx = multiprocessing.get_context("fork")
         recv, send = ctx.Pipe(duplex=False)
         self.proc = ctx.Process(target=_child, args=(send, fn, args, kwargs), daemon=True)
-        self.proc.start()
+        # the parent's objects are left out of the child's garbage collections: a
+        # collection writes into every object it visits, which would copy the page of
+        # each one from the parent (time and memory) although the child never uses them
+        gc.freeze()
+        try:
+            self.proc.start()
+        finally:
+            gc.unfreeze()
         send.close()
         self.conn = recv
 
