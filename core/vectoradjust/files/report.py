@@ -1415,27 +1415,40 @@ def _shape_body(run, prefix: str) -> str:
     dbs = [d for d in run.databases if d.vertices]
     if not dbs:
         return _note("(no shape points)")
-    keys = [k for k, _, _ in _SHAPE_COLS if k != "Vh"]
-    cols = {k: np.concatenate([np.asarray(d.vertices[k]) if k in d.vertices else
-                               np.full(len(d.vertices["X"]), d.name, dtype=object)
-                               for d in dbs]) for k in keys}
-    cols["Vh"] = np.hypot(cols["Vx"].astype(float), cols["Vy"].astype(float))
-    n = len(cols["X"])
-    n_adj = int(np.sum(cols["Adjusted"] == 1))
+    def column(k):
+        return np.concatenate([np.asarray(d.vertices[k], float) for d in dbs])
+
+    vh = np.hypot(column("Vx"), column("Vy"))
+    n = len(vh)
+    n_adj = int(sum(np.sum(np.asarray(d.vertices["Adjusted"]) == 1) for d in dbs))
     if n <= MAX_FULL_SHAPE_ROWS:
         order = np.arange(n)
         note = _note(f"All {n} vertices ({n_adj} adjusted). V = adjusted \u2212 database; "
                      "unmeasured vertices are not adjusted (\u2013).")
     else:
-        vh = np.where(np.isfinite(cols["Vh"]), cols["Vh"], -1.0)
+        vh = np.where(np.isfinite(vh), vh, -1.0)
         k = min(LARGEST_SHAPE_ROWS, n)
         top = np.argpartition(-vh, k - 1)[:k]
         order = top[np.argsort(-vh[top], kind="stable")]
         note = _note(f"{n} vertices ({n_adj} adjusted): the {k} with the largest horizontal "
                      "residual are listed; every vertex is in the shape_points layer of "
                      "adjusted.gpkg.")
+    # only the listed rows are gathered (not every column of a million vertices)
+    ends = np.cumsum([len(d.vertices["X"]) for d in dbs])
+    which = np.searchsorted(ends, order, side="right")
+    local = order - np.concatenate([[0], ends[:-1]])[which]
+    cols = {"Vh": np.where(vh[order] >= 0, vh[order], np.nan)}
+    for k in (k for k, _, _ in _SHAPE_COLS if k != "Vh"):
+        parts = [np.asarray(d.vertices[k])[local[which == i]] if k in d.vertices else
+                 np.full(int(np.sum(which == i)), d.name, dtype=object)
+                 for i, d in enumerate(dbs)]
+        gathered = np.concatenate(parts)
+        cols[k] = np.empty(len(order), gathered.dtype)
+        cols[k][np.argsort(which, kind="stable")] = gathered
+    m = len(order)
     return note + '<div class="scroll">' + _columns_table(
-        cols, _SHAPE_COLS, np.ones(n, bool), ident=f"{prefix}shape-table", order=order) + "</div>"
+        cols, _SHAPE_COLS, np.ones(m, bool), ident=f"{prefix}shape-table",
+        order=np.arange(m)) + "</div>"
 
 
 def _flagged_list(run, reliability) -> Optional[list]:
