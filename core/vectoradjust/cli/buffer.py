@@ -54,7 +54,7 @@ def add_parser(sub, common=None) -> None:
     b.add_argument("--widths", default="1,2,5", help="buffer widths in metres (default 1,2,5)")
     b.add_argument("--tested-layer", help="layer of a multi-layer source (e.g. features)")
     b.add_argument("--reference-layer", help="layer of a multi-layer reference source")
-    b.add_argument("--out", help="write the table to this CSV file")
+    b.add_argument("-o", "--out", help="write the table to this CSV file")
     b.add_argument("--exact", action="store_true",
                    help="exact round buffers by segments (linear time, for large layers; "
                         "the default polygon buffers are up to 0.03 %% of the width narrower "

@@ -401,14 +401,14 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
 
     d = sub.add_parser("demo", help="run the embedded sample project end to end")
-    d.add_argument("--out", default="vectoradjust-demo", help="output directory "
+    d.add_argument("-o", "--out", default="vectoradjust-demo", help="output directory "
                    "(default ./vectoradjust-demo)")
     common(d)
     d.set_defaults(func=cmd_demo)
 
     a = sub.add_parser("adjust", help="adjust the road vectors of a project")
     a.add_argument("project", help="project file (TOML)")
-    a.add_argument("--out", required=True, help="output directory")
+    a.add_argument("-o", "--out", required=True, help="output directory")
     a.add_argument("--vectors", action="append", metavar="NAME",
                    help="adjust only this [[vectors]] entry (repeatable)")
     a.add_argument("--no-bands", action="store_true",
@@ -421,7 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("compare", help="adjust each road database alone and compare")
     c.add_argument("project", help="project file (TOML)")
-    c.add_argument("--out", required=True, help="output directory")
+    c.add_argument("-o", "--out", required=True, help="output directory")
     common(c)
     c.set_defaults(func=cmd_compare)
 

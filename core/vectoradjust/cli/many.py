@@ -46,7 +46,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     m = sub.add_parser("adjust-many", help="adjust many independent projects on Dask (local "
                        "processes or a distributed scheduler) with one combined summary")
     m.add_argument("projects", nargs="+", help="project files (TOML)")
-    m.add_argument("--out", required=True, help="output directory: DIR/<project name>/ each, "
+    m.add_argument("-o", "--out", required=True, help="output directory: DIR/<project name>/ each, "
                    "and many_summary.csv/.json")
     m.add_argument("--scheduler", metavar="ADDRESS",
                    help="address of a dask.distributed scheduler (tcp://host:8786); default: "

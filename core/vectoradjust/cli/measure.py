@@ -68,7 +68,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def _common(p) -> None:
     p.add_argument("project", help="project file (TOML)")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("-o", "--out", required=True, help="output directory")
     p.add_argument("--image", action="append", default=[], metavar="ID=FILE",
                    help="image file of an [[images]] id (overrides its path)")
     p.add_argument("--orientation", help="summary.json of an adjustment: use its adjusted "

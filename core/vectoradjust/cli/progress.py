@@ -20,13 +20,15 @@ class ProgressBar:
         self._last_msg = None
         self.t0 = time.perf_counter()
         self._last_line = -1e9
+        self._done = 0.0  # the bar never moves back (the adjustment's passes restart lower)
         #: seconds between two lines of the same stage when stderr is not a terminal
         self.every = 2.0
 
     def __call__(self, fraction: float, message: str = "") -> None:
         if not self.enabled:
             return
-        fraction = min(max(float(fraction), 0.0), 1.0)
+        fraction = min(max(float(fraction), 0.0, self._done), 1.0)
+        self._done = fraction
         filled = int(round(fraction * self.width))
         bar = "#" * filled + "-" * (self.width - filled)
         elapsed = time.perf_counter() - self.t0

@@ -198,7 +198,7 @@ def add_parsers(subparsers) -> dict:
                     "adjusted points (covariances between points included) to a distance, "
                     "a length, a mean height or a height profile. Writes propagate.json.")
     p.add_argument("project", help="project file (TOML)")
-    p.add_argument("--out", required=True, help="output directory (propagate.json)")
+    p.add_argument("-o", "--out", required=True, help="output directory (propagate.json)")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--distance", nargs=2, metavar=("ID_A", "ID_B"),
                    help="distance between two points (control, tie or shape point ids)")
@@ -220,7 +220,7 @@ def add_parsers(subparsers) -> dict:
                     "from the stereo pair, on a grid over the overlap (equal_error.tif, "
                     "equal_error.json).")
     e.add_argument("project", help="project file (TOML)")
-    e.add_argument("--out", required=True, help="output directory")
+    e.add_argument("-o", "--out", required=True, help="output directory")
     e.add_argument("--spacing", type=float, default=10.0, help="grid spacing in m (default 10)")
     e.add_argument("--images", nargs=2, metavar=("A", "B"),
                    help="the stereo pair (default: the first two images)")
@@ -235,7 +235,7 @@ def add_parsers(subparsers) -> dict:
                     "to the control) and compare its points and sigmas with the bundle "
                     "adjustment's. Writes two_step.json.")
     t.add_argument("project", help="project file (TOML)")
-    t.add_argument("--out", required=True, help="output directory")
+    t.add_argument("-o", "--out", required=True, help="output directory")
     t.add_argument("--images", nargs=2, metavar=("A", "B"),
                    help="the stereo pair (default: the first two images)")
     t.add_argument("--method", choices=("collinearity", "coplanarity"), default="collinearity",

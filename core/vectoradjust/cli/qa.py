@@ -46,7 +46,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "that follow from the product specification ([qa] in the project; the "
                     "options below override it). Writes qa.json.")
     q.add_argument("project", help="project file (TOML)")
-    q.add_argument("--out", required=True, help="output directory (qa.json is written there)")
+    q.add_argument("-o", "--out", required=True, help="output directory (qa.json is written there)")
     q.add_argument("--product", help='"topographic map" (or topographic-map), "orthophoto" or '
                                      '"orthomosaic"')
     q.add_argument("--scale", help="scale denominator of the product, e.g. 2000 or 1:2000")
