@@ -346,3 +346,23 @@ def test_auto_scale_leaves_out_a_prior_stated_too_large():
     assert 0.8 < factor < 1.25 and post.result.sigma0_squared < 0.9
     s0 = post.result.sigma0_squared
     assert np.allclose(auto.result.point_cov, post.result.point_cov / s0 * factor)
+
+
+def test_q_times_b_equals_the_dense_inverse(small_shift_run):
+    """``Q_xx B`` and ``S^-1 Z' B`` from the factorisation (per image products) against
+    the inverse of the dense normal matrix, for an arbitrary B (the operator is linear)."""
+    from vectoradjust.adjust.offsets import _q_times
+
+    out = small_shift_run
+    prob, res = out.problem, out.result
+    n, m = prob.n_images, prob.n_points
+    assert len(np.unique(prob.obs_image[: 2 * n])) > 1  # images interleaved, not grouped
+    a, p = _dense(prob, res.eo, res.xyz)
+    q = np.linalg.inv(a.T @ p @ a)  # unknowns: 6 per image, then 3 per point
+    b = np.random.default_rng(5).normal(size=(m, 3, 4))
+    qb, s_ztb, ztb = _q_times(res, b)
+    dense = q[6 * n:, 6 * n:] @ b.reshape(3 * m, 4)
+    assert np.allclose(qb.reshape(3 * m, 4), dense, rtol=1e-9, atol=1e-12 * np.abs(dense).max())
+    # S^-1 Z' B is minus the images' cross block of the inverse times B: Q_ep B
+    assert np.allclose(q[:6 * n, 6 * n:] @ b.reshape(3 * m, 4), -s_ztb, rtol=1e-8,
+                       atol=1e-12 * np.abs(s_ztb).max())

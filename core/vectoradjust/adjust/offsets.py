@@ -161,18 +161,36 @@ def _b_blocks(prob: BundleProblem, model: OffsetModel) -> np.ndarray:
 
 
 def _q_times(result: BundleResult, b: np.ndarray):
-    """``Q_xx B`` per point (m, 3, q) and ``S^-1 Z' B`` (6n, q) from the factorisation."""
+    """``Q_xx B`` per point (m, 3, q) and ``S^-1 Z' B`` (6n, q) from the factorisation.
+
+    With ``D = N_pp^-1`` (per point) and ``Y_k = N_ep,k D_j`` (observation ``k`` of point
+    ``j`` on image ``i``): ``Z' B`` of image ``i`` is ``sum_k N_ep,k (D B)_j`` and
+    ``Q_xx B = D B + D sum_k N_ep,k' (S^-1 Z' B)_i`` per point. Both sums are one matrix
+    product per image (the observations of an image side by side); no (k, 6, 3) stack of
+    ``Y_k`` and no gather of the images' blocks per observation.
+    """
     prob = result.problem
     n = prob.n_images
     q = b.shape[2]
     npp_inv = result.npp_inv
+    nep = result.nep_obs  # (k, 6, 3)
     db = np.matmul(npp_inv, b)  # D B (matmul: ~10x einsum on stacks of small blocks)
-    ynep = np.matmul(result.nep_obs, npp_inv[prob.obs_point])  # (k, 6, 3)
-    contrib = np.matmul(ynep, b[prob.obs_point])  # (k, 6, q)
-    ztb = _block_sum(prob.obs_image, contrib, n)  # (n, 6, q), bincount (not np.add.at)
+    order = np.argsort(prob.obs_image, kind="stable")
+    starts = np.searchsorted(prob.obs_image[order], np.arange(n + 1))
+    ztb = np.zeros((n, 6, q))
+    for i in range(n):  # per image: (6, 3 k_i) @ (3 k_i, q)
+        sel = order[starts[i]:starts[i + 1]]
+        if sel.size:
+            ztb[i] = np.tensordot(nep[sel], db[prob.obs_point[sel]], axes=([0, 2], [0, 1]))
     s_ztb = result.s_inv @ ztb.reshape(6 * n, q)  # (6n, q)
-    back = np.matmul(np.swapaxes(ynep, 1, 2), s_ztb.reshape(n, 6, q)[prob.obs_image])  # (k,3,q)
-    zsz = _block_sum(prob.obs_point, back, prob.n_points)
+    s3 = s_ztb.reshape(n, 6, q)
+    back = np.empty((len(order), 3, q))  # N_ep,k' (S^-1 Z' B)_i, observations by image
+    for i in range(n):
+        lo, hi = starts[i], starts[i + 1]
+        if hi > lo:
+            back[lo:hi] = np.tensordot(nep[order[lo:hi]], s3[i], axes=([1], [0]))
+    zsz = np.matmul(np.swapaxes(npp_inv, 1, 2),
+                    _block_sum(prob.obs_point[order], back, prob.n_points))
     return db + zsz, s_ztb, ztb.reshape(6 * n, q)
 
 
