@@ -21,7 +21,7 @@ from typing import Optional
 import numpy as np
 
 from vectoradjust.adjust.bundle import BundleProblem, ray_intersection
-from vectoradjust.adjust.shapepoints import ShapePoints, extract_shape_points, lookup
+from vectoradjust.adjust.shapepoints import ShapePoints, extract_shape_points, lookup, string_codes
 from vectoradjust.errors import (
     ControlError,
     DEMError,
@@ -112,11 +112,17 @@ def _line(meas, i: int) -> str:
 def _bare_ids(meas_ids: np.ndarray, name: str):
     """The measured ids without a ``NAME:`` qualifier of this database, and which ids are
     qualified with another database's name (they never match here)."""
-    ids = meas_ids.astype(str)
-    prefix = f"{name}:"
-    qualified = np.char.startswith(ids, prefix)
-    bare = np.where(qualified, np.char.replace(ids, prefix, "", count=1), ids)
-    other = (np.char.find(ids, ":") >= 0) & ~qualified
+    ids = np.asarray(meas_ids).astype(str)
+    codes = string_codes(ids)  # (n, width) code points: no Python loop over the ids
+    pre = string_codes(np.array([f"{name}:"]))[0]
+    width, size = codes.shape[1], len(pre)
+    qualified = np.zeros(len(ids), bool) if width < size else \
+        (codes[:, :size] == pre).all(axis=1)
+    bare = ids.copy()
+    if qualified.any():  # the qualifier cut off
+        rest = np.ascontiguousarray(codes[qualified, size:])
+        bare[qualified] = rest.view(f"<U{width - size}").ravel() if width > size else ""
+    other = (codes == ord(":")).any(axis=1) & ~qualified
     return bare, other
 
 

