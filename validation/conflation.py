@@ -1,7 +1,7 @@
 """Validation of the conflation (every vertex corrected) over seeds and scenarios.
 
 Run:  PYTHONPATH=core python validation/conflation.py [--seeds 1-20] [--scenarios smooth]
-      [--true-covariance]
+      [--true-covariance | --true-nugget]
 
 Scenarios (``vectoradjust.simulate.conflation.conflation_scenario``, one database
 ``OSM``, offset ``shift`` estimated, identification error 0.3 m simulated and stated;
@@ -105,6 +105,7 @@ def one(name: str, kw: dict, seed: int) -> dict:
     e = out.summary["conflation"]["databases"][0]
     tr = e["truth"]
     cv = e["cross_validation"]["horizontal"]
+    fit = e["covariance"]["horizontal"]
     moved, spread = invariants(out, ref)
     step0, step1 = boundary_step(out.databases[0])
     return {"scenario": name, "seed": seed, "measured": e["vertices"]["measured"],
@@ -115,7 +116,8 @@ def one(name: str, kw: dict, seed: int) -> dict:
             "ce90": tr["share_within_ce90"], "le90": tr["share_within_le90"],
             "z_db": tr["rmse_database_truth_z"], "z_conf": tr["rmse_conflated_truth_z"],
             "cv_rmse": cv["rmse"], "cv_share": cv["share_within_90"], "moved": moved,
-            "spread": spread, "step0": step0, "step1": step1, "seconds": el}
+            "spread": spread, "step0": step0, "step1": step1, "seconds": el,
+            "nugget": fit["nugget"], "sill": fit["sill"], "length": fit["length"]}
 
 
 def summary(rows: list, names: list) -> None:
@@ -156,12 +158,14 @@ def _seeds(text: list) -> list:
     return out
 
 
-def use_true_covariance() -> None:
+def use_true_covariance(nugget_only: bool = False) -> None:
     """``--true-covariance``: the horizontal field's covariance is the scenario's own
     (Gaussian, sill ``amplitude^2``, length ``sqrt(2) * 150`` m, database noise 0.09 m^2)
     instead of the fit; what then scatters from seed to seed is the finite, correlated
     sample of vertices alone, and a bias of the variance formulas shows without the
-    fit's noise. The scenarios must keep their default field (all of them here do)."""
+    fit's noise. The scenarios must keep their default field (all of them here do).
+    ``nugget_only`` (``--true-nugget``): only the database noise is the true 0.09 m^2,
+    the signal's sill and length stay fitted (which parameter's error moves a seed)."""
     import vectoradjust.accuracy.conflation as conf
 
     fit = conf.fit_covariance
@@ -170,6 +174,8 @@ def use_true_covariance() -> None:
         f = fit(xy, resid, known, kind, k, max_targets, corr=corr)
         if resid.shape[1] != 2:  # heights: fitted
             return f
+        if nugget_only:
+            return replace(f, nugget=0.3 ** 2, fit={**f.fit, "status": "true nugget"})
         sill = _TRUE["amplitude"] ** 2
         return conf.CovarianceModel("gaussian", sill, 150.0 * np.sqrt(2) if sill else 0.0,
                                     0.3 ** 2, f.known_noise, {**f.fit, "status": "true"})
@@ -187,15 +193,18 @@ def main(argv=None) -> int:
     p.add_argument("--scenarios", nargs="+", default=None, help="default: all")
     p.add_argument("--true-covariance", action="store_true",
                    help="the scenario's true horizontal covariance instead of the fit")
+    p.add_argument("--true-nugget", action="store_true",
+                   help="only the database noise true (0.09 m^2), sill and length fitted")
     args = p.parse_args(argv)
-    if args.true_covariance:
-        use_true_covariance()
+    if args.true_covariance or args.true_nugget:
+        use_true_covariance(nugget_only=not args.true_covariance)
     args.seeds = _seeds(args.seeds)
     todo = {k: v for k, v in scenarios().items()
             if args.scenarios is None or k in args.scenarios}
     head = (f"{'scenario':12s} {'seed':>4s} {'meas':>5s} {'pred':>5s} {'db m':>6s} "
             f"{'conf m':>6s} {'reduc':>6s} {'CE90':>5s} {'LE90':>5s} {'cvRMSE':>6s} "
-            f"{'cv90':>5s} {'moved':>7s} {'spread':>7s} {'step':>9s} {'Z m':>9s} {'run s':>5s}")
+            f"{'cv90':>5s} {'moved':>7s} {'spread':>7s} {'step':>9s} {'Z m':>9s} {'run s':>5s} "
+            f"{'n_db':>6s} {'sill':>5s} {'L':>5s}")
     print(head)
     rows = []
     for name, kw in todo.items():
@@ -210,7 +219,8 @@ def main(argv=None) -> int:
                   f"{r['ce90']:5.2f} {r['le90']:5.2f} {r['cv_rmse']:6.2f} {r['cv_share']:5.2f} "
                   f"{r['moved']:7.1e} {r['spread']:7.1e} {r['step0']:4.1f}>{r['step1']:4.1f} "
                   f"{r['z_db']:4.2f}>{r['z_conf']:4.2f} "
-                  f"{r['seconds']:5.1f} {flag}")
+                  f"{r['seconds']:5.1f} {r['nugget']:6.3f} {r['sill']:5.2f} {r['length']:5.0f} "
+                  f"{flag}")
     summary(rows, list(todo))
     return 0
 
