@@ -175,7 +175,8 @@ def use_true_covariance(nugget_only: bool = False) -> None:
         if resid.shape[1] != 2:  # heights: fitted
             return f
         if nugget_only:
-            return replace(f, nugget=0.3 ** 2, fit={**f.fit, "status": "true nugget"})
+            return replace(f, nugget=0.3 ** 2, nugget_posterior=None,
+                           fit={**f.fit, "status": "true nugget"})
         sill = _TRUE["amplitude"] ** 2
         return conf.CovarianceModel("gaussian", sill, 150.0 * np.sqrt(2) if sill else 0.0,
                                     0.3 ** 2, f.known_noise, {**f.fit, "status": "true"})

@@ -17,13 +17,15 @@ of its covariance plus the identification variance). ``C0``, ``L`` and ``n_db`` 
 parameters whose leave-one-out predictions of the measured points score best (the
 negative log predictive density, a proper scoring rule, :func:`fit_covariance`); the
 semivariogram's least-squares fit gives the start; ``n_db`` is then taken as its mean
-given the data (flat prior, :func:`_nugget_posterior_mean`). The measured
+given the data (flat prior, :func:`_nugget_posterior`). The measured
 displacement is taken as the images see it (:func:`image_only`): the adjusted shape
 point is pulled towards the database by its prior, which would shrink the field.
 The variance of the real vertex's position error is
 ``C(0) - c_xm (C_mm + N)^-1 c_mx + n_db + Var(t(x))`` (the unmeasured vertex carries
 its own database noise ``n_db``; the trend's variance from the joint covariance of the
-adjusted points, :func:`_mean_variance`).
+adjusted points, :func:`_mean_variance`). The horizontal CE90 is that of the predictive
+distribution, the normal mixed over the distributions of the estimated ``n_db`` and
+``C0`` (:func:`ce90_factor`); the sigmas are the plug-in ones.
 
 Only the ``k`` nearest measured points enter each prediction (a KD-tree; the ``k x k``
 systems are solved batch-wise with :func:`numpy.linalg.solve`), so the cost is linear
@@ -42,7 +44,7 @@ from vectoradjust.errors import CancelledError, ProjectError
 
 __all__ = ["ConflationSettings", "CovarianceModel", "settings_from_table", "fit_covariance",
            "empirical_semivariogram", "krige", "cross_validate", "image_only", "FieldModel",
-           "field_grid",
+           "field_grid", "ce90_factor",
            "conflate_database", "conflate_run", "SOURCES", "CONFLATION_KEYS",
            "CE90_CIRCULAR", "LE90"]
 
@@ -145,6 +147,14 @@ class CovarianceModel:
         Mean variance of the measured points (adjustment + identification), m^2.
     fit : dict
         The empirical semivariogram and the fit's status.
+    nugget_posterior : tuple of numpy.ndarray, optional
+        ``(x, w)``: the distribution of ``n_db / nugget`` given the data (values and
+        weights summing to 1, mean 1; :func:`_nugget_posterior`); None: ``nugget`` is
+        taken as known.
+    sill_dof : float
+        Degrees of freedom of the sill's estimate (:func:`_sill_dof`; inf: known).
+        With ``nugget_posterior`` they make the CE90 that of the predictive
+        distribution (:func:`ce90_factor`).
     """
 
     kind: str
@@ -153,6 +163,9 @@ class CovarianceModel:
     nugget: float
     known_noise: float = 0.0
     fit: dict = field(default_factory=dict)
+    nugget_posterior: Optional[tuple] = None
+    sill_dof: float = float("inf")
+    _table: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
         """``C(r)`` of the signal (no nugget)."""
@@ -170,7 +183,10 @@ class CovarianceModel:
         """JSON-ready description."""
         return {"model": self.kind, "sill": float(self.sill), "length": float(self.length),
                 "practical_range": self.practical_range, "nugget": float(self.nugget),
-                "known_noise": float(self.known_noise), **self.fit}
+                "known_noise": float(self.known_noise), **self.fit,
+                "nugget_sd": (float(self.nugget * np.sqrt(np.sum(self.nugget_posterior[1] * (
+                    self.nugget_posterior[0] - 1.0) ** 2))) if self.nugget_posterior else 0.0),
+                "sill_dof": float(self.sill_dof) if np.isfinite(self.sill_dof) else None}
 
 
 def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
@@ -236,7 +252,9 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     functions are fitted and the one with the better score is kept. The optimiser's
     result is polished on a fixed lattice (:func:`_lattice_min`) so that QGIS's numpy
     gives the same model; ``n_db`` is then replaced by its mean given the data
-    (:func:`_nugget_posterior_mean`).
+    (:func:`_nugget_posterior`, which also keeps its distribution), and the sill's
+    degrees of freedom are estimated (:func:`_sill_dof`): the CE90 of a predicted
+    vertex accounts for both parameters' uncertainty (:func:`ce90_factor`).
 
     Parameters
     ----------
@@ -292,12 +310,14 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     status = "fitted"
     if white[1] <= score + 4.0:  # a signal must earn its two parameters (AIC)
         theta, score, status = np.array([white[0], 0.0, 0.0]), white[1], "white noise (AIC)"
-    nug = _nugget_posterior_mean(theta, kd, setup, resid, noise_pt)
-    return CovarianceModel(kd, float(theta[1]), float(theta[2]), nug, noise,
-                           {**fit, "status": status, "fitted_nugget": wls["nugget"],
-                            "semivariogram_fit": wls, "loo_score": score,
-                            "loo_score_white": white[1], "nugget_best": float(theta[0]),
-                            "loo_targets": int(len(setup[0]))})
+    nug, post = _nugget_posterior(theta, kd, setup, resid, noise_pt)
+    model = CovarianceModel(kd, float(theta[1]), float(theta[2]), nug, noise,
+                            {**fit, "status": status, "fitted_nugget": wls["nugget"],
+                             "semivariogram_fit": wls, "loo_score": score,
+                             "loo_score_white": white[1], "nugget_best": float(theta[0]),
+                             "loo_targets": int(len(setup[0]))}, post)
+    model.sill_dof = _sill_dof(model, xy, noise_pt, resid.shape[1])
+    return model
 
 
 def _nonneg_pair(f: np.ndarray, g: np.ndarray, w: np.ndarray):
@@ -500,8 +520,10 @@ def _fit_white(kind: str, setup, resid, noise, scale: float):
     return float(grid[i]), float(sc[i])
 
 
-def _nugget_posterior_mean(theta, kind: str, setup, resid, noise, n_grid: int = 41) -> float:
-    """The database's white noise ``n_db`` as its mean given the data, not its best fit.
+def _nugget_posterior(theta, kind: str, setup, resid, noise, n_grid: int = 41):
+    """The database's white noise ``n_db`` as its mean given the data, not its best fit,
+    and its distribution given the data ``(x, w)`` (values ``n_db / mean`` with weights,
+    None when the likelihood cannot be evaluated or the mean is 0).
 
     ``n_db`` is the difference of two similar variances (the held-out points' scatter
     and their known noise); its best fit is often 0 (the boundary) where the truth is a
@@ -523,7 +545,7 @@ def _nugget_posterior_mean(theta, kind: str, setup, resid, noise, n_grid: int = 
         grid = np.linspace(0.0, hi, 21)
         sc = scores(grid)
         if not np.isfinite(sc).any():
-            return float(theta[0])
+            return float(theta[0]), None
         i = int(np.nanargmin(sc))
         above = np.flatnonzero((sc - sc[i] > 20.0) & (np.arange(21) > i))
         if not above.size:
@@ -533,7 +555,172 @@ def _nugget_posterior_mean(theta, kind: str, setup, resid, noise, n_grid: int = 
     sc = scores(grid)
     w = np.exp(-(sc - np.nanmin(sc)) / 2.0)
     w[~np.isfinite(w)] = 0.0
-    return float(np.sum(w * grid) / np.sum(w))
+    w = w / np.sum(w)
+    mean = float(np.sum(w * grid))
+    keep = w > 1e-9
+    return mean, ((grid[keep] / mean, w[keep] / w[keep].sum()) if mean > 0 else None)
+
+
+def _sill_dof(cov: CovarianceModel, xy: np.ndarray, noise: np.ndarray, n_comp: int,
+              max_points: int = 1500, seed: int = 0) -> float:
+    """Degrees of freedom ``nu`` of the sill's estimate: ``Var(C0_hat) = 2 C0^2 / nu``.
+
+    The field's variance is seen through ``m`` correlated values per component: their
+    mean square, less the noise, has variance ``2 tr(S^2) / (c m^2)`` with ``S = C +
+    diag(n_db + noise_i)`` the fitted covariance of the residuals and ``c`` components,
+    so ``nu = c m^2 C0^2 / tr(S^2)``: ``c m`` for white values, a few where the measured
+    points span only a few correlation lengths (the patches of one field's realisation
+    that the data saw). The moment estimate's variance stands for the fit's. The pair
+    sum is taken on a random subset of at most ``max_points`` points (scaled by the
+    number of pairs). Inf without a signal.
+    """
+    m = len(xy)
+    if cov.sill <= 0 or cov.length <= 0 or m < 2:
+        return float("inf")
+    from scipy.spatial.distance import pdist
+
+    pick = (np.sort(np.random.default_rng(seed).choice(m, max_points, replace=False))
+            if m > max_points else np.arange(m))
+    ns = len(pick)
+    off = 2.0 * float(np.sum(cov(pdist(xy[pick])) ** 2)) * m * (m - 1) / (ns * (ns - 1))
+    tr = float(np.sum((cov.sill + cov.nugget + np.asarray(noise, float)) ** 2)) + off
+    return float(n_comp * m * m * cov.sill ** 2 / tr)
+
+
+def _variance_nodes(nu: float, n: int = 16):
+    """Nodes and weights of ``X = nu / chi2_nu`` (the posterior of a variance with ``nu``
+    degrees of freedom relative to its estimate): generalised Gauss-Laguerre on the
+    chi-square density for ``nu < 30``, Gauss-Hermite on the Wilson-Hilferty cube for
+    larger ``nu``, ``X = 1`` for ``nu`` inf."""
+    if not np.isfinite(nu) or nu > 1e6:
+        return np.ones(1), np.ones(1)
+    if nu < 30:
+        from scipy.special import roots_genlaguerre
+
+        y, w = roots_genlaguerre(n, nu / 2.0 - 1.0)  # chi2 = 2 y, y ~ Gamma(nu / 2)
+        return nu / (2.0 * y), w / w.sum()
+    z, w = np.polynomial.hermite_e.hermegauss(n)
+    c = 2.0 / (9.0 * nu)
+    return 1.0 / np.maximum(1.0 - c + z * np.sqrt(c), 1e-3) ** 3, w / w.sum()
+
+
+def _gauss_rule(x: np.ndarray, w: np.ndarray, n: int = 8):
+    """An ``n``-point Gauss rule of the discrete distribution ``(x, w)`` (Stieltjes'
+    procedure, Golub-Welsch): it integrates polynomials of degree ``2 n - 1`` exactly,
+    with ``n`` nodes instead of all of ``x``."""
+    x, w = np.asarray(x, float), np.asarray(w, float) / np.sum(w)
+    n = int(min(n, len(x)))
+    alpha, beta = np.zeros(n), np.zeros(n)
+    p_prev, p = np.zeros_like(x), np.ones_like(x)
+    norm_prev = 1.0
+    for k in range(n):
+        norm = float(np.sum(w * p * p))
+        if norm <= 1e-300:
+            n = k
+            break
+        alpha[k] = float(np.sum(w * x * p * p)) / norm
+        beta[k] = norm / norm_prev if k else 0.0
+        p_prev, p = p, (x - alpha[k]) * p - beta[k] * p_prev
+        norm_prev = norm
+    jac = np.diag(alpha[:n]) + np.diag(np.sqrt(beta[1:n]), 1) + np.diag(np.sqrt(beta[1:n]), -1)
+    nodes, vec = np.linalg.eigh(jac)
+    return nodes, vec[0] ** 2
+
+
+def _ce90_table(cov: CovarianceModel, n_grid: int = 33) -> np.ndarray:
+    """``kappa(f_s, f_n)`` on a ``n_grid x n_grid`` lattice of ``[0, 1]^2``: the CE90 of
+    the predictive distribution over that of the plug-in normal (:func:`ce90_factor`).
+
+    A vertex's variance ``V`` is made of the signal's part ``f_s V`` (proportional to
+    the sill), the database noise's ``f_n V`` and a known rest; the predictive
+    distribution of its circular error is the normal's mixed over the parameters'
+    distributions, ``P(R > r) = E exp(-r^2 / (2 V (f_t + f_s X_s + f_n X_n)))`` with
+    ``X_s = nu / chi2_nu`` (:func:`_variance_nodes`; the Student-t construction) and
+    ``X_n`` the database noise's distribution given the data
+    (``cov.nugget_posterior``, as an 8-point Gauss rule, :func:`_gauss_rule`). ``r``
+    solves ``P = 0.1`` by Newton's method (``P`` is
+    convex in ``r^2``: from below the root the steps increase monotonically). Lattice
+    points with ``f_s + f_n > 1`` take the value of ``(f_s, f_n) / (f_s + f_n)``.
+    """
+    xs, ws = _variance_nodes(cov.sill_dof if cov.sill > 0 else float("inf"))
+    xn, wn = (_gauss_rule(*cov.nugget_posterior) if cov.nugget_posterior is not None
+              else (np.ones(1), np.ones(1)))
+    f = np.linspace(0.0, 1.0, n_grid)
+    fs, fn = np.meshgrid(f, f, indexing="ij")
+    tot = np.maximum(fs + fn, 1.0)
+    fs, fn = (fs / tot).ravel(), (fn / tot).ravel()
+    ft = np.maximum(1.0 - fs - fn, 0.0)
+    a = np.maximum(ft[:, None, None] + fs[:, None, None] * xs[None, :, None]
+                   + fn[:, None, None] * xn[None, None, :], 1e-12).reshape(len(fs), -1)
+    w = (ws[:, None] * wn[None, :]).ravel()
+    rho0 = np.log(10.0)
+    # log r^2 / (2 V) between the all-small and the all-large case; Newton's steps on
+    # the logarithm, bisection where a step leaves the bracket
+    lo, hi = np.log(rho0 * a.min(axis=1)), np.log(rho0 * a.max(axis=1))
+    x = np.full(len(a), np.log(rho0))
+    x = np.clip(x, lo, hi)
+    for _ in range(200):
+        rho = np.exp(x)
+        e = np.exp(-rho[:, None] / a)
+        h = e @ w - 0.1
+        lo, hi = np.where(h > 0, x, lo), np.where(h > 0, hi, x)
+        slope = -rho * ((e / a) @ w)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            new = x - h / slope
+        bad = ~((new > lo) & (new < hi))
+        new = np.where(bad, 0.5 * (lo + hi), new)
+        done = np.max(np.abs(new - x)) < 1e-13
+        x = new
+        if done:
+            break
+    rho = np.exp(x)
+    return np.sqrt(rho / rho0).reshape(n_grid, n_grid)
+
+
+def ce90_factor(cov: Optional[CovarianceModel], v_signal: np.ndarray, v_noise: np.ndarray,
+                v_total: np.ndarray) -> np.ndarray:
+    """CE90 of the predictive distribution over the CE90 of the plug-in normal.
+
+    The covariance of a predicted vertex is built on estimated parameters: the
+    database noise ``n_db`` (its mean given the data, whose distribution
+    ``cov.nugget_posterior`` keeps) and the sill ``C0`` (estimated with
+    ``cov.sill_dof`` degrees of freedom). Their uncertainty widens the distribution
+    of the vertex's error beyond the normal of the same covariance, most where the
+    sill dominates (far from measured points: there the sill is seen on a few
+    correlation lengths only). The factor is bilinear in a table of ``(f_s, f_n) =
+    (v_signal, v_noise) / v_total`` (:func:`_ce90_table`, once per model).
+
+    Parameters
+    ----------
+    cov : CovarianceModel or None
+        None: 1 everywhere.
+    v_signal, v_noise, v_total : numpy.ndarray, shape (n,)
+        The parts of a vertex's variance (per axis) that scale with the sill and with
+        the database noise, and the whole variance.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+        At least 1 (1 where ``v_total`` is not positive or not finite).
+    """
+    v_total = np.asarray(v_total, float)
+    out = np.ones(v_total.shape)
+    if cov is None:
+        return out
+    if cov._table is None:
+        cov._table = _ce90_table(cov)
+    tab = cov._table
+    ok = np.isfinite(v_total) & (v_total > 0)
+    n = tab.shape[0] - 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fs = np.clip(np.asarray(v_signal, float)[ok] / v_total[ok], 0.0, 1.0) * n
+        fn = np.clip(np.asarray(v_noise, float)[ok] / v_total[ok], 0.0, 1.0) * n
+    fs, fn = np.nan_to_num(fs), np.nan_to_num(fn)
+    i, j = np.minimum(fs.astype(np.int64), n - 1), np.minimum(fn.astype(np.int64), n - 1)
+    u, v = fs - i, fn - j
+    out[ok] = ((1 - u) * (1 - v) * tab[i, j] + u * (1 - v) * tab[i + 1, j]
+               + (1 - u) * v * tab[i, j + 1] + u * v * tab[i + 1, j + 1])
+    return np.maximum(out, 1.0)
 
 
 def _solve_chunk(models: list, xy_m, dist, idx, tgt=None) -> list:
@@ -888,14 +1075,17 @@ def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel, car
     return fields[0], fields[1]
 
 
-def _vertex_columns(d, meas_v, adj, cov, source) -> None:
-    """Write the conflated vertices into ``d.vertices`` / ``d.adjusted_coords`` (in place)."""
+def _vertex_columns(d, meas_v, adj, cov, source, ce_factor=None) -> None:
+    """Write the conflated vertices into ``d.vertices`` / ``d.adjusted_coords`` (in place);
+    ``ce_factor`` (per vertex, :func:`ce90_factor`) scales the predicted vertices' CE90."""
     from vectoradjust.accuracy.tables import _feature_geometry, cov_stats
 
     v = d.vertices
     db = d.shape.layer.coords
     u = ~meas_v
     sig, ce, le = cov_stats(cov[u])
+    if ce_factor is not None:
+        ce = ce * ce_factor[u]
     for a, ax in enumerate("XYZ"):
         col = np.array(v[f"Adj{ax}"], float)
         col[u] = adj[u, a]
@@ -1124,9 +1314,12 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     g_m = tr.g[m_obj]
     corr_v = _orientation_basis(out.result, out.problem, obj_pt[m_obj], _image_scale(out))
     fh, fv = _fields(xy_m, resid, noise, xy_u, s, report, cancel,
-                     (g_m[:, :2, :].reshape(len(m_obj), -1), g_m[:, 2, :]), corr_v)
+                     (np.column_stack([g_m[:, :2, :].reshape(len(m_obj), -1),
+                                       np.ones(len(m_obj))]), g_m[:, 2, :]), corr_v)
+    wsum_h, fh.wsum = _split_weight_sum(fh.wsum, len(u_obj))
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
     extra = _trend_field_cov(g_m, xy_m, (fh.cov, fv.cov))
+    cov_field = _trend_cov(replace(tr, c=extra, fixed=np.zeros(3)), u_obj, fh.wsum, fv.wsum)
     tr = replace(tr, c=tr.c + extra)
     cov = _trend_cov(tr, u_obj, fh.wsum, fv.wsum)
     nug_h = fh.cov.nugget if fh.cov is not None else np.nan
@@ -1134,6 +1327,7 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     cov[:, 0, 0] += fh.var + nug_h
     cov[:, 1, 1] += fh.var + nug_h
     cov[:, 2, 2] += fv.var + nug_v
+    kappa = _horizontal_factor(fh.cov, wsum_h, cov_field, cov)
     model = FieldModel(xy_m, resid, noise, fh.cov, fv.cov, rec, tr.mean, tr.mean_var, s.k,
                        tr.fixed, extra, corr_v)
     info = {"trend": {"offset": rec.get("kind") if rec else None,
@@ -1147,7 +1341,35 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
             "covariance": {"horizontal": fh.cov.as_dict() if fh.cov else None,
                            "vertical": fv.cov.as_dict() if fv.cov else None},
             "cross_validation": {"horizontal": fh.cv, "vertical": fv.cv}}
-    return u_obj, disp, cov, fh, info, model
+    return u_obj, disp, cov, kappa, fh, info, model
+
+
+def _split_weight_sum(wsum: Optional[np.ndarray], n: int):
+    """The kriging weights' sum (last column of the horizontal ``carry``, a column of
+    ones) and the sums of the trend's design (the other columns)."""
+    if wsum is None:
+        return np.zeros(n), None
+    return wsum[:, -1].copy(), wsum[:, :-1]
+
+
+def _horizontal_factor(cov_h: Optional[CovarianceModel], wsum: np.ndarray,
+                       cov_field: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """:func:`ce90_factor` of the horizontal prediction, per axis (the mean of X and Y).
+
+    The part of the variance that the sill's error moves: where the prediction leans
+    on the field's prior variance rather than on its neighbours. Raising the covariance
+    by a constant ``a`` (a larger sill, the same local behaviour, which the
+    leave-one-out fit sees well) raises the error variance of the same weights by
+    ``a (1 - sum w)^2``: ``C0 (1 - sum w)^2``, plus what the field adds to the trend's
+    error (``cov_field``, proportional to the sill). The noise's part is the
+    database noise.
+    """
+    v_total = 0.5 * (cov[:, 0, 0] + cov[:, 1, 1])
+    if cov_h is None:
+        return np.ones(len(cov))
+    v_sig = (cov_h.sill * (1.0 - wsum) ** 2
+             + 0.5 * (cov_field[:, 0, 0] + cov_field[:, 1, 1]))
+    return ce90_factor(cov_h, v_sig, np.full(len(cov), cov_h.nugget), v_total)
 
 
 @dataclass
@@ -1192,12 +1414,14 @@ class FieldModel:
     trend_field_cov: Optional[np.ndarray] = None
     corr_v: Optional[np.ndarray] = None
 
-    def predict(self, xy: np.ndarray):
+    def predict(self, xy: np.ndarray, ce90_factor: bool = False):
         """Displacement (n, 3) and its variance per axis (n, 3) at ``xy`` (n, 2).
 
         The same prediction as the vertices get (trend + collocation, with the
         database's white noise and the trend's error as the prediction carries it,
-        :func:`_trend_cov`), NaN where a component has no field.
+        :func:`_trend_cov`), NaN where a component has no field. With ``ce90_factor``
+        also the horizontal CE90's factor (n,) for the parameters' uncertainty
+        (:func:`ce90_factor`; the vertices' CE90 is the plug-in one times it).
         """
         def design(p):
             return _trend_design(self.rec, np.column_stack([p, np.zeros(len(p))]),
@@ -1217,13 +1441,28 @@ class FieldModel:
                 continue
             ok = np.isfinite(self.resid[:, cols]).all(axis=1)
             carry = g_m[ok][:, cols, :].reshape(int(ok.sum()), -1)
+            if i == 0:  # and the weights' sum (_split_weight_sum)
+                carry = np.column_stack([carry, np.ones(len(carry))])
             u = None if i == 0 or self.corr_v is None else self.corr_v[ok]
             ((pred, kv, ws[i]),), _ = _krige_many(
                 [(cov, self.resid[ok][:, cols], self.noise[ok][:, cols].mean(axis=1), carry,
                   u)], self.xy[ok], xy, self.k)
             disp[:, cols] += pred
             var[:, cols] += (kv + cov.nugget)[:, None]
-        return disp, var + np.einsum("nii->ni", _trend_cov(tr, slice(None), *ws))
+            if i == 0:
+                wsum_h, ws[0] = _split_weight_sum(ws[0], len(xy))
+        tcov = _trend_cov(tr, slice(None), *ws)
+        var = var + np.einsum("nii->ni", tcov)
+        if not ce90_factor:
+            return disp, var
+        if self.cov_h is None:
+            return disp, var, np.ones(len(xy))
+        tfield = (np.zeros_like(tr.c) if self.trend_field_cov is None
+                  else np.asarray(self.trend_field_cov, float))
+        fcov = _trend_cov(replace(tr, c=tfield, fixed=np.zeros(3)), slice(None), *ws)
+        cov = np.zeros((len(xy), 3, 3))
+        cov[:, 0, 0], cov[:, 1, 1] = var[:, 0], var[:, 1]
+        return disp, var, _horizontal_factor(self.cov_h, wsum_h, fcov, cov)
 
 
 def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
@@ -1265,15 +1504,17 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
                            f"{s.min_points}")
         entry["vertices"] = {k: int((source == k).sum()) for k in SOURCES}
         return entry
-    u_obj, disp, cov, fh, info, d.conflation = _predicted_objects(out, d, rec, s, obj_pt,
-                                                                  report, cancel)
+    u_obj, disp, cov, kappa, fh, info, d.conflation = _predicted_objects(
+        out, d, rec, s, obj_pt, report, cancel)
     nobj = d.shape.n_objects
     db = d.shape.object_xyz
     adj_o = np.full((nobj, 3), np.nan)
     cov_o = np.full((nobj, 3, 3), np.nan)
     near_o = np.full(nobj, np.inf)
+    kappa_o = np.ones(nobj)
     adj_o[u_obj] = db[u_obj] + np.where(np.isfinite(disp), disp, 0.0)
     cov_o[u_obj] = cov
+    kappa_o[u_obj] = kappa
     near_o[u_obj] = fh.nearest
     cov_m = fh.cov
     maxd = s.max_distance or (cov_m.practical_range if cov_m.sill > 0 else
@@ -1281,7 +1522,7 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
     vo = d.shape.vertex_object
     u = ~meas_v
     source[u] = np.where(near_o[vo[u]] <= maxd, "interpolated", "extrapolated")
-    _vertex_columns(d, meas_v, adj_o[vo], cov_o[vo], source)
+    _vertex_columns(d, meas_v, adj_o[vo], cov_o[vo], source, kappa_o[vo])
     if info["covariance"]["vertical"] is None:  # too few heights: Z unchanged
         d.vertices["Vz"][u] = np.nan
     entry.update({"status": "conflated", "max_distance": float(maxd), **info,
@@ -1360,8 +1601,9 @@ def field_grid(d, cell: Optional[float] = None, max_cells: int = 40000) -> Optio
     gx = x0 + cell * (np.arange(nx) + 0.5)
     gy = y0 - cell * (np.arange(ny) + 0.5)
     xx, yy = np.meshgrid(gx, gy)
-    disp, var = model.predict(np.column_stack([xx.ravel(), yy.ravel()]))
-    sig_h = np.sqrt(np.maximum(var[:, :2].mean(axis=1), 0.0))
+    disp, var, kappa = model.predict(np.column_stack([xx.ravel(), yy.ravel()]),
+                                     ce90_factor=True)
+    sig_h = kappa * np.sqrt(np.maximum(var[:, :2].mean(axis=1), 0.0))
     shape = (ny, nx)
     return {"x0": x0, "y0": y0, "cell": cell, "dx": disp[:, 0].reshape(shape),
             "dy": disp[:, 1].reshape(shape), "dz": disp[:, 2].reshape(shape),
