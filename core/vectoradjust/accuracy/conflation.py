@@ -165,7 +165,7 @@ class CovarianceModel:
     fit: dict = field(default_factory=dict)
     nugget_posterior: Optional[tuple] = None
     sill_dof: float = float("inf")
-    _table: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
+    _table: Optional[np.ndarray] = field(default=None, init=False, repr=False, compare=False)
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
         """``C(r)`` of the signal (no nugget)."""
