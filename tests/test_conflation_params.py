@@ -76,22 +76,25 @@ def test_factor_is_one_without_estimated_parameters_and_at_least_one_with_them()
 
 
 def test_sill_dof_is_that_of_the_simulated_sill_estimate():
-    """A Gaussian field (C0 4 m^2, L 150 m) plus noise at 80 points on 600 m x 400 m,
-    two components: the moment estimate of the sill (mean square less the noise) over
-    2000 simulations has variance ``2 C0^2 / nu``."""
+    """A Gaussian field (C0 4 m^2, L 150 m) at 80 points on 600 m x 400 m, two
+    components: the mean square of its values over 2000 realisations has variance
+    ``2 C0^2 / nu``; between ``c = 2`` (one patch) and ``c m`` (uncorrelated)."""
     rng = np.random.default_rng(9)
     xy = rng.uniform(0, [600.0, 400.0], (80, 2))
     cov = CovarianceModel("gaussian", 4.0, 150.0, 0.09)
-    noise = np.full(80, 0.1)
-    nu = _sill_dof(cov, xy, noise, 2)
+    nu = _sill_dof(cov, xy, 2)
     r = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
-    chol = np.linalg.cholesky(cov(r) + np.diag(cov.nugget + noise))
+    chol = np.linalg.cholesky(cov(r) + 1e-9 * np.eye(80))
     z = np.einsum("ij,sjc->sic", chol, rng.normal(size=(2000, 80, 2)))
-    est = np.mean(z ** 2, axis=(1, 2)) - cov.nugget - noise.mean()
+    est = np.mean(z ** 2, axis=(1, 2))
     assert est.mean() == pytest.approx(4.0, rel=0.05)
     assert 2 * 16.0 / est.var() == pytest.approx(nu, rel=0.12)
     assert 3.0 < nu < 40.0  # a few correlation lengths: far fewer than 160 values
-    assert _sill_dof(CovarianceModel("gaussian", 0.0, 0.0, 0.1), xy, noise, 2) == np.inf
+    assert _sill_dof(CovarianceModel("gaussian", 0.0, 0.0, 0.1), xy, 2) == np.inf
+    one_patch = _sill_dof(CovarianceModel("gaussian", 4.0, 1e6, 0.1), xy, 2)
+    assert one_patch == pytest.approx(2.0, rel=1e-6)
+    assert _sill_dof(CovarianceModel("exponential", 4.0, 1e-3, 0.1), xy, 2) == \
+        pytest.approx(160.0, rel=1e-6)
 
 
 def test_far_vertex_covers_90_percent_with_an_estimated_sill():
@@ -104,7 +107,7 @@ def test_far_vertex_covers_90_percent_with_an_estimated_sill():
     true = CovarianceModel("gaussian", 4.0, 150.0, 0.0)
     r = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
     chol = np.linalg.cholesky(true(r) + 1e-6 * np.eye(60))
-    nu = _sill_dof(true, xy, np.full(60, 1e-6), 2)
+    nu = _sill_dof(true, xy, 2)
     sims = 4000
     z = np.einsum("ij,sjc->sic", chol, rng.normal(size=(sims, 60, 2)))
     sill = np.mean(z ** 2, axis=(1, 2))

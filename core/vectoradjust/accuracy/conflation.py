@@ -316,7 +316,7 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
                              "semivariogram_fit": wls, "loo_score": score,
                              "loo_score_white": white[1], "nugget_best": float(theta[0]),
                              "loo_targets": int(len(setup[0]))}, post)
-    model.sill_dof = _sill_dof(model, xy, noise_pt, resid.shape[1])
+    model.sill_dof = _sill_dof(model, xy, resid.shape[1])
     return model
 
 
@@ -561,18 +561,20 @@ def _nugget_posterior(theta, kind: str, setup, resid, noise, n_grid: int = 41):
     return mean, ((grid[keep] / mean, w[keep] / w[keep].sum()) if mean > 0 else None)
 
 
-def _sill_dof(cov: CovarianceModel, xy: np.ndarray, noise: np.ndarray, n_comp: int,
-              max_points: int = 1500, seed: int = 0) -> float:
+def _sill_dof(cov: CovarianceModel, xy: np.ndarray, n_comp: int, max_points: int = 1500,
+              seed: int = 0) -> float:
     """Degrees of freedom ``nu`` of the sill's estimate: ``Var(C0_hat) = 2 C0^2 / nu``.
 
-    The field's variance is seen through ``m`` correlated values per component: their
-    mean square, less the noise, has variance ``2 tr(S^2) / (c m^2)`` with ``S = C +
-    diag(n_db + noise_i)`` the fitted covariance of the residuals and ``c`` components,
-    so ``nu = c m^2 C0^2 / tr(S^2)``: ``c m`` for white values, a few where the measured
-    points span only a few correlation lengths (the patches of one field's realisation
-    that the data saw). The moment estimate's variance stands for the fit's. The pair
-    sum is taken on a random subset of at most ``max_points`` points (scaled by the
-    number of pairs). Inf without a signal.
+    The field's variance is seen through one realisation at ``m`` correlated places per
+    component: the mean square of the field's values there varies from realisation to
+    realisation by ``2 tr(C^2) / (c m^2)`` (``C`` the fitted signal covariance between
+    the points, ``c`` components), so ``nu = c m^2 C0^2 / tr(C^2)``: ``c m`` for
+    uncorrelated values, between ``c`` and a few ``c`` where the measured points span
+    only a few correlation lengths (the patches of the field that the data saw). The
+    noise's share of the sill's error is left out: a signal is kept only when it beats
+    white noise by the AIC margin (:func:`fit_covariance`), and with it ``nu`` stays at
+    least ``c``. The pair sum is taken on a random subset of at most ``max_points``
+    points (scaled by the number of pairs). Inf without a signal.
     """
     m = len(xy)
     if cov.sill <= 0 or cov.length <= 0 or m < 2:
@@ -583,8 +585,7 @@ def _sill_dof(cov: CovarianceModel, xy: np.ndarray, noise: np.ndarray, n_comp: i
             if m > max_points else np.arange(m))
     ns = len(pick)
     off = 2.0 * float(np.sum(cov(pdist(xy[pick])) ** 2)) * m * (m - 1) / (ns * (ns - 1))
-    tr = float(np.sum((cov.sill + cov.nugget + np.asarray(noise, float)) ** 2)) + off
-    return float(n_comp * m * m * cov.sill ** 2 / tr)
+    return float(n_comp * m * m * cov.sill ** 2 / (m * cov.sill ** 2 + off))
 
 
 def _variance_nodes(nu: float, n: int = 16):
