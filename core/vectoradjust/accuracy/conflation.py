@@ -639,9 +639,9 @@ def _ce90_table(cov: CovarianceModel, n_grid: int = 33) -> np.ndarray:
     ``X_s = nu / chi2_nu`` (:func:`_variance_nodes`; the Student-t construction) and
     ``X_n`` the database noise's distribution given the data
     (``cov.nugget_posterior``, as an 8-point Gauss rule, :func:`_gauss_rule`). ``r``
-    solves ``P = 0.1`` by Newton's method (``P`` is
-    convex in ``r^2``: from below the root the steps increase monotonically). Lattice
-    points with ``f_s + f_n > 1`` take the value of ``(f_s, f_n) / (f_s + f_n)``.
+    solves ``P = 0.1`` by Newton's method on ``log r^2``, safeguarded by bisection in
+    the bracket of the smallest and the largest mixed variance. Lattice points with
+    ``f_s + f_n > 1`` take the value of ``(f_s, f_n) / (f_s + f_n)``.
     """
     xs, ws = _variance_nodes(cov.sill_dof if cov.sill > 0 else float("inf"))
     xn, wn = (_gauss_rule(*cov.nugget_posterior) if cov.nugget_posterior is not None
