@@ -157,3 +157,43 @@ def test_field_part_of_the_trend_variance_is_that_of_the_least_squares_estimate(
     d = np.sqrt(np.diag(want))
     assert np.allclose(sub / np.outer(d, d), want / np.outer(d, d), atol=0.05)
     assert np.all(_trend_field_cov(g, xy, (None, None)) == 0)
+
+
+def test_inside_hull_against_a_square_and_degenerate_sets():
+    from vectoradjust.accuracy.conflation import inside_hull
+
+    sq = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0], [5.0, 5.0]])
+    q = np.array([[5.0, 5.0], [0.0, 5.0], [10.0, 10.0], [10.1, 5.0], [-1.0, -1.0],
+                  [9.99, 0.01]])
+    assert inside_hull(sq, q).tolist() == [True, True, True, False, False, True]
+    line = np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])  # no area: nothing inside
+    assert not inside_hull(line, q).any()
+    assert not inside_hull(sq[:2], q).any()
+    rng = np.random.default_rng(3)  # a disc of points: inside iff within the hull polygon
+    pts = rng.normal(size=(400, 2))
+    qq = rng.uniform(-4, 4, size=(3000, 2))
+    import matplotlib.path
+    from scipy.spatial import ConvexHull
+
+    ring = pts[ConvexHull(pts).vertices]
+    want = matplotlib.path.Path(ring).contains_points(qq)
+    assert np.array_equal(inside_hull(pts, qq, chunk=700), want)
+
+
+def test_vertices_beyond_every_measured_point_are_extrapolated():
+    """A predicted vertex outside the measured points' hull is labelled extrapolated,
+    even within the practical range (seed 13 of the smooth scenario had such vertices
+    labelled interpolated)."""
+    from vectoradjust.accuracy.conflation import inside_hull
+    from vectoradjust.pipeline import run
+    from vectoradjust.simulate.conflation import conflation_scenario
+
+    out = run(conflation_scenario(13))
+    d = out.databases[0]
+    src = np.asarray(d.vertices["Source"])
+    meas = src == "measured"
+    xy = np.asarray(d.shape.layer.coords, float)[:, :2]  # database positions
+    inside = inside_hull(xy[meas], xy)
+    assert not np.any((src == "interpolated") & ~inside)
+    assert np.any((src == "extrapolated") & ~inside)
+    assert np.any(src == "interpolated")

@@ -70,8 +70,9 @@ class ConflationSettings:
     k : int
         Measured points per prediction (nearest neighbours).
     max_distance : float
-        A vertex farther than this (m) from every measured point is ``extrapolated``,
-        nearer ``interpolated``; 0 (default): the fitted covariance's practical range.
+        A vertex farther than this (m) from every measured point, or outside their
+        convex hull, is ``extrapolated``, else ``interpolated``; 0 (default): the fitted
+        covariance's practical range.
     model : str
         ``"exponential"`` (``C0 exp(-r/L)``), ``"gaussian"`` (``C0 exp(-(r/L)^2)``) or
         ``"auto"`` (default: both fitted, the better leave-one-out score kept).
@@ -1522,7 +1523,11 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
                               (max(cov_m.fit.get("lags") or [np.inf])))
     vo = d.shape.vertex_object
     u = ~meas_v
-    source[u] = np.where(near_o[vo[u]] <= maxd, "interpolated", "extrapolated")
+    # interpolated: among the measured points (inside their convex hull) and within
+    # max_distance of one; anywhere else the field is extrapolated
+    inside = inside_hull(db[vo[meas_v], :2], db[:, :2])
+    source[u] = np.where((near_o[vo[u]] <= maxd) & inside[vo[u]], "interpolated",
+                         "extrapolated")
     _vertex_columns(d, meas_v, adj_o[vo], cov_o[vo], source, kappa_o[vo])
     if info["covariance"]["vertical"] is None:  # too few heights: Z unchanged
         d.vertices["Vz"][u] = np.nan
@@ -1530,6 +1535,32 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
                   "vertices": {k: int((source == k).sum()) for k in SOURCES},
                   "truth": _truth_check(out, d, meas_v, source)})
     return entry
+
+
+def inside_hull(points: np.ndarray, query: np.ndarray, chunk: int = 65536) -> np.ndarray:
+    """Which ``query`` points (n, 2) lie in the convex hull of ``points`` (m, 2).
+
+    ``scipy.spatial.ConvexHull`` and its facets' half-planes (a point on the boundary,
+    to 1e-9 of the hull's extent, is inside); all False where the points span no area
+    (fewer than three, or on one line). Linear in ``n`` (chunks of ``chunk`` points).
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    query = np.asarray(query, float)
+    out = np.zeros(len(query), bool)
+    pts = np.unique(np.asarray(points, float)[np.isfinite(points).all(axis=1)], axis=0)
+    if len(pts) < 3:
+        return out
+    try:
+        hull = ConvexHull(pts)
+    except QhullError:  # collinear: no area
+        return out
+    eq = hull.equations  # (f, 3): normal . x + offset <= 0 inside
+    tol = 1e-9 * float(np.ptp(pts, axis=0).max())
+    for lo in range(0, len(query), chunk):
+        q = query[lo:lo + chunk]
+        out[lo:lo + chunk] = np.all(q @ eq[:, :2].T + eq[:, 2] <= tol, axis=1)
+    return out
 
 
 def conflate_run(out, offsets: Optional[dict], settings: ConflationSettings,
