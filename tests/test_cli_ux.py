@@ -14,6 +14,7 @@ from vectoradjust.cli.progress import ProgressBar
 @pytest.mark.parametrize("argv", [
     ["adjust", "p.toml", "-o", "D"], ["compare", "p.toml", "-o", "D"], ["demo", "-o", "D"],
     ["qa", "p.toml", "-o", "D"], ["adjust-many", "a.toml", "-o", "D"],
+    ["study", "gcp", "p.toml", "-o", "D"], ["study", "identification", "-o", "D"],
 ])
 def test_o_is_short_for_out(argv):
     args = build_parser().parse_args(argv)

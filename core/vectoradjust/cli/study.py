@@ -232,7 +232,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     g = ss.add_parser("gcp", help="adjust with subsets of the control points; the held-out "
                       "ones are scored as check points")
     g.add_argument("project", help="project file (TOML)")
-    g.add_argument("--out", required=True, help="output directory")
+    g.add_argument("-o", "--out", required=True, help="output directory")
     g.add_argument("--numbers", help="number sweep with well-spread subsets, e.g. 24,12,6,3 "
                    "(default: all, half, quarter ... down to 3, unless --config/--random)")
     g.add_argument("--config", action="append", metavar="NAME",
@@ -247,7 +247,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     g.set_defaults(func=cmd_gcp)
     h = ss.add_parser("shift", help="translate a database, adjust, compare with unshifted")
     h.add_argument("project", help="project file (TOML)")
-    h.add_argument("--out", required=True, help="output directory")
+    h.add_argument("-o", "--out", required=True, help="output directory")
     h.add_argument("--dx", type=float, default=15.0, help="shift east (m, default 15)")
     h.add_argument("--dy", type=float, default=15.0, help="shift north (m, default 15)")
     h.add_argument("--vectors", action="append", metavar="NAME",
@@ -255,7 +255,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     h.add_argument("-q", "--quiet", action="store_true", help="no progress bar or table")
     h.set_defaults(func=cmd_shift)
     i = ss.add_parser("identification", help="simulate with a list of identification errors")
-    i.add_argument("--out", required=True, help="output directory")
+    i.add_argument("-o", "--out", required=True, help="output directory")
     i.add_argument("--errors", default="0,0.5,1,2", help="identification errors per axis (m)")
     i.add_argument("--seed", type=int, default=35, help="simulation seed (35: the sample)")
     i.add_argument("--repeats", type=int, default=1, help="scenarios per error (seed, seed+1..)")
