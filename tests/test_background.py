@@ -194,3 +194,21 @@ def test_band_file_written_chunk_by_chunk_equals_the_frame(tmp_path, monkeypatch
         assert table.column(c).to_pylist() == frame[c].tolist()
     back = shapely.from_wkb(table.column("geometry").to_numpy(zero_copy_only=False))
     assert shapely.equals_exact(back, np.asarray(frame.geometry.values), 0.0).all()
+
+
+def _quick_steps(progress=None):
+    for k in range(5):
+        progress(k / 5, f"step {k}")
+    progress(1.0, "finished")
+    return 7
+
+
+@fork_only
+def test_the_last_progress_message_of_a_child_is_not_dropped(monkeypatch):
+    """Messages within a second of each other are thinned out, but not the final one."""
+    monkeypatch.setenv("VECTORADJUST_WORKERS", "2")
+    seen = []
+    job = Background(_quick_steps)
+    assert job.forked
+    assert job.result(lambda f, m="": seen.append((f, m))) == 7
+    assert seen[-1] == (1.0, "finished") and len(seen) < 6

@@ -61,7 +61,8 @@ def _child(conn, fn, args, kwargs) -> None:
 
     def progress(fraction: float, message: str = "") -> None:
         now = time.monotonic()
-        if now - last[0] >= PROGRESS_INTERVAL:  # ~100 bytes a second at most
+        # ~100 bytes a second at most, and the end always (a bar left short of 100 %)
+        if now - last[0] >= PROGRESS_INTERVAL or fraction >= 1.0:
             last[0] = now
             conn.send(("progress", float(fraction), str(message)[:200]))
 
