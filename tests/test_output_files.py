@@ -264,3 +264,58 @@ def test_cli_shows_the_truth_buffer_stage(sample_dir, tmp_path, capfd):
                  "--vectors", "OSM", "--no-bands"]) == 0
     err = capfd.readouterr().err
     assert "truth [" in err and "buffer test: OSM" in err and "buffer test: done" in err
+
+
+@pytest.mark.parametrize("fmt", ["gpkg", "shp"])
+def test_shape_points_through_arrow_equal_the_frame(sample_dir, tmp_path, fmt, monkeypatch):
+    """The shape_points layer written from Arrow columns and WKB points is the layer of
+    the GeoDataFrame (schema, geometries, attributes; shapefiles byte for byte)."""
+    pytest.importorskip("pyarrow")
+    import pyogrio
+
+    from vectoradjust.files import outputs
+
+    made = []
+    real = outputs.shape_points_table
+    monkeypatch.setattr(outputs, "shape_points_table", lambda r: made.append(1) or real(r))
+    for name in ("arrow", "frame"):
+        if name == "frame":  # no Arrow writing: the frame of every layer
+            monkeypatch.setattr(outputs, "_arrow_writing", lambda: {})
+        assert main(["adjust", str(sample_dir / "project.toml"), "-o", str(tmp_path / name),
+                     "-q", "--no-bands", "--format", fmt]) == 0
+    assert made == [1]  # the Arrow table in the first run only
+    path, layer = (("adjusted.gpkg", "shape_points") if fmt == "gpkg"
+                   else ("shape_points.shp", None))
+    a, b = (pyogrio.read_info(tmp_path / n / path, layer=layer) for n in ("arrow", "frame"))
+    for key in ("fields", "dtypes", "geometry_type", "crs", "features"):
+        assert np.array_equal(np.asarray(a[key]), np.asarray(b[key])), key
+    assert a["geometry_type"] == "Point Z" and a["features"] > 500
+    fa, fb = (pyogrio.read_dataframe(tmp_path / n / path, layer=layer) for n in ("arrow", "frame"))
+    assert fa.geometry.geom_equals_exact(fb.geometry, 0.0).all()
+    assert fa.drop(columns="geometry").equals(fb.drop(columns="geometry"))
+    if fmt == "shp":
+        assert ((tmp_path / "arrow" / "shape_points.dbf").read_bytes()
+                == (tmp_path / "frame" / "shape_points.dbf").read_bytes())
+
+
+def test_shape_points_table_has_the_frame_s_values_and_nulls(sample_dir):
+    """Without the conflation the unmeasured vertices' V, sigmas and CE90 are null in both."""
+    pytest.importorskip("pyarrow")
+    from dataclasses import replace
+
+    from vectoradjust.files.outputs import SHAPE_FIELDS, shape_points_frame, shape_points_table
+    from vectoradjust.files.project import load_project
+
+    data = load_project_data(load_project(sample_dir / "project.toml"))
+    out = run(replace(data, conflation={"enabled": False}))
+    frame = shape_points_frame(out)
+    table = shape_points_table(out).batches().read_all()
+    assert table.num_rows == len(frame) and table.column_names == [*SHAPE_FIELDS, "geometry"]
+    for f in SHAPE_FIELDS:
+        a, b = table.column(f).to_pylist(), frame[f].tolist()
+        b = [None if (x is None or x is gpd.pd.NA or (isinstance(x, float) and x != x)) else x
+             for x in b]
+        assert a == b, f
+    assert table.column("Vx").null_count > 20  # the unmeasured vertices
+    pts = gpd.GeoSeries.from_wkb(table.column("geometry").to_pylist())
+    assert pts.geom_equals_exact(frame.geometry, 0.0).all() and pts.has_z.all()
