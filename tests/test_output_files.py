@@ -317,5 +317,5 @@ def test_shape_points_table_has_the_frame_s_values_and_nulls(sample_dir):
              for x in b]
         assert a == b, f
     assert table.column("Vx").null_count > 20  # the unmeasured vertices
-    pts = gpd.GeoSeries.from_wkb(table.column("geometry").to_pylist())
+    pts = gpd.GeoSeries.from_wkb(table.column("geometry").to_pylist(), crs=frame.crs)
     assert pts.geom_equals_exact(frame.geometry, 0.0).all() and pts.has_z.all()
