@@ -131,6 +131,21 @@ def _nullable(col: np.ndarray, mask: Optional[np.ndarray] = None):
     return out
 
 
+#: float fields of shape_points that are null where the vertex got no value (unmeasured,
+#: not conflated)
+_MASKED_SHAPE_FIELDS = ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90",
+                        "CE90_meas", "LE90_meas")
+
+
+def _valued_vertices(v: dict) -> np.ndarray:
+    """Vertices whose V, sigmas and CE90/LE90 have values: measured, or corrected by the
+    conflation."""
+    adj = np.asarray(v["Adjusted"]) == 1
+    if "Source" in v:
+        adj = adj | np.isin(v["Source"], ("interpolated", "extrapolated"))
+    return adj
+
+
 def shape_points_frame(run: AdjustmentRun):
     """GeoDataFrame of the ``shape_points`` layer (Point Z at the adjusted position)."""
     import geopandas as gpd
@@ -140,18 +155,9 @@ def shape_points_frame(run: AdjustmentRun):
     frames = []
     for d in run.databases:
         v = d.vertices
-        adj = v["Adjusted"] == 1
-        if "Source" in v:  # vertices corrected by the conflation carry values too
-            adj = adj | np.isin(v["Source"], ("interpolated", "extrapolated"))
-        cols = {}
-        for f in SHAPE_FIELDS:
-            col = v[f]
-            if f in ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90",
-                     "CE90_meas", "LE90_meas"):
-                col = _nullable(col, adj)
-            else:
-                col = _nullable(col)
-            cols[f] = col
+        adj = _valued_vertices(v)
+        cols = {f: _nullable(v[f], adj) if f in _MASKED_SHAPE_FIELDS else _nullable(v[f])
+                for f in SHAPE_FIELDS}
         geom = shapely.points(np.column_stack([v["AdjX"], v["AdjY"],
                                                np.nan_to_num(v["AdjZ"], nan=0.0)]))
         frames.append(gpd.GeoDataFrame(pd.DataFrame(cols), geometry=geom, crs=run.data.crs))
@@ -159,12 +165,6 @@ def shape_points_frame(run: AdjustmentRun):
         return gpd.GeoDataFrame(pd.DataFrame({f: [] for f in SHAPE_FIELDS}),
                                 geometry=gpd.GeoSeries([], crs=run.data.crs), crs=run.data.crs)
     return pd.concat(frames, ignore_index=True)
-
-
-#: float fields of shape_points that are null where the vertex got no value (unmeasured,
-#: not conflated)
-_MASKED_SHAPE_FIELDS = ("Vx", "Vy", "Vz", "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90",
-                        "CE90_meas", "LE90_meas")
 
 
 def shape_points_table(run: AdjustmentRun):
@@ -180,14 +180,7 @@ def shape_points_table(run: AdjustmentRun):
     dbs = list(run.databases)
     if not dbs:
         return None
-    adj = []
-    for d in dbs:
-        v = d.vertices
-        a = np.asarray(v["Adjusted"]) == 1
-        if "Source" in v:  # vertices corrected by the conflation carry values too
-            a = a | np.isin(v["Source"], ("interpolated", "extrapolated"))
-        adj.append(a)
-    adj = np.concatenate(adj)
+    adj = np.concatenate([_valued_vertices(d.vertices) for d in dbs])
     arrays = []
     for f in SHAPE_FIELDS:
         col = np.concatenate([np.asarray(d.vertices[f]) for d in dbs])
@@ -220,6 +213,7 @@ def _point_z_wkb(xyz: np.ndarray):
     offsets = np.arange(n + 1, dtype=np.int32) * rec.dtype.itemsize
     return pa.Array.from_buffers(pa.binary(), n, [None, pa.py_buffer(offsets),
                                                   pa.py_buffer(rec.tobytes())])
+
 
 def _feature_geometries(d) -> list:
     import shapely
