@@ -244,3 +244,12 @@ def test_plugin_uses_layers_below_the_cli():
             if layer is not None and layer > LAYERS["files"]:
                 bad.append(f"{path.relative_to(ROOT)} imports {imp}")
     assert not bad, "\n".join(bad)
+
+
+def test_core_never_imports_scipy_stats():
+    # scipy.stats takes about 0.5 s to import, on the serial path of every run; the few
+    # distribution functions the core needs are scipy.special's (ndtr, ndtri, gammaincinv)
+    bad = [f"{mod} imports {imp}" for mod, path in MODULES.items()
+           for imp, _ in _imports(path, mod)
+           if imp == "scipy.stats" or imp.startswith("scipy.stats.")]
+    assert not bad, bad

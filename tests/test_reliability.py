@@ -335,3 +335,25 @@ def test_data_snooping_limit(blundered):
     rel = reliability(adjust(prob))
     k = int(np.nanargmax(np.abs(rel.w_image))) // 2
     assert sn.removed[0]["observation"] == k
+
+
+def test_distribution_functions_agree_with_scipy_stats():
+    # the core computes these with scipy.special (scipy.stats is slow to import);
+    # scipy.stats is the independent definition here
+    from scipy import stats as st
+
+    from vectoradjust.accuracy.propagate import confidence_scale
+    from vectoradjust.adjust.reliability import critical_value, detection_power, noncentrality
+
+    for a in (0.001, 0.01, 0.05):
+        assert critical_value(a) == pytest.approx(st.norm.ppf(1 - a / 2), rel=1e-14)
+        assert noncentrality(a, 0.2) == pytest.approx(
+            st.norm.ppf(1 - a / 2) + st.norm.ppf(0.8), rel=1e-14)
+    s = np.linspace(0, 8, 17)
+    k = st.norm.ppf(1 - 0.0005)
+    np.testing.assert_allclose(detection_power(s), st.norm.cdf(s - k) + st.norm.cdf(-s - k),
+                               rtol=1e-13)
+    for dof in (1, 2, 3, 7):
+        for q in (0.9, 0.95, 0.99):
+            assert confidence_scale(q, dof) == pytest.approx(np.sqrt(st.chi2.ppf(q, dof)),
+                                                             rel=1e-13)

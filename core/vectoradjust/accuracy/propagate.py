@@ -24,7 +24,7 @@ from typing import Callable, Union
 
 import numpy as np
 from scipy.spatial import ConvexHull
-from scipy.stats import chi2
+from scipy.special import gammaincinv  # chi2.ppf(q, k) = 2 gammaincinv(k/2, q)
 
 from vectoradjust.sensor.collinearity import partials
 
@@ -576,7 +576,7 @@ def confidence_scale(confidence: float, dof: int = 2) -> float:
     """
     if not 0.0 < confidence < 1.0:
         raise ValueError("confidence must be between 0 and 1")
-    return float(np.sqrt(chi2.ppf(confidence, dof)))
+    return float(np.sqrt(2.0 * gammaincinv(0.5 * dof, confidence)))
 
 
 def _psd_sqrt(c: np.ndarray) -> np.ndarray:

@@ -287,13 +287,13 @@ def offset_entry(rec: dict, name: str, alpha: float = 0.05) -> dict:
         magnitude with its sigma and compass direction, the test and a sentence such as
         ``"OSM is 2.93 m north-east of the images (+- 0.05 m)"``.
     """
-    from scipy.stats import chi2
+    from scipy.special import gammaincinv  # chi2.ppf(q, k) = 2 gammaincinv(k/2, q)
 
     vals = np.asarray(rec["values"], float)
     cov = np.asarray(rec["cofactor"], float) * float(rec["variance_factor"])
     axes = list(rec["axes"])
     stat = float(vals @ np.linalg.solve(cov, vals)) if len(vals) else 0.0
-    crit = float(chi2.ppf(1.0 - alpha, len(vals))) if len(vals) else float("nan")
+    crit = float(2.0 * gammaincinv(0.5 * len(vals), 1.0 - alpha)) if len(vals) else float("nan")
     entry = {"axes": axes, "values": vals.tolist(), "sigma": list(rec["sigma"]),
              "test": {"statistic": stat, "critical": crit, "alpha": alpha,
                       "significant": bool(stat > crit)},
