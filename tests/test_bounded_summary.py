@@ -84,3 +84,51 @@ def test_json_cells_of_numbers_text_and_flags():
     assert _json_cells([3, 4]).tolist() == [3, 4]  # whole numbers stay whole numbers
     assert _json_cells([True, None]).tolist() == [True, None]  # flags are not numbers
     assert _json_cells(["a", 1.0]).tolist() == ["a", 1.0]
+
+
+def _flat(row, prefix=""):
+    out = {}
+    for k, v in row.items():
+        out.update(_flat(v, f"{prefix}{k}_") if isinstance(v, dict) else {f"{prefix}{k}": v})
+    return out
+
+
+def test_feature_statements_keep_the_columns_of_their_rows(sample_run):
+    import pickle
+
+    from vectoradjust.accuracy.statements import FeatureStatements
+
+    feats = sample_run.summary["accuracy"]["features"]
+    some = [v for v in feats.values() if len(v)]
+    assert some and all(isinstance(v, FeatureStatements) for v in some)
+    for rows in some:
+        cols = rows.columns()
+        assert len(rows) == len(cols["feature_id"])
+        for i, row in enumerate(rows):
+            flat = _flat(row)
+            assert list(flat) == list(cols)  # the same keys, in the same order
+            for k, v in flat.items():
+                c = cols[k][i]
+                if v is None:
+                    assert isinstance(c, float) and not np.isfinite(c)
+                else:
+                    assert type(v) in (str, int, float) and v == c
+        # a plain list for json, and pickled with its columns (forked and Dask workers)
+        assert json.loads(json.dumps(rows, allow_nan=False)) == list(rows)
+        back = pickle.loads(pickle.dumps(rows))
+        assert back == rows and list(back.columns()) == list(cols)
+        ids = [r["feature_id"] for r in rows]
+        ask = [ids[-1], "no such feature", ids[0]]
+        assert rows.index_of(ask).tolist() == [len(ids) - 1, -1, 0]
+
+
+def test_the_csv_from_columns_is_the_csv_from_dicts(sample_run, tmp_path):
+    feats = sample_run.summary["accuracy"]["features"]
+    plain = {k: [dict(r) for r in v] for k, v in feats.items()}  # no columns kept
+    paths = []
+    for name, f in (("columns", feats), ("dicts", plain)):
+        summary = {"accuracy": {"features": f}}
+        out, path = move_feature_statements(summary, tmp_path / name)
+        assert out["accuracy"]["features"]["count"] == {k: len(v) for k, v in f.items()}
+        paths.append(path)
+    assert paths[0].read_bytes() == paths[1].read_bytes()

@@ -94,6 +94,42 @@ def _json_cells(values: list) -> np.ndarray:
     return arr
 
 
+def _is_rows(value) -> bool:
+    """A list of per-feature statements, or their columns
+    (:class:`vectoradjust.accuracy.statements.FeatureStatements`)."""
+    return isinstance(value, list) or hasattr(value, "columns")
+
+
+def _statement_columns(feats: dict) -> dict:
+    """``database`` and the flat columns of every database's per-feature statements:
+    taken as they are from :class:`~vectoradjust.accuracy.statements.FeatureStatements`,
+    gathered from the dicts of a list (every key path, nested keys joined with ``_``)."""
+    parts = []
+    for db, lst in feats.items():
+        if not _is_rows(lst) or not len(lst):
+            continue
+        if hasattr(lst, "columns"):
+            cols = lst.columns()
+        else:
+            paths: list = []
+            for r in lst[:1000]:  # every row has the same keys; a few suffice
+                paths += [p for p in _paths(r) if p not in paths]
+            cols = {"_".join(p): _json_cells([_get(r, p) for r in lst]) for p in paths}
+        parts.append({"database": np.full(len(lst), db, dtype=object), **cols})
+    if not parts:
+        return {"database": np.zeros(0, dtype=object)}
+    names = list(parts[0])
+    for p in parts[1:]:
+        names += [k for k in p if k not in names]
+    return {k: np.concatenate([_column_of(p, k) for p in parts]) for k in names}
+
+
+def _column_of(part: dict, name: str) -> np.ndarray:
+    """One database's column, empty cells (NaN) where it lacks the key."""
+    n = len(part["database"])
+    return np.asarray(part[name]) if name in part else np.full(n, np.nan)
+
+
 def move_feature_statements(summary: dict, out_dir) -> tuple:
     """Move ``accuracy.features`` (one statement per road feature) out of summary.json.
 
@@ -111,29 +147,22 @@ def move_feature_statements(summary: dict, out_dir) -> tuple:
     """
     acc = summary.get("accuracy")
     feats = acc.get("features") if isinstance(acc, dict) else None
-    if not isinstance(feats, dict) or not any(isinstance(v, list) for v in feats.values()):
+    if not isinstance(feats, dict) or not any(_is_rows(v) for v in feats.values()):
         stale = Path(out_dir) / FEATURE_ACCURACY_CSV
         if stale.is_file():  # from an earlier run into the same folder: not this run's
             stale.unlink()
         return summary, None
-    rows = [(db, r) for db, lst in feats.items() if isinstance(lst, list) for r in lst]
-    # the columns: every key path of the rows (nested keys joined with "_"), in order
-    paths: list = []
-    for _, r in rows[:1000]:  # every row has the same keys; a few suffice for the header
-        paths += [p for p in _paths(r) if p not in paths]
-    columns = ["database"] + ["_".join(p) for p in paths]
-    cols = {"database": [db for db, _ in rows]}
-    for p, name in zip(paths, columns[1:]):
-        cols[name] = [_get(r, p) for _, r in rows]
+    cols = _statement_columns(feats)
+    columns = list(cols)
     path = Path(out_dir) / FEATURE_ACCURACY_CSV
     from vectoradjust.files.study import write_csv
 
-    write_csv({k: _json_cells(v) for k, v in cols.items()}, path)
+    write_csv(cols, path)
     out = dict(summary)
     out["accuracy"] = dict(acc)
     out["accuracy"]["features"] = {
         "file": FEATURE_ACCURACY_CSV,
-        "count": {db: len(lst) for db, lst in feats.items() if isinstance(lst, list)},
+        "count": {db: len(lst) for db, lst in feats.items() if _is_rows(lst)},
         "columns": columns,
         "note": "one row per feature in the CSV beside summary.json (kept out of "
                 "summary.json so that its size does not grow with the data)",

@@ -1339,6 +1339,15 @@ def _attr_text(v: Any) -> str:
     return str(v)
 
 
+def _statement_rows(rows, fids: list) -> dict:
+    """The per-feature statements of the features ``fids`` by feature id: only those
+    rows are built from :class:`~vectoradjust.accuracy.statements.FeatureStatements`."""
+    if hasattr(rows, "index_of"):
+        at = rows.index_of(fids).tolist()
+        return {f: rows[i] for f, i in zip(fids, at) if i >= 0}
+    return {r["feature_id"]: r for r in rows}
+
+
 def _features_body(run, acc: Optional[dict], prefix: str) -> str:
     parts = []
     feats_acc = (acc or {}).get("features") or {}
@@ -1348,7 +1357,6 @@ def _features_body(run, acc: Optional[dict], prefix: str) -> str:
         nf = layer.n_features
         if not nf:
             continue
-        arow = {r["feature_id"]: r for r in feats_acc.get(d.name, [])}
         names = _name_columns(layer.attributes)
         order = np.arange(nf)
         note = ""
@@ -1373,6 +1381,7 @@ def _features_body(run, acc: Optional[dict], prefix: str) -> str:
             cols.append(_fmt_col(a) if nd is None else _fmt_col(a.astype(float), nd))
             heads.append(head)
         fids = layer.feature_ids[order].tolist()
+        arow = _statement_rows(feats_acc.get(d.name, []), fids)
         ce, ce_f, bias = [], [], []
         for fid in fids:
             r = arow.get(fid)
