@@ -25,8 +25,13 @@ Conventions (DESIGN section 4)
   (``validation/ce90_coverage.py``).
 * Radii are found by a vectorised, bracketed Newton iteration (bisection whenever a
   Newton step leaves the bracket); the derivative ``dP/dR`` comes from the same
-  quadrature. Relative tolerance 1e-12. Cost with a bias: about 50 us per point
-  (2-core reference machine); use :func:`ce90` for millions of unbiased points.
+  quadrature. Relative tolerance 1e-12: a step ends the iteration when it is below that,
+  or when its error estimated from the convergence (``|P''| s^2 / (2 |P'|)``, ``P''``
+  from the last two slopes) is below 1 % of it, which saves one evaluation of P in
+  about four. The radius is then as exact as P: against mpmath roots on thin biased
+  ellipses (axis ratio 1e-4) both stopping rules were within 2.6e-12 relative. Cost
+  with a bias: about 40 us per point (2-core reference machine); use :func:`ce90` for
+  millions of unbiased points.
 * :func:`ce90` (no bias, the per-point case; 10^6 points in 0.13-0.25 s)
   interpolates a table of ``g(rho) = CE90/sigma_max`` over
   ``rho = sigma_min/sigma_max`` in [0, 1] (4097 nodes, built once on first use,
@@ -93,6 +98,9 @@ _CHUNK = 4096  # points per vectorised block (memory: 4096 x 4 x 32 doubles per 
 _TABLE_SIZE = 4097  # nodes of the g(rho) table on [0, 1]
 _RTOL = 1e-12
 _MAX_ITER = 100
+#: a Newton step ends the iteration when its estimated error is below this share of the
+#: tolerance (quadratic convergence; the estimate uses the last two slopes)
+_QUADRATIC_MARGIN = 0.01
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 
 
@@ -275,6 +283,8 @@ def _solve_radius(p, sa, sb, ma, mb, start=None):
     x = 0.5 * (lo + hi) if start is None else np.clip(start[act], lo, hi)
     x = np.where(x > 0, x, 0.5 * (lo + hi))
     done = np.zeros(act.size, dtype=bool)
+    x_prev = np.full(act.size, np.nan)  # the last point and slope: the curvature of P
+    d_prev = np.full(act.size, np.nan)
     for _ in range(_MAX_ITER):
         live = np.flatnonzero(~done)
         if live.size == 0:
@@ -285,12 +295,18 @@ def _solve_radius(p, sa, sb, ma, mb, start=None):
         below = f < 0
         lo[live] = np.where(below, xl, lo[live])
         hi[live] = np.where(below, hi[live], xl)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             newton = np.where(f == 0, xl, xl - f / dv)
+            # the error left after a Newton step s is about |P''| / (2 |P'|) s^2 (P'' from
+            # the slopes at the last two points): far below the tolerance, no further P
+            left = 0.5 * np.abs((dv - d_prev[live]) / (xl - x_prev[live]) / dv) \
+                * (newton - xl) ** 2
         bad = ~(np.isfinite(newton) & (newton >= lo[live]) & (newton <= hi[live]))
         xn = np.where(bad, 0.5 * (lo[live] + hi[live]), newton)
         tol = _RTOL * np.maximum(xn, hi[live]) + 1e-300
         conv = (np.abs(xn - xl) <= tol) | (hi[live] - lo[live] <= tol) | (f == 0)
+        conv |= ~bad & (left <= _QUADRATIC_MARGIN * _RTOL * xn)
+        x_prev[live], d_prev[live] = xl, dv
         x[live] = xn
         done[live] = conv
     R[act] = x
