@@ -188,11 +188,13 @@ def gather(jobs: list, progress: Optional[Callable] = None) -> list:
 class Preload:
     """Import modules in a thread while the main thread computes.
 
-    The adjustment spends most of its time in numpy, which lets other threads run, so
-    the libraries needed only at the end (matplotlib for the report) are loaded on the
-    idle core meanwhile. :meth:`wait` before a ``fork``: a child must not inherit a
-    module half imported by a thread it does not have. An import that fails is left to
-    fail again, with its message, where the module is used.
+    Reading the inputs spends much of its time in C code that lets other threads run,
+    so the adjustment's modules load meanwhile; matplotlib (for the report) loads once
+    the adjustment is final, while the statistics run. An import holds the interpreter
+    most of the time, so it costs the main thread some of its time wherever it runs.
+    :meth:`wait` before a ``fork``: a child must not inherit a module half imported by a
+    thread it does not have. An import that fails is left to fail again, with its
+    message, where the module is used.
     """
 
     def __init__(self, names) -> None:

@@ -222,6 +222,10 @@ class _ReportAlongside:
         return path
 
 
+#: the report's plotting modules, loaded in a thread while the statistics are computed
+_PLOTTING = ("matplotlib.figure", "matplotlib.backends.backend_agg")
+
+
 def cmd_adjust(args) -> int:
     from vectoradjust.cli.background import Preload, workers
     from vectoradjust.files.outputs import write_outputs
@@ -230,10 +234,10 @@ def cmd_adjust(args) -> int:
 
     workers()  # a wrong VECTORADJUST_WORKERS is said before the work, not after it
     _output_folder(args.out)
-    # the adjustment's modules load on the other core while the inputs are read, the
-    # report's plotting library while the adjustment runs
-    warm = Preload(("vectoradjust.pipeline", "matplotlib.figure",
-                    "matplotlib.backends.backend_agg"))
+    # the adjustment's modules load on the other core while the inputs are read; the
+    # report's plotting library once the adjustment is final (an import holds the
+    # interpreter: during the adjustment it would hold up the one busy core)
+    warm = Preload(("vectoradjust.pipeline",))
     bar = ProgressBar("adjust", enabled=not args.quiet)
     bar(0.0, "reading inputs")
     # every database is read, so that measurements of the databases not selected with
@@ -252,6 +256,7 @@ def cmd_adjust(args) -> int:
             b.close()
         raise
     bands = started[0] if started else None
+    warm = Preload(_PLOTTING)  # the bands' processes have started (forked without it)
     report = None
     try:
         truth = cli_buffer.project_truth(spec)
