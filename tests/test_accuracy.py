@@ -234,3 +234,27 @@ def test_run_without_databases_or_check_points(adj_run):
     cp["Used"] = np.where(cp["role"] == "check", 0, cp["Used"])
     acc2 = accuracy_statements(replace(adj_run, control_points=cp))
     assert acc2["check_points"] is None
+
+
+def test_truth_vertex_index_is_matched_once_and_follows_the_truth(adj_run):
+    from vectoradjust.accuracy.tables import truth_vertex_index
+
+    for d in adj_run.databases:
+        tid, txyz = adj_run.data.truth[d.name]
+        ti = truth_vertex_index(adj_run, d)
+        # the definition: the truth row whose id is the vertex's id, -1 where none
+        row = {str(t): i for i, t in enumerate(np.asarray(tid).astype(str))}
+        want = [row.get(str(v), -1) for v in d.shape.vertex_ids]
+        assert ti.tolist() == want and (ti >= 0).any()
+        assert truth_vertex_index(adj_run, d) is ti  # kept, not matched again
+        assert not ti.flags.writeable
+        # another truth table (same ids, reversed order): matched again
+        truth = adj_run.data.truth
+        try:
+            adj_run.data.truth = {**truth, d.name: (np.asarray(tid)[::-1].copy(), txyz[::-1])}
+            again = truth_vertex_index(adj_run, d)
+            assert again is not ti
+            ok = ti >= 0
+            np.testing.assert_array_equal(again[ok], len(tid) - 1 - ti[ok])
+        finally:
+            adj_run.data.truth = truth

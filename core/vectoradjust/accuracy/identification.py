@@ -25,7 +25,7 @@ from typing import Optional
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vectoradjust.adjust.shapepoints import lookup
+from vectoradjust.accuracy.tables import truth_vertex_index
 from vectoradjust.results import AdjustmentRun, DatabaseResult
 
 __all__ = ["from_truth", "from_common_intersections", "identification_estimates"]
@@ -64,8 +64,8 @@ def from_truth(out: AdjustmentRun, d: DatabaseResult) -> Optional[dict]:
     truth = out.data.truth.get(d.name)
     if truth is None or out.result.point_cov is None:
         return None
-    tid, txyz = truth
-    ti = lookup(tid, d.shape.vertex_ids)
+    txyz = truth[1]
+    ti = truth_vertex_index(out, d)
     sel = (d.vertex_point >= 0) & (ti >= 0)
     if sel.sum() < 2:
         return None

@@ -237,10 +237,10 @@ def _truth_for(run, d) -> Optional[np.ndarray]:
     t = truth.get(d.name)
     if t is None:
         return None
-    from vectoradjust.adjust.shapepoints import lookup
+    from vectoradjust.accuracy.tables import truth_vertex_index
 
-    tid, txyz = t
-    idx = lookup(np.asarray(tid), np.asarray(d.vertices["point_id"]))
+    txyz = t[1]
+    idx = truth_vertex_index(run, d)
     out = np.full((len(idx), 3), np.nan)
     out[idx >= 0] = np.asarray(txyz, float)[idx[idx >= 0]]
     return out
