@@ -1,5 +1,6 @@
-"""The fast CSV path (pandas' C parser) reads exactly what the careful reader reads, and
-hands every irregular file to the careful reader, whose messages name the line."""
+"""The fast CSV path (pyarrow's reader, else pandas' C parser) reads exactly what the
+careful reader reads, and hands every irregular file to the careful reader, whose
+messages name the line. Every test runs with each of the two parsers."""
 
 from __future__ import annotations
 
@@ -12,6 +13,34 @@ pytest.importorskip("pandas")
 
 from vectoradjust.errors import CSVError  # noqa: E402
 from vectoradjust.files import tables  # noqa: E402
+
+
+@pytest.fixture(autouse=True, params=["pyarrow", "pandas"])
+def engine(request, monkeypatch):
+    """The parser of the fast path: pyarrow (pandas must then not be asked), or pandas
+    (as where pyarrow is not installed)."""
+    if request.param == "pandas":
+        monkeypatch.setattr(tables, "_arrow_parse", lambda *args: None)
+    else:
+        pytest.importorskip("pyarrow")
+        real = tables._pandas_parse
+
+        def only_after_a_refusal(data, header, numeric):  # pyarrow refused a cell
+            assert pyarrow_refused, "pandas parsed a file pyarrow should have read"
+            return real(data, header, numeric)
+
+        pyarrow_refused = []
+        arrow = tables._arrow_parse
+
+        def spy(data, header, numeric):
+            out = arrow(data, header, numeric)
+            if out is None:
+                pyarrow_refused.append(True)
+            return out
+
+        monkeypatch.setattr(tables, "_arrow_parse", spy)
+        monkeypatch.setattr(tables, "_pandas_parse", only_after_a_refusal)
+    return request.param
 
 
 def _write(path, text):
@@ -97,3 +126,14 @@ def test_unicode_blanks_are_stripped_as_by_the_careful_reader(tmp_path):
     fast = tables.read_measurements(str(p), default_sigma=0.01)
     assert fast.point_id.tolist() == ["a", "b"] and fast.image_id.tolist() == ["L", "R"]
     assert fast.point_id.tolist() == _careful(p, 0.01).point_id.tolist()
+
+
+def test_ids_that_look_like_numbers_stay_text(tmp_path, engine):
+    p = _write(tmp_path / "m.csv", "point_id,image_id,x,y\n007,1,1,2\n1e3,2,3,4\nNA,1,5,6\n")
+    fast = tables._fast_columns(str(p), tables.MEASUREMENT_COLUMNS,
+                                tables.MEASUREMENT_OPTIONAL, ("x", "y"))
+    assert fast is not None, engine
+    assert fast["point_id"].tolist() == ["007", "1e3", "NA"]
+    assert fast["image_id"].tolist() == ["1", "2", "1"]
+    m = tables.read_measurements(str(p), default_sigma=0.01)
+    assert m.point_id.tolist() == _careful(p, 0.01).point_id.tolist()

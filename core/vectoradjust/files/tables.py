@@ -58,19 +58,16 @@ def _read_rows(path: str) -> tuple[list[str], list[list[str]], list[int]]:
 
 def _fast_columns(path: str, required: Sequence[str], optional: Sequence[str] = (),
                   numeric: Sequence[str] = ()) -> Optional[dict]:
-    """The columns of a plain CSV file read with pandas' C parser, or None.
+    """The columns of a plain CSV file read with pyarrow's or pandas' C parser, or None.
 
     The fast path of the CSV readers (the same result as :func:`_read_rows` +
     :func:`parse_table`): taken only for a well-formed file - UTF-8, no quotes, no
     blank or ragged lines (so row ``i`` is line ``i + 2``), the header as
     :func:`parse_table` wants it, every number finite and every required text filled.
     Anything else returns None and the careful reader reads the file again, naming the
-    line of the first problem. None too where pandas is not installed (QGIS's Python).
+    line of the first problem. None too where neither pyarrow nor pandas is installed
+    (QGIS's Python).
     """
-    try:
-        import pandas as pd
-    except ImportError:
-        return None
     try:
         data = Path(path).read_bytes()
     except OSError:
@@ -96,34 +93,78 @@ def _fast_columns(path: str, required: Sequence[str], optional: Sequence[str] = 
             or np.any(per_line != len(header) - 1)):
         return None
     num = {lookup[c.lower()] for c in numeric if c.lower() in lookup}
-    kw = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
-    try:
-        frame = pd.read_csv(io.BytesIO(data), header=0, names=header, engine="c",
-                            dtype={h: ("float64" if h in num else str) for h in header},
-                            na_filter=False, skip_blank_lines=False, **kw)
-    except (ValueError, UnicodeDecodeError, pd.errors.ParserError):
+    cols = _arrow_parse(data, header, num)
+    if cols is None:
+        cols = _pandas_parse(data, header, num)
+    if cols is None or any(len(c) != len(ends) - 1 for c in cols.values()):
         return None
-    if len(frame) != len(ends) - 1:
-        return None
-    out: dict = {"_line": np.arange(2, len(frame) + 2)}
+    out: dict = {"_line": np.arange(2, len(ends) + 1)}
     # no blank, control or non-ASCII byte but the newlines: no cell needs str.strip()
     padded = bool(np.any(((raw <= 32) & (raw != ord("\n"))) | (raw >= 128)))
     for col in (*required, *optional):
         if col.lower() not in lookup:
             continue
-        series = frame[lookup[col.lower()]]
+        arr = cols[lookup[col.lower()]]
         if col in numeric:
-            arr = series.to_numpy(dtype=float)
             if not np.all(np.isfinite(arr)):
                 return None
         else:
-            arr = series.to_numpy(dtype=object)
             if padded:  # the careful reader strips every cell
-                arr = series.str.strip().to_numpy(dtype=object)
+                arr = np.array([c.strip() for c in arr.tolist()], dtype=object)
             if col in required and np.any(arr == ""):
                 return None
         out[col] = arr
     return out
+
+
+def _arrow_parse(data: bytes, header: list, numeric: set) -> Optional[dict]:
+    """The columns of a checked CSV text by pyarrow's reader (C++, on every core), or
+    None (pyarrow missing, or a cell it cannot read: the next reader decides).
+
+    Numbers are float64 (an empty, ``NaN`` or ``NA`` cell is missing: None), the others
+    text exactly as written (no cell is turned into a missing value).
+    """
+    try:
+        import pyarrow as pa
+        import pyarrow.csv as pcsv
+    except ImportError:
+        return None
+    try:
+        table = pcsv.read_csv(
+            io.BytesIO(data),
+            read_options=pcsv.ReadOptions(column_names=header, skip_rows=1),
+            parse_options=pcsv.ParseOptions(quote_char=False, double_quote=False,
+                                            escape_char=False, ignore_empty_lines=False),
+            convert_options=pcsv.ConvertOptions(
+                column_types={h: pa.float64() if h in numeric else pa.string()
+                              for h in header},
+                strings_can_be_null=False, quoted_strings_can_be_null=False))
+    except (pa.ArrowException, ValueError, UnicodeDecodeError):
+        return None
+    out = {}
+    for h in header:
+        col = table.column(h)
+        if col.null_count:
+            return None
+        out[h] = col.to_numpy() if h in numeric else \
+            np.asarray(col.to_numpy(zero_copy_only=False), dtype=object)
+    return out
+
+
+def _pandas_parse(data: bytes, header: list, numeric: set) -> Optional[dict]:
+    """:func:`_arrow_parse` with pandas' C parser (exact float conversion)."""
+    try:
+        import pandas as pd
+    except ImportError:
+        return None
+    kw = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+    try:
+        frame = pd.read_csv(io.BytesIO(data), header=0, names=header, engine="c",
+                            dtype={h: ("float64" if h in numeric else str) for h in header},
+                            na_filter=False, skip_blank_lines=False, **kw)
+    except (ValueError, UnicodeDecodeError, pd.errors.ParserError):
+        return None
+    return {h: frame[h].to_numpy(dtype=float if h in numeric else object) for h in header}
 
 
 def parse_table(
