@@ -32,7 +32,7 @@ import numpy as np
 from vectoradjust.errors import LayerError
 
 __all__ = ["buffer_test", "line_segments", "capsule_intervals", "covered_length",
-           "SegmentBuffer"]
+           "covered_lengths", "SegmentBuffer"]
 
 _LINE_TYPES = ("LineString", "MultiLineString", "LinearRing")
 
@@ -272,10 +272,29 @@ def covered_length(seg: np.ndarray, start: np.ndarray, end: np.ndarray,
     intervals of the same segment that overlap count once. ``seg_length`` gives every
     segment's length. Sorting and a running maximum; no Python loop.
     """
+    seg, new = _union_parts(seg, start, end)
+    if seg.size == 0:
+        return 0.0
+    return float(np.sum(new * seg_length[seg]))
+
+
+def covered_lengths(seg: np.ndarray, start: np.ndarray, end: np.ndarray,
+                    seg_length: np.ndarray) -> np.ndarray:
+    """:func:`covered_length` per segment: ``out[k]`` is the length of segment ``k``
+    covered by the union of its intervals (``len(seg_length)`` values, 0 for a segment
+    without intervals); their sum is :func:`covered_length` up to the summation order."""
+    seg, new = _union_parts(seg, start, end)
+    return np.bincount(seg, weights=new * seg_length[seg], minlength=len(seg_length))
+
+
+def _union_parts(seg: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple:
+    """The intervals sorted by segment and start, and the part of each (in units of the
+    segment's parameter) not covered by the intervals of the same segment before it:
+    a segment's parts add up to the length of the union of its intervals."""
     keep = end > start
     seg, start, end = seg[keep], start[keep], end[keep]
     if seg.size == 0:
-        return 0.0
+        return seg, np.zeros(0)
     order = np.lexsort((start, seg))
     seg, start, end = seg[order], start[order], end[order]
     # segments 2 apart on one axis: a running maximum never carries over to the next one
@@ -284,8 +303,7 @@ def covered_length(seg: np.ndarray, start: np.ndarray, end: np.ndarray,
     e = end + 2.0 * rank
     reach = np.maximum.accumulate(e)
     before = np.concatenate([[-np.inf], reach[:-1]])
-    new = np.clip(e - np.maximum(s, before), 0.0, None)
-    return float(np.sum(new * seg_length[seg]))
+    return seg, np.clip(e - np.maximum(s, before), 0.0, None)
 
 
 def _cells(lo: np.ndarray, hi: np.ndarray, size: float) -> tuple:
@@ -299,23 +317,31 @@ def _cells(lo: np.ndarray, hi: np.ndarray, size: float) -> tuple:
     return c0[row, 0] + k // ny[row], c0[row, 1] + k % ny[row], row
 
 
-def _cut(seg: np.ndarray, step: float) -> np.ndarray:
+def _cut(seg: np.ndarray, step: float, with_rows: bool = False):
     """Segments ``(n, 2, 2)`` longer than ``step`` (per axis) cut into equal pieces.
 
     Exact for the buffer test: a segment's buffer is the union of its pieces' buffers,
-    and a tested segment's length inside a buffer is the sum of its pieces'.
+    and a tested segment's length inside a buffer is the sum of its pieces'. With
+    ``with_rows``, also the row of ``seg`` each piece comes from: ``(pieces, rows)``.
     """
+    rows = None
     if not len(seg):
-        return seg
-    ext = np.abs(seg[:, 1] - seg[:, 0]).max(axis=1)
-    pieces = np.maximum(np.ceil(ext / step), 1).astype(np.int64)
-    if pieces.max() == 1:
-        return seg
-    row = np.repeat(np.arange(len(seg)), pieces)
-    k = np.arange(int(pieces.sum())) - np.repeat(np.cumsum(pieces) - pieces, pieces)
-    t0, t1 = (k / pieces[row])[:, None], ((k + 1) / pieces[row])[:, None]
-    a, d = seg[row, 0], seg[row, 1] - seg[row, 0]
-    return np.stack([a + t0 * d, np.where(t1 >= 1, seg[row, 1], a + t1 * d)], axis=1)
+        pieces_of, rows = seg, np.zeros(0, dtype=np.int64)
+    else:
+        ext = np.abs(seg[:, 1] - seg[:, 0]).max(axis=1)
+        pieces = np.maximum(np.ceil(ext / step), 1).astype(np.int64)
+        if pieces.max() == 1:
+            pieces_of = seg
+        else:
+            rows = np.repeat(np.arange(len(seg)), pieces)
+            k = np.arange(int(pieces.sum())) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+            t0, t1 = (k / pieces[rows])[:, None], ((k + 1) / pieces[rows])[:, None]
+            a, d = seg[rows, 0], seg[rows, 1] - seg[rows, 0]
+            pieces_of = np.stack([a + t0 * d, np.where(t1 >= 1, seg[rows, 1], a + t1 * d)],
+                                 axis=1)
+    if not with_rows:
+        return pieces_of
+    return pieces_of, (np.arange(len(seg)) if rows is None else rows)
 
 
 def _group_min(best: np.ndarray, index: np.ndarray, values: np.ndarray) -> None:
@@ -429,19 +455,29 @@ class SegmentBuffer:
             out[rows] = np.where(np.isfinite(best), best, np.nan)
         return out
 
-    def inside(self, tested: np.ndarray, widths) -> np.ndarray:
-        """Length of the tested segments ``(n, 2, 2)`` inside each width's buffer."""
+    def inside(self, tested: np.ndarray, widths, per_segment: bool = False) -> np.ndarray:
+        """Length of the tested segments ``(n, 2, 2)`` inside each width's buffer.
+
+        Returns the ``(len(widths),)`` sums over the segments, or with ``per_segment``
+        the ``(n, len(widths))`` length of each tested segment inside each buffer (its
+        column sums are the sums up to the summation order).
+        """
         widths = np.asarray(widths, float).reshape(-1)
-        out = np.zeros(len(widths))
         seg = np.asarray(tested, float).reshape(-1, 2, 2) - self.origin
+        out = np.zeros((len(seg), len(widths)) if per_segment else len(widths))
         if not len(self.ref) or not len(seg) or not np.any(widths > 0):
             return out
         if len(seg) > self.chunk:  # bounded memory: the pairs of one chunk at a time
             for k in range(0, len(seg), self.chunk):
-                out += self.inside(seg[k:k + self.chunk] + self.origin, widths)
+                got = self.inside(seg[k:k + self.chunk] + self.origin, widths, per_segment)
+                if per_segment:
+                    out[k:k + self.chunk] = got
+                else:
+                    out += got
             return out
         grid = self._grid(float(widths.max()))
-        seg = _cut(seg, 4 * grid.size)  # a long tested segment: pieces of a few cells
+        # a long tested segment: pieces of a few cells (``row``: the segment of each)
+        seg, row = _cut(seg, 4 * grid.size, with_rows=True)
         length = np.hypot(*(seg[:, 1] - seg[:, 0]).T)
         # candidates: tested boxes overlapping the reference boxes grown by the widest
         # buffer (every pair within that distance, and some farther that add nothing)
@@ -451,5 +487,9 @@ class SegmentBuffer:
         for k, x in enumerate(widths):
             if x > 0:
                 start, end = capsule_intervals(p, q, a, b, float(x))
-                out[k] = covered_length(i, start, end, length)
+                if per_segment:
+                    out[:, k] = np.bincount(row, weights=covered_lengths(i, start, end, length),
+                                            minlength=len(out))
+                else:
+                    out[k] = covered_length(i, start, end, length)
         return out
