@@ -272,29 +272,10 @@ def covered_length(seg: np.ndarray, start: np.ndarray, end: np.ndarray,
     intervals of the same segment that overlap count once. ``seg_length`` gives every
     segment's length. Sorting and a running maximum; no Python loop.
     """
-    seg, new = _union_parts(seg, start, end)
-    if seg.size == 0:
-        return 0.0
-    return float(np.sum(new * seg_length[seg]))
-
-
-def covered_lengths(seg: np.ndarray, start: np.ndarray, end: np.ndarray,
-                    seg_length: np.ndarray) -> np.ndarray:
-    """:func:`covered_length` per segment: ``out[k]`` is the length of segment ``k``
-    covered by the union of its intervals (``len(seg_length)`` values, 0 for a segment
-    without intervals); their sum is :func:`covered_length` up to the summation order."""
-    seg, new = _union_parts(seg, start, end)
-    return np.bincount(seg, weights=new * seg_length[seg], minlength=len(seg_length))
-
-
-def _union_parts(seg: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple:
-    """The intervals sorted by segment and start, and the part of each (in units of the
-    segment's parameter) not covered by the intervals of the same segment before it:
-    a segment's parts add up to the length of the union of its intervals."""
     keep = end > start
     seg, start, end = seg[keep], start[keep], end[keep]
     if seg.size == 0:
-        return seg, np.zeros(0)
+        return 0.0
     order = np.lexsort((start, seg))
     seg, start, end = seg[order], start[order], end[order]
     # segments 2 apart on one axis: a running maximum never carries over to the next one
@@ -303,7 +284,34 @@ def _union_parts(seg: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple:
     e = end + 2.0 * rank
     reach = np.maximum.accumulate(e)
     before = np.concatenate([[-np.inf], reach[:-1]])
-    return seg, np.clip(e - np.maximum(s, before), 0.0, None)
+    new = np.clip(e - np.maximum(s, before), 0.0, None)
+    return float(np.sum(new * seg_length[seg]))
+
+
+def covered_lengths(seg: np.ndarray, start: np.ndarray, end: np.ndarray,
+                    seg_length: np.ndarray) -> np.ndarray:
+    """:func:`covered_length` per segment: ``out[k]`` is the length of segment ``k``
+    covered by the union of its intervals (``len(seg_length)`` values, 0 for a segment
+    without intervals); their sum is :func:`covered_length` up to rounding. A segment's
+    value depends only on its own intervals (bit for bit), whatever the others."""
+    keep = end > start
+    seg, start, end = seg[keep], start[keep], end[keep]
+    order = np.lexsort((start, seg))
+    seg, start, end = seg[order], start[order], end[order]
+    first = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]]) if seg.size else seg
+    # where each interval's segment starts in the sorted list, and the running maximum of
+    # the ends within each segment (exact: no offsets, so a segment's value does not
+    # depend on the other segments measured with it)
+    pos = np.arange(seg.size) - np.repeat(first, np.diff(np.r_[first, seg.size]))
+    reach = end.copy()
+    shift = 1
+    while seg.size and shift <= pos.max():  # doubling: log2(intervals per segment) steps
+        reach[shift:] = np.where(pos[shift:] >= shift,
+                                 np.maximum(reach[shift:], reach[:-shift]), reach[shift:])
+        shift *= 2
+    before = np.where(pos > 0, np.r_[-np.inf, reach[:-1]], -np.inf)
+    new = np.clip(end - np.maximum(start, before), 0.0, None)
+    return np.bincount(seg, weights=new * seg_length[seg], minlength=len(seg_length))
 
 
 def _cells(lo: np.ndarray, hi: np.ndarray, size: float) -> tuple:
@@ -460,7 +468,8 @@ class SegmentBuffer:
 
         Returns the ``(len(widths),)`` sums over the segments, or with ``per_segment``
         the ``(n, len(widths))`` length of each tested segment inside each buffer (its
-        column sums are the sums up to the summation order).
+        column sums are the sums up to rounding). A segment's values are the
+        same whatever the other segments measured with it (bit for bit).
         """
         widths = np.asarray(widths, float).reshape(-1)
         seg = np.asarray(tested, float).reshape(-1, 2, 2) - self.origin
@@ -469,12 +478,16 @@ class SegmentBuffer:
             return out
         if len(seg) > self.chunk:  # bounded memory: the pairs of one chunk at a time
             for k in range(0, len(seg), self.chunk):
-                got = self.inside(seg[k:k + self.chunk] + self.origin, widths, per_segment)
-                if per_segment:
-                    out[k:k + self.chunk] = got
+                if per_segment:  # each segment's values do not depend on the chunks
+                    out[k:k + self.chunk] = self._inside(seg[k:k + self.chunk], widths, True)
                 else:
-                    out += got
+                    out += self.inside(seg[k:k + self.chunk] + self.origin, widths)
             return out
+        return self._inside(seg, widths, per_segment)
+
+    def _inside(self, seg: np.ndarray, widths: np.ndarray, per_segment: bool) -> np.ndarray:
+        """:meth:`inside` of one chunk of segments relative to :attr:`origin`."""
+        out = np.zeros((len(seg), len(widths)) if per_segment else len(widths))
         grid = self._grid(float(widths.max()))
         # a long tested segment: pieces of a few cells (``row``: the segment of each)
         seg, row = _cut(seg, 4 * grid.size, with_rows=True)

@@ -170,14 +170,32 @@ def _shares(xy: np.ndarray, ranges: list, buffers, widths, step) -> list:
     """Share of the lines' length inside each width's buffer, in chunks of
     :data:`TRUTH_CHUNK` lines (``step(n)`` after each)."""
     seg_all = _range_segments(xy, ranges)
-    total = float(np.sum(np.hypot(*(seg_all[:, 1] - seg_all[:, 0]).T))) if len(seg_all) else 0.0
-    inside = np.zeros(len(widths))
+    length = np.hypot(*(seg_all[:, 1] - seg_all[:, 0]).T)
+    total = float(np.sum(length)) if len(seg_all) else 0.0
+    inside = []
     for k in range(0, max(len(ranges), 1), TRUTH_CHUNK):
         part = ranges[k:k + TRUTH_CHUNK]
         if total > 0 and part:
-            inside += buffers.inside(_range_segments(xy, part), widths)
+            inside.append(_segment_inside(buffers, _range_segments(xy, part), widths))
         step(len(part))
-    return [None if total <= 0 else min(max(x / total, 0.0), 1.0) for x in inside]
+    return _share_values(np.concatenate(inside) if inside else None, length, widths)
+
+
+def _segment_inside(buffers, seg: np.ndarray, widths) -> np.ndarray:
+    """Each segment's length inside each width's buffer, ``(n, n_widths)``: the same
+    values bit for bit whatever the segments measured with it, so that
+    :func:`truth_before`'s shares of a whole layer equal those of some of its lines."""
+    return buffers.inside(seg, widths, per_segment=True)
+
+
+def _share_values(inside: Optional[np.ndarray], length: np.ndarray, widths) -> list:
+    """The share of the segments (``length``) inside each width's buffer from their
+    lengths inside (:func:`_segment_inside`; None: none inside); None without length."""
+    total = float(np.sum(length)) if len(length) else 0.0
+    if total <= 0:
+        return [None] * len(widths)
+    sums = inside.sum(axis=0) if inside is not None and len(inside) else np.zeros(len(widths))
+    return [min(max(float(x) / total, 0.0), 1.0) for x in sums]
 
 
 def _adjusted_features(d) -> np.ndarray:
@@ -504,7 +522,7 @@ def _layer_before(layer, buffers, distances, widths, step) -> Optional[LayerBefo
     inside = np.zeros((len(seg), len(widths)))
     chunk = max(int(buffers.chunk), 1)
     for k in range(0, len(seg), chunk):
-        inside[k:k + chunk] = buffers.inside(seg[k:k + chunk], widths, per_segment=True)
+        inside[k:k + chunk] = _segment_inside(buffers, seg[k:k + chunk], widths)
         step(len(xy) * len(seg[k:k + chunk]) / max(len(seg), 1))
     if not len(seg):
         step(len(xy))
@@ -541,6 +559,4 @@ def _before_shares(before, d, widths, truth_path, run) -> Optional[list]:
     if rec is None or [float(w) for w in widths] != list(before.widths):
         return None
     sel = np.isin(rec.segment_feature, _adjusted_features(d))
-    total = float(np.sum(rec.segment_length[sel]))
-    inside = rec.inside[sel].sum(axis=0)
-    return [None if total <= 0 else min(max(float(x) / total, 0.0), 1.0) for x in inside]
+    return _share_values(rec.inside[sel], rec.segment_length[sel], widths)
