@@ -163,6 +163,36 @@ def test_progress_reports_the_before_half_and_only_the_after_half_later(tmp_path
     assert steps == [4]  # the after half only: features 0, 2 and the two parts of 4
 
 
+def test_the_lines_that_come_with_the_values_are_not_read_again(tmp_path, monkeypatch):
+    import os
+    import pickle
+
+    path, _, data, run = _case(tmp_path)
+    plain, _ = _both(run, path, [1.0, 2.0], None)
+    before = pickle.loads(pickle.dumps(T.truth_before(data, path, [1.0, 2.0])))  # a pipe
+    reads = []
+    original = T.read_lines
+    monkeypatch.setattr(T, "read_lines", lambda *a, **k: reads.append(a) or original(*a, **k))
+
+    def with_before():
+        r = copy.deepcopy(run)
+        r.data = run.data
+        buf = T.truth_buffer(r, path, [1.0, 2.0], before=before)
+        return buf, T.truth_line_distances(r, path, as_columns=True, before=before), r.summary
+
+    T._LAST_TRUTH.clear()
+    T._LAST_BUFFER.clear()
+    _assert_same(plain, with_before())
+    assert reads == []  # the lines and their grid came with the values
+    # the file changed since: read again (and the values of the layer still used)
+    T._LAST_TRUTH.clear()
+    st = os.stat(path)
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert T._matching(before, run.databases[0], path, run) is None  # measured again
+    _assert_same(plain, with_before())
+    assert len(reads) == 1
+
+
 # ------------------------------------------------------------------ the sample project
 @pytest.fixture(scope="module")
 def sample(sample_dir):

@@ -84,13 +84,20 @@ def _truth_lines(path, crs):
     same file (unchanged size and time) and CRS: ``adjust`` runs the buffer test and the
     distance table on the same lines, and reads them once."""
     p = Path(path)
-    st = p.stat() if p.exists() else None
-    key = (str(p.resolve()), st and (st.st_mtime_ns, st.st_size), crs.to_wkt())
+    key = _truth_key(p, crs)
     if key not in _LAST_TRUTH:
         lines = read_lines(p, crs)[0]
         _LAST_TRUTH.clear()
         _LAST_TRUTH[key] = lines
     return _LAST_TRUTH[key]
+
+
+def _truth_key(path, crs) -> tuple:
+    """What :func:`_truth_lines` keeps the lines under: the file (its size and time)
+    and the CRS."""
+    p = Path(path)
+    st = p.stat() if p.exists() else None
+    return (str(p.resolve()), st and (st.st_mtime_ns, st.st_size), crs.to_wkt())
 
 
 def line_ranges(feature: np.ndarray, part: np.ndarray) -> list:
@@ -287,6 +294,7 @@ def truth_buffer(run, truth_path, widths=(1.0, 2.0), progress=None, is_cancelled
     widths = [float(w) for w in widths]
     say = progress or (lambda fraction, message="": None)
     say(0.0, "buffer test: reading the true centrelines")
+    _adopt_lines(before, truth_path, CRS.from_user_input(run.data.crs))
     truth = _truth_lines(truth_path, CRS.from_user_input(run.data.crs))
     say(0.0, "buffer test: indexing the true centrelines")
     buffers = _truth_buffers(truth, is_cancelled)
@@ -371,6 +379,7 @@ def truth_line_distances(run, truth_path, as_columns: bool = False, progress=Non
     computed beforehand (only the adjusted points are measured here)."""
     from pyproj import CRS
 
+    _adopt_lines(before, truth_path, CRS.from_user_input(run.data.crs))
     truth = _truth_lines(truth_path, CRS.from_user_input(run.data.crs))
     distances = _distance_function(truth)
     if distances is None:
@@ -451,6 +460,11 @@ class TruthBefore:
     widths: list
     crs: str
     databases: dict = field(default_factory=dict)
+    #: the true lines as read (WKB), their key (:func:`_truth_key`) and segments on the
+    #: grid, so that a process receiving the values need not read and index them again
+    lines_key: Optional[tuple] = None
+    lines_wkb: Optional[np.ndarray] = None
+    buffers: object = None
 
 
 def _digest(xy: np.ndarray) -> str:
@@ -486,12 +500,14 @@ def truth_before(data, truth_path, widths=(1.0, 2.0), progress=None) -> TruthBef
     -------
     TruthBefore
     """
+    import shapely
     from pyproj import CRS
 
     say = progress or (lambda fraction, message="": None)
     widths = [float(w) for w in widths]
     say(0.0, "before the adjustment: reading the true centrelines")
-    truth = _truth_lines(truth_path, CRS.from_user_input(data.crs))
+    crs = CRS.from_user_input(data.crs)
+    truth = _truth_lines(truth_path, crs)
     buffers = _truth_buffers(truth)
     distances = _distance_function(truth)
     todo = max(sum(2 * len(layer.coords) for _, layer in data.vectors), 1)
@@ -501,7 +517,8 @@ def truth_before(data, truth_path, widths=(1.0, 2.0), progress=None) -> TruthBef
         done[0] += n
         say(min(done[0] / todo, 1.0), f"before the adjustment: {name}")
 
-    out = TruthBefore(str(truth_path), widths, str(data.crs))
+    out = TruthBefore(str(truth_path), widths, str(data.crs), lines_key=_truth_key(truth_path, crs),
+                      lines_wkb=shapely.to_wkb(np.asarray(truth, dtype=object)), buffers=buffers)
     for spec, layer in data.vectors:
         rec = _layer_before(layer, buffers, distances, widths,
                             lambda n, name=spec.name: step(n, name))
@@ -541,7 +558,8 @@ def _layer_before(layer, buffers, distances, widths, step) -> Optional[LayerBefo
 
 def _matching(before, d, truth_path, run) -> Optional[LayerBefore]:
     """The values of ``before`` for the run's database ``d``, if computed on its layer
-    (same name, vertices and XY), the same true lines and CRS; else None."""
+    (same name, vertices and XY), the same true lines (file, unchanged) and CRS; else
+    None."""
     if before is None:
         return None
     rec = before.databases.get(d.name)
@@ -550,6 +568,11 @@ def _matching(before, d, truth_path, run) -> Optional[LayerBefore]:
             or str(getattr(getattr(run, "data", None), "crs", None)) != before.crs
             or rec.n_vertices != len(layer.coords)):
         return None
+    if before.lines_key is not None:  # the true lines' file unchanged since
+        from pyproj import CRS
+
+        if _truth_key(truth_path, CRS.from_user_input(before.crs)) != before.lines_key:
+            return None
     return rec if _digest(np.asarray(layer.coords)[:, :2]) == rec.digest else None
 
 
@@ -562,3 +585,20 @@ def _before_shares(before, d, widths, truth_path, run) -> Optional[list]:
         return None
     sel = np.isin(rec.segment_feature, _adjusted_features(d))
     return _share_values(rec.inside[sel], rec.segment_length[sel], widths)
+
+
+def _adopt_lines(before, truth_path, crs) -> None:
+    """Keep the true lines and their grid that came with ``before`` for
+    :func:`_truth_lines` and :func:`_truth_buffers` when they are those of
+    ``truth_path`` in ``crs`` (the same file, unchanged): not read and indexed again."""
+    if before is None or before.lines_wkb is None or before.lines_key is None:
+        return
+    key = _truth_key(truth_path, crs)
+    if key != before.lines_key or key in _LAST_TRUTH:
+        return
+    import shapely
+
+    lines = shapely.from_wkb(before.lines_wkb)
+    _LAST_TRUTH.clear()
+    _LAST_TRUTH[key] = lines
+    _LAST_BUFFER["truth"] = (lines, before.buffers)
