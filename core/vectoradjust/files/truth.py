@@ -413,7 +413,6 @@ def _distance_function(truth):
     return distances
 
 
-
 # ------------------------------------------------------------- the half before, beforehand
 #: database vertices measured against the true lines per step of :func:`truth_before`
 BEFORE_VERTEX_CHUNK = 200_000
