@@ -191,3 +191,73 @@ def test_exact_method_in_chunks_equals_one_pass():
     small.chunk = 7
     assert np.allclose(small.inside(tst, [1.0, 3.0]), whole, rtol=1e-13, atol=0)
     assert 0 < whole[0] < whole[1] < np.hypot(*(tst[:, 1] - tst[:, 0]).T).sum()
+
+
+def test_covered_lengths_per_segment_by_hand():
+    from vectoradjust.accuracy.buffer import covered_length, covered_lengths
+
+    seg = np.array([2, 0, 0, 3, 0])
+    start = np.array([0.1, 0.0, 0.25, 0.6, 0.9])
+    end = np.array([0.2, 0.5, 0.75, 0.5, 1.0])  # segment 3's interval is empty
+    length = np.array([10.0, 4.0, 20.0, 7.0])
+    got = covered_lengths(seg, start, end, length)
+    # segment 0: [0, 0.75] and [0.9, 1] of 10 m; segment 1 none; segment 2: 0.1 of 20 m
+    assert got == pytest.approx([8.5, 0.0, 2.0, 0.0], abs=1e-12)
+    assert got.sum() == pytest.approx(covered_length(seg, start, end, length), rel=1e-15)
+    assert covered_lengths(seg[:0], start[:0], end[:0], length).tolist() == [0.0] * 4
+
+
+def _wiggly_case():
+    """Reference lines with short segments (a small grid cell) and tested lines with
+    long segments (cut into many pieces), a crossing line and one far away."""
+    from vectoradjust.accuracy.buffer import line_segments
+
+    rng = np.random.default_rng(5)
+    xs = np.linspace(0, 200, 120)
+    refs = [LineString(np.column_stack([xs, rng.normal(0, 0.8, xs.size) + 5 * k]))
+            for k in range(2)]
+    long_x = np.linspace(-10, 210, 6)
+    tst = [LineString(np.column_stack([long_x, rng.normal(0, 1.5, long_x.size) + 5 * k]))
+           for k in range(2)]
+    tst += [LineString([(50, -20), (60, 30)]), LineString([(0, 500), (100, 510)])]
+    return refs, tst, line_segments(refs), line_segments(tst)
+
+
+def test_inside_per_segment_equals_polygon_clipping_per_segment():
+    """Each tested segment's length inside the buffer, against shapely clipping the
+    segment with the (fine, quad_segs=256) polygon buffer of the union of the lines."""
+    from vectoradjust.accuracy.buffer import SegmentBuffer
+
+    refs, _, ref, tst = _wiggly_case()
+    widths = [0.5, 2.0, 4.0]
+    got = SegmentBuffer(ref).inside(tst, widths, per_segment=True)
+    assert got.shape == (len(tst), 3)
+    union = shapely.union_all(refs)
+    for k, x in enumerate(widths):
+        buf = union.buffer(x, quad_segs=256)
+        lines = shapely.linestrings(tst)
+        truth = shapely.length(shapely.intersection(lines, buf))
+        # the polygon is inside the round buffer by at most its chord error
+        assert np.all(got[:, k] >= truth - 1e-9)
+        assert got[:, k] == pytest.approx(truth, abs=1e-4 * x)
+    assert np.any(got[:, 0] > 0) and got[-1].tolist() == [0.0, 0.0, 0.0]  # the far line
+
+
+def test_inside_per_segment_sums_to_the_summed_form_in_any_chunks():
+    from vectoradjust.accuracy.buffer import SegmentBuffer
+
+    _, _, ref, tst = _wiggly_case()
+    widths = [0.0, 1.0, 3.0]
+    buf = SegmentBuffer(ref)
+    whole = buf.inside(tst, widths)
+    per = buf.inside(tst, widths, per_segment=True)
+    assert per.sum(axis=0) == pytest.approx(whole, rel=1e-13, abs=0)
+    assert per[:, 0].tolist() == [0.0] * len(tst)  # width 0: nothing inside
+    small = SegmentBuffer(ref)
+    small.chunk = 3
+    # a segment's values do not depend on the others measured with it: bit for bit
+    assert np.array_equal(small.inside(tst, widths, per_segment=True), per)
+    assert np.array_equal(buf.inside(tst[5:9], widths, per_segment=True), per[5:9])
+    empty = buf.inside(tst[:0], widths, per_segment=True)
+    assert empty.shape == (0, 3)
+    assert SegmentBuffer(ref[:0]).inside(tst, widths, per_segment=True).shape == (len(tst), 3)

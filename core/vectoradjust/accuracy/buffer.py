@@ -32,7 +32,7 @@ import numpy as np
 from vectoradjust.errors import LayerError
 
 __all__ = ["buffer_test", "line_segments", "capsule_intervals", "covered_length",
-           "SegmentBuffer"]
+           "covered_lengths", "SegmentBuffer"]
 
 _LINE_TYPES = ("LineString", "MultiLineString", "LinearRing")
 
@@ -288,6 +288,32 @@ def covered_length(seg: np.ndarray, start: np.ndarray, end: np.ndarray,
     return float(np.sum(new * seg_length[seg]))
 
 
+def covered_lengths(seg: np.ndarray, start: np.ndarray, end: np.ndarray,
+                    seg_length: np.ndarray) -> np.ndarray:
+    """:func:`covered_length` per segment: ``out[k]`` is the length of segment ``k``
+    covered by the union of its intervals (``len(seg_length)`` values, 0 for a segment
+    without intervals); their sum is :func:`covered_length` up to rounding. A segment's
+    value depends only on its own intervals (bit for bit), whatever the others."""
+    keep = end > start
+    seg, start, end = seg[keep], start[keep], end[keep]
+    order = np.lexsort((start, seg))
+    seg, start, end = seg[order], start[order], end[order]
+    first = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]]) if seg.size else seg
+    # where each interval's segment starts in the sorted list, and the running maximum of
+    # the ends within each segment (exact: no offsets, so a segment's value does not
+    # depend on the other segments measured with it)
+    pos = np.arange(seg.size) - np.repeat(first, np.diff(np.r_[first, seg.size]))
+    reach = end.copy()
+    shift = 1
+    while seg.size and shift <= pos.max():  # doubling: log2(intervals per segment) steps
+        reach[shift:] = np.where(pos[shift:] >= shift,
+                                 np.maximum(reach[shift:], reach[:-shift]), reach[shift:])
+        shift *= 2
+    before = np.where(pos > 0, np.r_[-np.inf, reach[:-1]], -np.inf)
+    new = np.clip(end - np.maximum(start, before), 0.0, None)
+    return np.bincount(seg, weights=new * seg_length[seg], minlength=len(seg_length))
+
+
 def _cells(lo: np.ndarray, hi: np.ndarray, size: float) -> tuple:
     """The grid cells ``(ix, iy)`` every box ``lo .. hi`` (n, 2) covers, and its row."""
     c0 = np.floor(lo / size).astype(np.int64)
@@ -299,23 +325,31 @@ def _cells(lo: np.ndarray, hi: np.ndarray, size: float) -> tuple:
     return c0[row, 0] + k // ny[row], c0[row, 1] + k % ny[row], row
 
 
-def _cut(seg: np.ndarray, step: float) -> np.ndarray:
+def _cut(seg: np.ndarray, step: float, with_rows: bool = False):
     """Segments ``(n, 2, 2)`` longer than ``step`` (per axis) cut into equal pieces.
 
     Exact for the buffer test: a segment's buffer is the union of its pieces' buffers,
-    and a tested segment's length inside a buffer is the sum of its pieces'.
+    and a tested segment's length inside a buffer is the sum of its pieces'. With
+    ``with_rows``, also the row of ``seg`` each piece comes from: ``(pieces, rows)``.
     """
+    rows = None
     if not len(seg):
-        return seg
-    ext = np.abs(seg[:, 1] - seg[:, 0]).max(axis=1)
-    pieces = np.maximum(np.ceil(ext / step), 1).astype(np.int64)
-    if pieces.max() == 1:
-        return seg
-    row = np.repeat(np.arange(len(seg)), pieces)
-    k = np.arange(int(pieces.sum())) - np.repeat(np.cumsum(pieces) - pieces, pieces)
-    t0, t1 = (k / pieces[row])[:, None], ((k + 1) / pieces[row])[:, None]
-    a, d = seg[row, 0], seg[row, 1] - seg[row, 0]
-    return np.stack([a + t0 * d, np.where(t1 >= 1, seg[row, 1], a + t1 * d)], axis=1)
+        pieces_of, rows = seg, np.zeros(0, dtype=np.int64)
+    else:
+        ext = np.abs(seg[:, 1] - seg[:, 0]).max(axis=1)
+        pieces = np.maximum(np.ceil(ext / step), 1).astype(np.int64)
+        if pieces.max() == 1:
+            pieces_of = seg
+        else:
+            rows = np.repeat(np.arange(len(seg)), pieces)
+            k = np.arange(int(pieces.sum())) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+            t0, t1 = (k / pieces[rows])[:, None], ((k + 1) / pieces[rows])[:, None]
+            a, d = seg[rows, 0], seg[rows, 1] - seg[rows, 0]
+            pieces_of = np.stack([a + t0 * d, np.where(t1 >= 1, seg[rows, 1], a + t1 * d)],
+                                 axis=1)
+    if not with_rows:
+        return pieces_of
+    return pieces_of, (np.arange(len(seg)) if rows is None else rows)
 
 
 def _group_min(best: np.ndarray, index: np.ndarray, values: np.ndarray) -> None:
@@ -429,19 +463,34 @@ class SegmentBuffer:
             out[rows] = np.where(np.isfinite(best), best, np.nan)
         return out
 
-    def inside(self, tested: np.ndarray, widths) -> np.ndarray:
-        """Length of the tested segments ``(n, 2, 2)`` inside each width's buffer."""
+    def inside(self, tested: np.ndarray, widths, per_segment: bool = False) -> np.ndarray:
+        """Length of the tested segments ``(n, 2, 2)`` inside each width's buffer.
+
+        Returns the ``(len(widths),)`` sums over the segments, or with ``per_segment``
+        the ``(n, len(widths))`` length of each tested segment inside each buffer (its
+        column sums are the sums up to rounding). A segment's values are the
+        same whatever the other segments measured with it (bit for bit).
+        """
         widths = np.asarray(widths, float).reshape(-1)
-        out = np.zeros(len(widths))
         seg = np.asarray(tested, float).reshape(-1, 2, 2) - self.origin
+        out = np.zeros((len(seg), len(widths)) if per_segment else len(widths))
         if not len(self.ref) or not len(seg) or not np.any(widths > 0):
             return out
         if len(seg) > self.chunk:  # bounded memory: the pairs of one chunk at a time
             for k in range(0, len(seg), self.chunk):
-                out += self.inside(seg[k:k + self.chunk] + self.origin, widths)
+                if per_segment:  # each segment's values do not depend on the chunks
+                    out[k:k + self.chunk] = self._inside(seg[k:k + self.chunk], widths, True)
+                else:
+                    out += self.inside(seg[k:k + self.chunk] + self.origin, widths)
             return out
+        return self._inside(seg, widths, per_segment)
+
+    def _inside(self, seg: np.ndarray, widths: np.ndarray, per_segment: bool) -> np.ndarray:
+        """:meth:`inside` of one chunk of segments relative to :attr:`origin`."""
+        out = np.zeros((len(seg), len(widths)) if per_segment else len(widths))
         grid = self._grid(float(widths.max()))
-        seg = _cut(seg, 4 * grid.size)  # a long tested segment: pieces of a few cells
+        # a long tested segment: pieces of a few cells (``row``: the segment of each)
+        seg, row = _cut(seg, 4 * grid.size, with_rows=True)
         length = np.hypot(*(seg[:, 1] - seg[:, 0]).T)
         # candidates: tested boxes overlapping the reference boxes grown by the widest
         # buffer (every pair within that distance, and some farther that add nothing)
@@ -451,5 +500,9 @@ class SegmentBuffer:
         for k, x in enumerate(widths):
             if x > 0:
                 start, end = capsule_intervals(p, q, a, b, float(x))
-                out[k] = covered_length(i, start, end, length)
+                if per_segment:
+                    out[:, k] = np.bincount(row, weights=covered_lengths(i, start, end, length),
+                                            minlength=len(out))
+                else:
+                    out[k] = covered_length(i, start, end, length)
         return out

@@ -120,15 +120,16 @@ class Background:
         """True when the stage runs in a child process."""
         return self.proc is not None
 
-    def result(self, progress: Optional[Callable] = None):
+    def result(self, progress: Optional[Callable] = None, rerun: bool = True):
         """Wait for the child (forwarding its progress) and return ``fn``'s result; run
-        ``fn`` here instead when there is no child or it failed."""
+        ``fn`` here instead when there is no child or it failed (with ``rerun=False``
+        return None then: the caller has a cheaper way)."""
         say = progress or (lambda fraction, message="": None)
         while self.proc is not None and not self._receive(say):
             pass
         if self.done:
             return self.value
-        return self.fn(*self.args, progress=say, **self.kwargs)
+        return self.fn(*self.args, progress=say, **self.kwargs) if rerun else None
 
     def _receive(self, say) -> bool:
         """Read one message of the child; True when it has ended (result or failure)."""

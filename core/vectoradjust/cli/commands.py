@@ -245,6 +245,9 @@ def cmd_adjust(args) -> int:
     # not turned into tie points
     spec = load_project(args.project)
     data = load_project_data(spec, progress=lambda f, m: bar(0.02 * f, m))
+    truth = cli_buffer.project_truth(spec)
+    # true centrelines: their tests' half on the database lines runs beside the adjustment
+    pre = cli_buffer.TruthBeforeAlongside(data, *truth, warm) if truth is not None else None
     from vectoradjust.pipeline import run
 
     started: list = []  # the bands start in other processes once the adjustment is final
@@ -252,19 +255,21 @@ def cmd_adjust(args) -> int:
         result = run(data, vectors=args.vectors, progress=bar,
                      on_adjusted=lambda r: started.append(_bands_alongside(r, args, warm)))
     except BaseException:
-        for b in (b for b in started if b is not None):
+        for b in (b for b in [*started, pre] if b is not None):
             b.close()
         raise
     bands = started[0] if started else None
     warm = Preload(_PLOTTING)  # the bands' processes have started (forked without it)
     report = None
     try:
-        truth = cli_buffer.project_truth(spec)
+        before = None
         if truth is not None:  # true centrelines: buffer test before/after the adjustment
-            cli_buffer.truth_buffer(result, *truth,
-                                    progress=ProgressBar("truth", enabled=not args.quiet))
+            tbar = ProgressBar("truth", enabled=not args.quiet)
+            before = pre.result(lambda f, m: tbar(0.5 * f, m))
+            cli_buffer.truth_buffer(result, *truth, before=before,
+                                    progress=lambda f, m="": tbar(0.5 + 0.5 * f, m))
         truth_csv = cli_study.truth_tables(  # per-point truth tables
-            result, spec, args.out,
+            result, spec, args.out, before=before,
             progress=ProgressBar("truth tables", enabled=not args.quiet))
         qa_doc = _qa_verdict(result, data)
         warm.wait()  # no module half imported in the report's process
@@ -275,6 +280,8 @@ def cmd_adjust(args) -> int:
     except BaseException:
         if report is not None:  # the report's process is not left running
             report.job.close()
+        if pre is not None:
+            pre.close()
         raise
     finally:
         if bands is not None:

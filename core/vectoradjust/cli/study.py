@@ -46,7 +46,7 @@ def parse_numbers(text, what: str, integer: bool = False) -> list:
     return vals
 
 
-def truth_tables(run, spec, out_dir, label: str = "", progress=None) -> dict:
+def truth_tables(run, spec, out_dir, label: str = "", progress=None, before=None) -> dict:
     """The per-point truth tables of a run into ``out_dir``.
 
     ``truth_points.csv``: per adjusted object point with vertex truth (``[[vectors]]
@@ -56,6 +56,8 @@ def truth_tables(run, spec, out_dir, label: str = "", progress=None) -> dict:
     goes into the summary (``databases[].truth.lines``).
 
     ``progress(fraction, message)`` is called before each table and while it is written.
+    ``before`` (:func:`vectoradjust.files.truth.truth_before`, optional): the database
+    vertices' distances to the true lines, computed beforehand.
 
     Returns
     -------
@@ -80,7 +82,7 @@ def truth_tables(run, spec, out_dir, label: str = "", progress=None) -> dict:
 
         say(0.5, "distances to the true centrelines")
         path, _ = project_truth(spec)
-        rows = truth_line_distances(run, path, as_columns=True,
+        rows = truth_line_distances(run, path, as_columns=True, before=before,
                                     progress=lambda f, m: say(0.5 + 0.25 * f, m))
         if rows:
             written[f"{label}truth_line_points.csv"] = str(write_csv(
