@@ -234,19 +234,26 @@ def test_probability_with_bias_vs_adaptive_quadrature():
         assert S.circular_error_probability(*c) == pytest.approx(ref(*c), abs=1e-9)
 
 
-def test_probability_vs_mpmath_extreme_cases():
-    mp = pytest.importorskip("mpmath")
+def _mp_probability(R, sa, sb, ma, mb):
+    """P(|e| <= R) in principal axes by 30-digit adaptive quadrature (mpmath), an mpf."""
+    import mpmath as mp
+
     mp.mp.dps = 30
+    R, sa, sb, ma, mb = map(mp.mpf, (R, sa, sb, ma, mb))
 
-    def ref(R, sa, sb, ma, mb):
-        R, sa, sb, ma, mb = map(mp.mpf, (R, sa, sb, ma, mb))
+    def f(y):
+        h = mp.sqrt(max(R * R - y * y, 0))
+        return mp.npdf(y, mb, sb) * (mp.ncdf((h - ma) / sa) - mp.ncdf((-h - ma) / sa))
 
-        def f(y):
-            h = mp.sqrt(max(R * R - y * y, 0))
-            return mp.npdf(y, mb, sb) * (mp.ncdf((h - ma) / sa) - mp.ncdf((-h - ma) / sa))
+    pts = sorted({-R, R} | {p for p in (mb, mb - 8 * sb, mb + 8 * sb) if -R < p < R})
+    return mp.quad(f, pts, maxdegree=10)
 
-        pts = sorted({-R, R} | {p for p in (mb, mb - 8 * sb, mb + 8 * sb) if -R < p < R})
-        return float(mp.quad(f, pts, maxdegree=10))
+
+def test_probability_vs_mpmath_extreme_cases():
+    pytest.importorskip("mpmath")
+
+    def ref(*case):
+        return float(_mp_probability(*case))
 
     # (R, sa, sb, ma, mb) with thin ellipses and biases up to ~170 sigma
     cases = [
@@ -616,23 +623,12 @@ def test_radius_vs_mpmath_root_thin_biased_ellipses():
     # the Newton iteration may stop on its estimated error (quadratic convergence):
     # the radius must still be the root of the exactly integrated P to ~1e-12
     mp = pytest.importorskip("mpmath")
-    mp.mp.dps = 30
-
-    def prob(R, sa, sb, ma, mb):
-        R, sa, sb, ma, mb = map(mp.mpf, (R, sa, sb, ma, mb))
-
-        def f(y):
-            h = mp.sqrt(max(R * R - y * y, 0))
-            return mp.npdf(y, mb, sb) * (mp.ncdf((h - ma) / sa) - mp.ncdf((-h - ma) / sa))
-
-        pts = sorted({-R, R} | {p for p in (mb, mb - 8 * sb, mb + 8 * sb) if -R < p < R})
-        return mp.quad(f, pts, maxdegree=10)
-
+    p90 = mp.mpf("0.9")
     # (sb/sa, ma/sa, mb/sa), sa = 1: the cases where the two stopping rules differed most
     # among 200 000 random ones, and an ordinary one
     for ratio, ma, mb in ((1.02e-4, 5.118, -4.638), (1.25e-4, -59.42, 36.32),
                           (1.46e-4, 4.397, 4.115), (0.5, 0.3, 0.2)):
         r = float(S.circular_error(np.diag([1.0, ratio ** 2]), np.array([ma, mb]), 0.9))
-        root = mp.findroot(lambda x, c=(ratio, ma, mb): prob(x, 1.0, *c) - mp.mpf("0.9"),
+        root = mp.findroot(lambda x, c=(ratio, ma, mb): _mp_probability(x, 1.0, *c) - p90,
                            (mp.mpf(r) * (1 - 1e-9), mp.mpf(r) * (1 + 1e-9)), solver="secant")
         assert abs(r - float(root)) <= 5e-12 * float(root)
