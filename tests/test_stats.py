@@ -623,6 +623,7 @@ def test_radius_vs_mpmath_root_thin_biased_ellipses():
     # the Newton iteration may stop on its estimated error (quadratic convergence):
     # the radius must still be the root of the exactly integrated P to ~1e-12
     mp = pytest.importorskip("mpmath")
+    mp.mp.dps = 30
     p90 = mp.mpf("0.9")
     # (sb/sa, ma/sa, mb/sa), sa = 1: the cases where the two stopping rules differed most
     # among 200 000 random ones, and an ordinary one
