@@ -365,14 +365,9 @@ class FeatureStatements(list):
 
     def index_of(self, feature_ids) -> np.ndarray:
         """Row of each feature id (-1 where the feature has no statement)."""
-        ask = np.asarray(feature_ids).astype(str)
-        n = len(self._cols.get("feature_id", ()))
-        if not n:
-            return np.full(len(ask), -1, dtype=np.int64)
-        fid = np.asarray(self._cols["feature_id"]).astype(str)
-        order = np.argsort(fid, kind="stable")
-        pos = np.minimum(np.searchsorted(fid[order], ask), n - 1)
-        return np.where(fid[order][pos] == ask, order[pos], -1)
+        from vectoradjust.adjust.shapepoints import lookup
+
+        return lookup(self._cols.get("feature_id", np.zeros(0, str)), feature_ids)
 
 
 def _finite_list(a) -> list:
