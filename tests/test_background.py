@@ -196,6 +196,40 @@ def test_band_file_written_chunk_by_chunk_equals_the_frame(tmp_path, monkeypatch
     assert shapely.equals_exact(back, np.asarray(frame.geometry.values), 0.0).all()
 
 
+@pytest.mark.io
+@pytest.mark.parametrize("n", [2, 3])
+def test_band_files_merged_batch_by_batch_equal_the_whole_layer(tmp_path, monkeypatch, n):
+    """The parts' files, put in order a few rows at a time (batches that straddle the
+    files' own record batches), give the rows, attributes and polygons of the whole layer
+    built in one process."""
+    pytest.importorskip("pyarrow")
+    import functools
+
+    import numpy as np
+    import pyarrow as pa
+    import shapely
+
+    from vectoradjust.files import derived_outputs as do
+    from vectoradjust.pipeline import run
+    from vectoradjust.simulate import make_scenario
+
+    r = run(make_scenario(3).to_project_data())
+    whole = do.uncertainty_bands_frame(r)
+    monkeypatch.setattr(do, "_union_chunks", functools.partial(do._union_chunks, chunk=5))
+    paths = [do.uncertainty_bands_file(r, tmp_path, part=(i, n)) for i in range(n)]
+    assert all(pa.ipc.open_file(pa.memory_map(p)).num_record_batches > 1 for p in paths)
+    monkeypatch.setattr(do, "BAND_BATCH", 4)
+    layer = do.merge_band_files(r, [*paths, None])
+    assert len(layer) == len(whole) > 8
+    for _ in range(2):  # the batches can be asked for again (a second writer)
+        got = layer.batches().read_all()
+        assert got.column_names == [*do.BAND_FIELDS, "geometry"]
+        for c in do.BAND_FIELDS:
+            assert got.column(c).to_pylist() == whole[c].tolist()
+        back = shapely.from_wkb(got.column("geometry").to_numpy(zero_copy_only=False))
+        assert shapely.equals_exact(back, np.asarray(whole.geometry.values), 0.0).all()
+
+
 def _quick_steps(progress=None):
     for k in range(5):
         progress(k / 5, f"step {k}")

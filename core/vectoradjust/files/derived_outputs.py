@@ -128,13 +128,17 @@ def _band_chunks(run: AdjustmentRun, confidence: float, progress, is_cancelled,
         del sb
 
 
-def _layer_order(run: AdjustmentRun, databases: list, features: np.ndarray) -> np.ndarray:
-    """The order of band rows from several parts in the whole layer: by database (the
-    run's order), then by feature index."""
+def _layer_key(run: AdjustmentRun, databases: list, features: np.ndarray) -> np.ndarray:
+    """The sort key of band rows in the whole layer: by database (the run's order), then
+    by feature index."""
     rank = {d.name: i for i, d in enumerate(run.databases)}
-    key = np.array([rank[x] for x in databases], np.int64) * (1 << 40) + \
+    return np.array([rank[x] for x in databases], np.int64) * (1 << 40) + \
         np.asarray(features, np.int64)
-    return np.argsort(key, kind="stable")
+
+
+def _layer_order(run: AdjustmentRun, databases: list, features: np.ndarray) -> np.ndarray:
+    """The order of band rows from several parts in the whole layer (:func:`_layer_key`)."""
+    return np.argsort(_layer_key(run, databases, features), kind="stable")
 
 
 def merge_band_parts(run: AdjustmentRun, parts: list):
@@ -283,7 +287,16 @@ def arrow_layers() -> bool:
 
 
 #: rows of the bands layer put in order and written at a time
-BAND_BATCH = 20_000
+BAND_BATCH = 5_000
+
+
+def _band_schema():
+    """Columns of a band file (:func:`uncertainty_bands_file`)."""
+    import pyarrow as pa
+
+    return pa.schema([("database", pa.string()), ("feature_id", pa.string()),
+                      ("confidence", pa.float64()), ("NSeg", pa.int64()),
+                      ("_feature", pa.int64()), ("geometry", pa.binary())])
 
 
 def uncertainty_bands_file(run: AdjustmentRun, folder, confidence: float = 0.9,
@@ -299,9 +312,7 @@ def uncertainty_bands_file(run: AdjustmentRun, folder, confidence: float = 0.9,
     import pyarrow as pa
     import shapely
 
-    schema = pa.schema([("database", pa.string()), ("feature_id", pa.string()),
-                        ("confidence", pa.float64()), ("NSeg", pa.int64()),
-                        ("_feature", pa.int64()), ("geometry", pa.binary())])
+    schema = _band_schema()
     path = Path(folder) / f"bands_{part[0]}_of_{part[1]}.arrow"
     with pa.OSFile(str(path), "wb") as sink, pa.ipc.new_file(sink, schema) as w:
         # a chunk of features written as soon as it is united: the polygons of one chunk
@@ -321,23 +332,83 @@ def uncertainty_bands_file(run: AdjustmentRun, folder, confidence: float = 0.9,
 
 def merge_band_files(run: AdjustmentRun, paths: list) -> LayerTable:
     """The files of :func:`uncertainty_bands_file` (parts ``(i, n)``) as one layer in the
-    order of the whole one (database, then feature), as :func:`merge_band_parts`; the
-    files are memory-mapped and put in order a batch at a time when written."""
+    order of the whole one (database, then feature), as :func:`merge_band_parts`.
+
+    Only the two key columns are read to put the rows in order. The rows themselves are
+    read from the files when the layer is written, :data:`BAND_BATCH` at a time: each
+    file is already in layer order, so a batch of the layer is a run of consecutive rows
+    of every file. The polygons are not memory-mapped, so the writing process holds about
+    one batch of them, not the whole layer.
+    """
     import pyarrow as pa
 
-    tables = [pa.ipc.open_file(pa.memory_map(p)).read_all() for p in paths if p]
-    table = pa.concat_tables(tables)
-    order = _layer_order(run, table.column("database").to_pylist(),
-                         table.column("_feature").to_numpy())
-    table = table.drop(["_feature"])
+    paths = [str(p) for p in paths if p]
+    keys, bounds = [], []
+    for p in paths:
+        with pa.memory_map(p) as src:  # the pages of the key columns only
+            reader = pa.ipc.open_file(src)
+            sizes = [reader.get_batch(j).num_rows for j in range(reader.num_record_batches)]
+            table = reader.read_all()
+            keys.append(_layer_key(run, table.column("database").to_pylist(),
+                                   np.array(table.column("_feature").to_numpy(), np.int64)))
+            del table, reader
+        bounds.append(np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)]))
+    key = np.concatenate(keys) if keys else np.zeros(0, np.int64)
+    order = np.argsort(key, kind="stable")
+    first = np.concatenate([[0], np.cumsum([len(k) for k in keys], dtype=np.int64)])
+    source = np.repeat(np.arange(len(paths)), np.diff(first))
+    for f in range(len(paths)):  # each file in layer order: its rows come as they are
+        if np.any(np.diff(keys[f]) <= 0):
+            raise ValueError(f"{paths[f]}: the band rows are not in layer order")
+    schema = _band_schema().remove(_band_schema().get_field_index("_feature"))
 
     def batches():
-        def gen():
-            for i in range(0, len(order), BAND_BATCH):
-                yield from table.take(pa.array(order[i:i + BAND_BATCH])).to_batches()
-        return pa.RecordBatchReader.from_batches(table.schema, gen())
+        files = [pa.OSFile(p) for p in paths]
+        readers = [pa.ipc.open_file(f) for f in files]
+        cached = [(-1, None)] * len(paths)
+        done = np.zeros(len(paths), np.int64)  # rows of each file already in the layer
 
-    return LayerTable(batches, str(run.data.crs), "MultiPolygon", table.num_rows)
+        def rows(f, a, b):
+            """Rows ``a .. b - 1`` of file ``f`` as tables (its record batches read once)."""
+            out = []
+            j = int(np.searchsorted(bounds[f], a, side="right")) - 1
+            while a < b:
+                if cached[f][0] != j:
+                    cached[f] = (j, readers[f].get_batch(j))
+                lo, hi = bounds[f][j], bounds[f][j + 1]
+                take = min(b, hi) - a
+                out.append(cached[f][1].slice(a - lo, take))
+                a += take
+                j += 1
+            return out
+
+        def gen():
+            try:
+                yield from ordered()
+            finally:
+                cached[:] = [(-1, None)] * len(paths)
+                for f in files:
+                    f.close()
+
+        def ordered():
+            for i in range(0, len(order), BAND_BATCH):
+                o = order[i:i + BAND_BATCH]
+                src = source[o]
+                n = np.bincount(src, minlength=len(paths))
+                pieces, base = [], np.zeros(len(paths), np.int64)
+                for f in np.flatnonzero(n):
+                    base[f] = sum(len(p) for p in pieces)
+                    pieces += rows(f, int(done[f]), int(done[f] + n[f]))
+                # position of every row of the batch among the pieces: file f's rows come
+                # in its own order, after the rows of the files before it
+                local = base[src] + (o - first[src] - done[src])
+                done[:] += n
+                batch = pa.Table.from_batches(pieces, schema=_band_schema()).drop(["_feature"])
+                yield from batch.take(pa.array(local)).combine_chunks().to_batches()
+
+        return pa.RecordBatchReader.from_batches(schema, gen())
+
+    return LayerTable(batches, str(run.data.crs), "MultiPolygon", int(len(order)))
 
 
 def write_uncertainty_bands(run: AdjustmentRun, path, layer: str = "uncertainty_bands",

@@ -442,18 +442,22 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
     written = {}
     try:
         notes: list = []
+        # each table is let go once written: the memory of a written layer is free for
+        # the next one (the bands layer, last, waits for its processes meanwhile)
         if fmt == "gpkg":
-            for name, gdf in frames.items():
-                gdf = _ready(gdf, step, name)
+            for name in list(frames):
+                gdf = _ready(frames.pop(name), step, name)
                 step(f"writing the {name} layer")
                 notes += _write_layer(gdf, tmp / "adjusted.gpkg", name, fmt)
+                del gdf
             names = ["adjusted.gpkg"]
         else:
             names = []
-            for name, gdf in frames.items():
-                gdf = _ready(gdf, step, name)
+            for name in list(frames):
+                gdf = _ready(frames.pop(name), step, name)
                 step(f"writing {name}.shp")
                 notes += _write_layer(gdf, tmp / f"{name}.shp", None, fmt)
+                del gdf
                 names += [p.name for p in tmp.glob(f"{name}.*")]
         if notes:  # into the run's warnings (printed, in summary.json and the report)
             run.summary["warnings"] = list(run.summary.get("warnings", [])) + notes
