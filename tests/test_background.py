@@ -101,6 +101,40 @@ def test_adjust_writes_the_same_bands_with_and_without_the_child(sample_dir, tmp
                 == _unstamped((tmp_path / "2" / name).read_text(encoding="utf-8")))
 
 
+@fork_only
+@pytest.mark.io
+def test_bands_of_a_failed_process_are_built_in_the_parent_without_the_factorisation(
+        sample_dir, tmp_path, monkeypatch):
+    """The parent lets the factorisation go before it writes the layers; a band process
+    that fails is run again in the parent from the covariances kept for the bands."""
+    pytest.importorskip("geopandas")
+    import pyogrio
+
+    from vectoradjust.cli import main
+    from vectoradjust.files import derived_outputs as do
+
+    parent, real, calls = os.getpid(), do.uncertainty_bands_file, []
+
+    def flaky(run, *args, **kwargs):
+        if os.getpid() != parent:
+            raise RuntimeError("a band process failed")
+        calls.append(run.result.nep_obs is None)  # let go before the bands are asked for
+        return real(run, *args, **kwargs)
+
+    monkeypatch.setenv("VECTORADJUST_WORKERS", "2")
+    assert main(["adjust", str(sample_dir / "project.toml"), "--out", str(tmp_path / "a"),
+                 "-q"]) == 0
+    monkeypatch.setattr(do, "uncertainty_bands_file", flaky)
+    assert main(["adjust", str(sample_dir / "project.toml"), "--out", str(tmp_path / "b"),
+                 "-q"]) == 0
+    assert calls == [True, True]  # both shares, in the parent, after the release
+    a, b = (pyogrio.read_dataframe(tmp_path / x / "adjusted.gpkg", layer="uncertainty_bands")
+            for x in "ab")
+    assert len(a) == len(b) > 10
+    assert a.geometry.geom_equals_exact(b.geometry, 0.0).all()
+    assert (a.drop(columns="geometry") == b.drop(columns="geometry")).all().all()
+
+
 def _unstamped(text: str) -> str:
     """A report without the minute it was written in (the runs may be a minute apart)."""
     return re.sub(r"\d{4}-\d\d-\d\d \d\d:\d\d</p>", "</p>", text)

@@ -342,6 +342,39 @@ def test_segment_bands_contain_their_end_point_ellipses(adj_run):
     assert [f for f, _ in bands] == sb.feature.tolist()
 
 
+def test_segment_bands_from_kept_covariances_once_the_factorisation_is_let_go(adj_run):
+    """The covariances kept before ``release_factorisation`` give the same bands (of a
+    share of the features too), with or without ``point_cov``; the released result
+    refuses what needs the factorisation, and covariances of other segments are refused."""
+    import copy
+
+    db = adj_run.databases[0]
+    want = derived.segment_bands(adj_run, db, 0.9, part=(1, 2))
+    assert len(want.start_vertex) > 3
+    for with_point_cov in (True, False):
+        run2 = copy.copy(adj_run)  # the module's fixture stays whole
+        run2.result = copy.copy(adj_run.result)
+        if not with_point_cov:
+            run2.result.point_cov = None
+        kept = {d.name: derived.segment_covariances(run2, d) for d in run2.databases}
+        assert (kept[db.name].own_a is None) == with_point_cov
+        run2.result.release_factorisation()
+        assert run2.result.nep_obs is None and run2.result.a_eo is None
+        assert adj_run.result.nep_obs is not None
+        with pytest.raises(ProjectError, match="release_factorisation"):
+            derived.cross_covariance(run2.result, [0], [1])
+        with pytest.raises(ProjectError):
+            derived.segment_bands(run2, db, 0.9)
+        got = derived.segment_bands(run2, db, 0.9, part=(1, 2), covariances=kept)
+        assert np.array_equal(got.start_vertex, want.start_vertex)
+        assert np.allclose(got.cov_joint, want.cov_joint, rtol=1e-12, atol=1e-18)
+        if with_point_cov:  # the same numbers, so the same rings
+            assert np.array_equal(got.xy, want.xy) and np.array_equal(got.offsets, want.offsets)
+    short = derived.SegmentCovariances(kept[db.name].start[1:], kept[db.name].cross[1:])
+    with pytest.raises(ValueError, match="not those of database"):
+        derived.segment_bands(run2, db, 0.9, covariances={db.name: short})
+
+
 # ---------------------------------------------------------------- quantities between ids
 def test_distance_length_and_mean_height_against_the_dense_inverse(adj_run, dense):
     res = adj_run.result

@@ -50,6 +50,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "cross_covariance",
+    "segment_covariances",
+    "SegmentCovariances",
     "feature_length_sigma",
     "g_band_batch",
     "g_band_rings",
@@ -118,7 +120,8 @@ def _check_result(result: BundleResult) -> None:
         raise ProjectError(
             "The adjustment result holds no factorisation (s_inv, npp_inv, nep_obs), so "
             "covariances between points cannot be computed",
-            "Use a BundleResult from vectoradjust.adjust.bundle.adjust (pipeline.run keeps them)",
+            "Use a BundleResult from vectoradjust.adjust.bundle.adjust (pipeline.run keeps them; "
+            "BundleResult.release_factorisation lets them go)",
         )
 
 
@@ -729,8 +732,61 @@ class SegmentBands:
     offsets: Optional[np.ndarray] = None
 
 
+@dataclass
+class SegmentCovariances:
+    """Covariance blocks of the measured segments of a road database
+    (:func:`segment_covariances`): everything :func:`segment_bands` takes from the
+    factorisation, computed once so that the bands can be built after it is let go.
+
+    ``start`` (s,) are the segments' first vertices (ascending), ``cross`` (s, 3, 3) the
+    covariances ``Cov(x_a, x_b)`` of their end points, ``own_a`` / ``own_b`` (s, 3, 3)
+    their own blocks when the result keeps no ``point_cov`` (None otherwise).
+    """
+
+    start: np.ndarray
+    cross: np.ndarray
+    own_a: Optional[np.ndarray] = None
+    own_b: Optional[np.ndarray] = None
+
+
+def _measured_segments(db: DatabaseResult, part: tuple = (0, 1)) -> np.ndarray:
+    """First vertices of the segments with both end points measured (distinct points),
+    of the features ``i`` modulo ``n`` (``part = (i, n)``)."""
+    vp = np.asarray(db.vertex_point, np.int64)
+    a = _segments(db)
+    if part[1] > 1 and a.size:
+        a = a[np.asarray(db.shape.layer.vertex_feature)[a] % part[1] == part[0]]
+    if a.size:
+        a = a[(vp[a] >= 0) & (vp[a + 1] >= 0) & (vp[a] != vp[a + 1])]
+    return a
+
+
+def segment_covariances(run: AdjustmentRun, db: DatabaseResult) -> SegmentCovariances:
+    """The covariance blocks :func:`segment_bands` needs, for every measured segment.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    db : DatabaseResult
+
+    Returns
+    -------
+    SegmentCovariances
+    """
+    res = run.result
+    _check_result(res)
+    vp = np.asarray(db.vertex_point, np.int64)
+    a = _measured_segments(db)
+    pa, pb = vp[a], vp[a + 1]
+    own = res.point_cov is None
+    return SegmentCovariances(a, cross_covariance(res, pa, pb),
+                              cross_covariance(res, pa, pa) if own else None,
+                              cross_covariance(res, pb, pb) if own else None)
+
+
 def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.9,
-                  part: tuple = (0, 1), **kwargs) -> SegmentBands:
+                  part: tuple = (0, 1), covariances: Optional[dict] = None,
+                  **kwargs) -> SegmentBands:
     """G-band of every segment of a road database whose two end points were measured.
 
     The joint 6x6 covariance of the end points comes from :func:`cross_covariance`
@@ -747,6 +803,9 @@ def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.
     part : (int, int)
         ``(i, n)``: only the segments of the features whose index is ``i`` modulo ``n``
         (``n`` processes share the work; default all).
+    covariances : dict, optional
+        :class:`SegmentCovariances` by database name (:func:`segment_covariances`):
+        taken from there instead of the factorisation, which may then be let go.
     **kwargs
         ``n_pairs``, ``n_directions``, ``progress`` of :func:`g_band_batch`.
 
@@ -755,16 +814,26 @@ def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.
     SegmentBands
     """
     res = run.result
-    _check_result(res)
+    kept = None if covariances is None else covariances.get(db.name)
+    if kept is None:
+        _check_result(res)
     vp = np.asarray(db.vertex_point, np.int64)
-    a = _segments(db)
-    if part[1] > 1 and a.size:
-        a = a[np.asarray(db.shape.layer.vertex_feature)[a] % part[1] == part[0]]
-    if a.size:
-        a = a[(vp[a] >= 0) & (vp[a + 1] >= 0) & (vp[a] != vp[a + 1])]
+    a = _measured_segments(db, part)
     pa, pb = vp[a], vp[a + 1]
     cov = np.zeros((a.size, 6, 6))
-    if a.size:
+    if a.size and kept is not None:  # computed before the factorisation was let go
+        row = np.searchsorted(kept.start, a)
+        if np.any(row >= len(kept.start)) or np.any(kept.start[np.minimum(
+                row, len(kept.start) - 1)] != a):
+            raise ValueError(f"segment_bands: the covariances given are not those of "
+                             f"database {db.name!r}")
+        own = kept.own_a is None
+        cov[:, :3, :3] = res.point_cov[pa] if own else kept.own_a[row]
+        cov[:, 3:, 3:] = res.point_cov[pb] if own else kept.own_b[row]
+        cab = kept.cross[row]
+        cov[:, :3, 3:] = cab
+        cov[:, 3:, :3] = np.swapaxes(cab, 1, 2)
+    elif a.size:
         cov[:, :3, :3] = res.point_cov[pa] if res.point_cov is not None else \
             cross_covariance(res, pa, pa)
         cov[:, 3:, 3:] = res.point_cov[pb] if res.point_cov is not None else \

@@ -348,6 +348,25 @@ class BundleResult:
     offset_u: Optional[np.ndarray] = None
     offset_g: Optional[np.ndarray] = None
 
+    #: the kept blocks that :meth:`release_factorisation` lets go
+    RELEASABLE = ("npp_inv", "nep_obs", "a_eo", "a_pt", "offset_qb", "offset_g")
+
+    def release_factorisation(self) -> None:
+        """Let go of the per-point and per-observation blocks kept for covariances.
+
+        ``npp_inv``, ``nep_obs``, ``a_eo``, ``a_pt``, ``offset_qb``, ``offset_g`` and the
+        cached cofactors (about 1 GB at a million shape points). What was computed from
+        them stays: ``point_cov``, ``eo_cov``, the reliability of the run, and the small
+        ``s_inv``. Covariances between points
+        (:func:`vectoradjust.accuracy.derived.cross_covariance`,
+        :meth:`joint_covariance`) and reliability can no longer be computed from this
+        result; they raise :class:`vectoradjust.errors.ProjectError`. The command line
+        calls it when nothing it still has to write needs them.
+        """
+        for name in self.RELEASABLE:
+            setattr(self, name, None)
+        self.__dict__.pop("_cofactor_cache", None)
+
     def eo_cofactor(self) -> np.ndarray:
         """Cofactor matrix (6n, 6n) of the exterior orientation, offsets included."""
         if self.offset_cofactor is None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -124,6 +125,7 @@ class _BandsAlongside:
     while the parent runs the ``[truth]`` tests and writes the other layers."""
 
     def __init__(self, result, out_dir) -> None:
+        from vectoradjust.accuracy.derived import segment_covariances
         from vectoradjust.cli.background import Background, workers
         from vectoradjust.files import derived_outputs as do
 
@@ -139,8 +141,13 @@ class _BandsAlongside:
             make, kw = do.uncertainty_bands_file, {"folder": self.folder}
         else:  # the polygons come back through the pipe
             make, kw = do.uncertainty_bands_frame, {}
-        self.jobs = ([Background(make, result, part=(i, n), **kw) for i in range(n)] if n > 1
-                     else [Background(make, result, enabled=False, **kw)])
+        # the covariances the bands take from the factorisation, computed now: the parent
+        # can let the factorisation go and still build the bands if a process fails
+        kw["covariances"] = {d.name: segment_covariances(result, d) for d in result.databases}
+        pid = os.getpid()
+        self.jobs = ([Background(_band_share, make, result, pid, part=(i, n), **kw)
+                      for i in range(n)] if n > 1
+                     else [Background(_band_share, make, result, pid, enabled=False, **kw)])
 
     def result(self, progress=None):
         """The whole layer (waits for the processes, forwarding their progress)."""
@@ -155,6 +162,15 @@ class _BandsAlongside:
             j.close()
         if self.folder is not None:
             shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def _band_share(make, result, parent: int, **kwargs):
+    """``make(result, **kwargs)``; in a process of its own (not ``parent``) without the
+    factorisation, which the bands' kept covariances make unnecessary: the copy-on-write
+    pages of the parent's factorisation are not held by the band processes too."""
+    if os.getpid() != parent:
+        result.result.release_factorisation()
+    return make(result, **kwargs)
 
 
 def _bands_alongside(result, args, preload=None):
@@ -259,6 +275,10 @@ def cmd_adjust(args) -> int:
             b.close()
         raise
     bands = started[0] if started else None
+    if not getattr(args, "conflation_raster", False):
+        # nothing after the adjustment needs the factorisation (the bands took their
+        # covariances): about 1 GB at 10^6 shape points free for the tests and the layers
+        result.result.release_factorisation()
     warm = Preload(_PLOTTING)  # the bands' processes have started (forked without it)
     report = None
     try:
