@@ -319,3 +319,29 @@ def test_shape_points_table_has_the_frame_s_values_and_nulls(sample_dir):
     assert table.column("Vx").null_count > 20  # the unmeasured vertices
     pts = gpd.GeoSeries.from_wkb(table.column("geometry").to_pylist(), crs=frame.crs)
     assert pts.geom_equals_exact(frame.geometry, 0.0).all() and pts.has_z.all()
+
+
+@pytest.mark.parametrize("before", [None, "NORMAL"])
+def test_geopackages_are_written_unsynced_and_the_setting_is_restored(before, tmp_path,
+                                                                     monkeypatch):
+    """SQLite does not wait for the disk while the layers are written (they are moved
+    into place only when whole); the user's own setting is back afterwards, also when
+    the writing fails."""
+    pyogrio = pytest.importorskip("pyogrio")
+    from vectoradjust.files import outputs
+
+    pyogrio.set_gdal_config_options({"OGR_SQLITE_SYNCHRONOUS": before})
+    seen = []
+
+    class Layer:
+        def write(self, path, layer, driver):
+            seen.append(pyogrio.get_gdal_config_option("OGR_SQLITE_SYNCHRONOUS"))
+            raise OSError("disk full")
+
+    try:
+        with pytest.raises(OSError, match="disk full"):
+            outputs._write_layer(Layer(), tmp_path / "a.gpkg", "x", "gpkg")
+        assert seen == [False]  # pyogrio reads "OFF" as False
+        assert pyogrio.get_gdal_config_option("OGR_SQLITE_SYNCHRONOUS") == before
+    finally:
+        pyogrio.set_gdal_config_options({"OGR_SQLITE_SYNCHRONOUS": None})

@@ -173,6 +173,16 @@ def _band_share(make, result, parent: int, **kwargs):
     return make(result, **kwargs)
 
 
+def _summarised(result, started: list, args):
+    """The bands' processes once the run is summarised (None: no bands), and the
+    factorisation let go: nothing after the adjustment needs it but the conflation rasters
+    (the bands took their covariances), so about 1 GB at 10^6 shape points is free for
+    the tests and the layers."""
+    if not getattr(args, "conflation_raster", False):
+        result.result.release_factorisation()
+    return started[0] if started else None
+
+
 def _bands_alongside(result, args, preload=None):
     """The uncertainty bands, started in other processes (None: ``--no-bands``)."""
     if getattr(args, "no_bands", False) or not result.databases:
@@ -274,11 +284,7 @@ def cmd_adjust(args) -> int:
         for b in (b for b in [*started, pre] if b is not None):
             b.close()
         raise
-    bands = started[0] if started else None
-    if not getattr(args, "conflation_raster", False):
-        # nothing after the adjustment needs the factorisation (the bands took their
-        # covariances): about 1 GB at 10^6 shape points free for the tests and the layers
-        result.result.release_factorisation()
+    bands = _summarised(result, started, args)
     warm = Preload(_PLOTTING)  # the bands' processes have started (forked without it)
     report = None
     try:

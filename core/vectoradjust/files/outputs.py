@@ -13,6 +13,7 @@ import re
 import shutil
 import tempfile
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional
 
@@ -323,9 +324,31 @@ def _arrow_writing() -> dict:
     return {"use_arrow": True}
 
 
+@contextmanager
+def _unsynced_sqlite():
+    """GeoPackage writing without SQLite's wait for the disk after every transaction
+    (``OGR_SQLITE_SYNCHRONOUS=OFF``), the setting before restored afterwards.
+
+    :func:`write_outputs` writes into a temporary folder and moves the files into place
+    only when all are written, so an interrupted run leaves no half-written GeoPackage
+    among the outputs; the files are then as safe as any other file written without
+    ``fsync`` (the CSV files, summary.json)."""
+    try:
+        from pyogrio import get_gdal_config_option, set_gdal_config_options
+    except ImportError:
+        yield
+        return
+    old = get_gdal_config_option("OGR_SQLITE_SYNCHRONOUS")
+    set_gdal_config_options({"OGR_SQLITE_SYNCHRONOUS": "OFF"})
+    try:
+        yield
+    finally:
+        set_gdal_config_options({"OGR_SQLITE_SYNCHRONOUS": old})
+
+
 def _write_layer(gdf, path: Path, layer: Optional[str], fmt: str) -> list:
     """Write one layer; returns GDAL's warnings as run warnings instead of printing them."""
-    with warnings.catch_warnings(record=True) as caught:
+    with warnings.catch_warnings(record=True) as caught, _unsynced_sqlite():
         warnings.simplefilter("always")
         if hasattr(gdf, "write"):  # a LayerTable (Arrow, WKB): straight to GDAL
             gdf.write(path, layer, "GPKG" if fmt == "gpkg" else "ESRI Shapefile")
