@@ -357,6 +357,8 @@ def test_segment_bands_from_kept_covariances_once_the_factorisation_is_let_go(ad
         if not with_point_cov:
             run2.result.point_cov = None
         kept = {d.name: derived.segment_covariances(run2, d) for d in run2.databases}
+        share = {db.name: derived.segment_covariances(run2, db, (1, 2))}  # a process's own
+        assert len(share[db.name].start) == len(want.start_vertex) < len(kept[db.name].start)
         assert (kept[db.name].own_a is None) == with_point_cov
         run2.result.release_factorisation()
         assert run2.result.nep_obs is None and run2.result.a_eo is None
@@ -365,11 +367,13 @@ def test_segment_bands_from_kept_covariances_once_the_factorisation_is_let_go(ad
             derived.cross_covariance(run2.result, [0], [1])
         with pytest.raises(ProjectError):
             derived.segment_bands(run2, db, 0.9)
-        got = derived.segment_bands(run2, db, 0.9, part=(1, 2), covariances=kept)
-        assert np.array_equal(got.start_vertex, want.start_vertex)
-        assert np.allclose(got.cov_joint, want.cov_joint, rtol=1e-12, atol=1e-18)
-        if with_point_cov:  # the same numbers, so the same rings
-            assert np.array_equal(got.xy, want.xy) and np.array_equal(got.offsets, want.offsets)
+        for given in (kept, share):
+            got = derived.segment_bands(run2, db, 0.9, part=(1, 2), covariances=given)
+            assert np.array_equal(got.start_vertex, want.start_vertex)
+            assert np.allclose(got.cov_joint, want.cov_joint, rtol=1e-12, atol=1e-18)
+            if with_point_cov:  # the same numbers, so the same rings
+                assert np.array_equal(got.xy, want.xy)
+                assert np.array_equal(got.offsets, want.offsets)
     short = derived.SegmentCovariances(kept[db.name].start[1:], kept[db.name].cross[1:])
     with pytest.raises(ValueError, match="not those of database"):
         derived.segment_bands(run2, db, 0.9, covariances={db.name: short})

@@ -60,3 +60,28 @@ def test_bare_ids_cut_this_database_s_qualifier_only():
         assert other.tolist() == [(":" in s) and not s.startswith(pre) for s in ids.tolist()]
     bare, other = _bare_ids(np.array([], dtype=str), "OSM")
     assert len(bare) == 0 and len(other) == 0
+
+
+@pytest.mark.parametrize("chunk", [1, 3, 1 << 16])
+def test_string_hash_is_horners_rule_modulo_2_64(chunk):
+    """The product form gives the hash of the character loop, in any chunking, for
+    empty strings, padding and characters beyond the basic plane."""
+    words = ["", "a", "OSM:123:4", "tnm/\u00e9\u00df", "\U0001f600x", "z" * 40, "a\x00b"]
+    arr = np.array(words)
+    got = shapepoints.string_hash(arr, chunk=chunk)
+    width = arr.dtype.itemsize // 4
+    for word, h in zip(arr.tolist(), got.tolist()):
+        ref = 0
+        for ch in word.ljust(width, "\x00"):  # numpy pads with code point 0
+            ref = (ref * 1099511628211 + ord(ch)) % (1 << 64)
+        assert h == ref
+    assert len(set(got.tolist())) == len(set(arr.tolist()))
+
+
+def test_lookup_does_not_copy_text_ids_it_only_reads():
+    """ids given as text of one width are searched as they are (no copy is made)."""
+    keys = np.array(["b", "a", "c"])
+    ids = np.array(["c", "x", "a"])
+    assert shapepoints._as_text(keys) is keys
+    assert shapepoints.lookup(keys, ids).tolist() == [2, -1, 1]
+    assert shapepoints.lookup(np.array([1, 2, 3]), np.array(["3", "1"])).tolist() == [2, 0]

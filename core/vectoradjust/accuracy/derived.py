@@ -761,13 +761,16 @@ def _measured_segments(db: DatabaseResult, part: tuple = (0, 1)) -> np.ndarray:
     return a
 
 
-def segment_covariances(run: AdjustmentRun, db: DatabaseResult) -> SegmentCovariances:
+def segment_covariances(run: AdjustmentRun, db: DatabaseResult,
+                        part: tuple = (0, 1)) -> SegmentCovariances:
     """The covariance blocks :func:`segment_bands` needs, for every measured segment.
 
     Parameters
     ----------
     run : AdjustmentRun
     db : DatabaseResult
+    part : (int, int)
+        Only the segments of :func:`segment_bands` with the same ``part``.
 
     Returns
     -------
@@ -776,7 +779,7 @@ def segment_covariances(run: AdjustmentRun, db: DatabaseResult) -> SegmentCovari
     res = run.result
     _check_result(res)
     vp = np.asarray(db.vertex_point, np.int64)
-    a = _measured_segments(db)
+    a = _measured_segments(db, part)
     pa, pb = vp[a], vp[a + 1]
     own = res.point_cov is None
     return SegmentCovariances(a, cross_covariance(res, pa, pb),

@@ -103,15 +103,15 @@ def lookup(keys: np.ndarray, ids: np.ndarray) -> np.ndarray:
     confirmed on the strings themselves, and equal hashes among the keys (a collision or
     a repeated key) fall back to the search on the strings.
     """
-    keys = np.asarray(keys).astype(str)
-    ids = np.asarray(ids).astype(str)
+    keys = _as_text(keys)
+    ids = _as_text(ids)
     if len(keys) == 0:
         return np.full(len(ids), -1, np.int64)
     width = max(keys.dtype.itemsize, ids.dtype.itemsize) // 4
     if width == 0 or len(ids) == 0:
         return _lookup_strings(keys, ids)
-    keys = keys.astype(f"<U{width}")
-    ids = ids.astype(f"<U{width}")
+    keys = keys.astype(f"<U{width}", copy=False)  # copied only when the width differs
+    ids = ids.astype(f"<U{width}", copy=False)
     hk, hi = string_hash(keys), string_hash(ids)
     order = np.argsort(hk, kind="stable")
     sh = hk[order]
@@ -133,20 +133,36 @@ def _lookup_strings(keys: np.ndarray, ids: np.ndarray) -> np.ndarray:
     return np.where(found, order[pos], -1).astype(np.int64)
 
 
+def _as_text(a) -> np.ndarray:
+    """``a`` as a ``str`` array: itself when it is one already (no copy)."""
+    a = np.asarray(a)
+    return a if a.dtype.kind == "U" else a.astype(str)
+
+
 def string_codes(a: np.ndarray) -> np.ndarray:
     """The characters of a ``str`` array as code points (n, width), 0 after the end."""
-    a = np.ascontiguousarray(np.asarray(a).astype(str))
+    a = np.ascontiguousarray(_as_text(a))
     width = a.dtype.itemsize // 4
     return a.view(np.uint32).reshape(len(a), width) if width else np.zeros((len(a), 0),
                                                                            np.uint32)
 
 
-def string_hash(a: np.ndarray) -> np.ndarray:
-    """A 64-bit polynomial hash of each string of a ``str`` array (one width for all)."""
+#: multiplier of :func:`string_hash` (the 64-bit FNV prime)
+_HASH_MULT = 1099511628211
+
+
+def string_hash(a: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
+    """A 64-bit polynomial hash of each string of a ``str`` array (one width for all).
+
+    ``h = sum_i c_i m^(w - 1 - i)`` modulo 2^64 over the ``w`` code points ``c_i`` (0
+    after the end): the value of Horner's rule ``h = h m + c_i``, computed as one
+    product of the codes with the powers of ``m`` per chunk of strings (unsigned
+    arithmetic wraps modulo 2^64), which reads every string once.
+    """
     codes = string_codes(a)
-    h = np.zeros(len(codes), np.uint64)
-    mult = np.uint64(1099511628211)
-    for c in range(codes.shape[1]):  # a loop over the characters, not the strings
-        h *= mult
-        h += codes[:, c]
+    n, w = codes.shape
+    powers = np.array([pow(_HASH_MULT, w - 1 - i, 1 << 64) for i in range(w)], np.uint64)
+    h = np.zeros(n, np.uint64)
+    for start in range(0, n, chunk):  # chunks: the widened codes stay small
+        h[start:start + chunk] = codes[start:start + chunk].astype(np.uint64) @ powers
     return h

@@ -125,7 +125,6 @@ class _BandsAlongside:
     while the parent runs the ``[truth]`` tests and writes the other layers."""
 
     def __init__(self, result, out_dir) -> None:
-        from vectoradjust.accuracy.derived import segment_covariances
         from vectoradjust.cli.background import Background, workers
         from vectoradjust.files import derived_outputs as do
 
@@ -141,13 +140,22 @@ class _BandsAlongside:
             make, kw = do.uncertainty_bands_file, {"folder": self.folder}
         else:  # the polygons come back through the pipe
             make, kw = do.uncertainty_bands_frame, {}
-        # the covariances the bands take from the factorisation, computed now: the parent
-        # can let the factorisation go and still build the bands if a process fails
-        kw["covariances"] = {d.name: segment_covariances(result, d) for d in result.databases}
+        # the covariances the bands take from the factorisation, for building them here
+        # once it is let go (a failed process, no fork): filled in by keep()
+        self.kept: dict = {}
+        kw["kept"] = self.kept
         pid = os.getpid()
         self.jobs = ([Background(_band_share, make, result, pid, part=(i, n), **kw)
                       for i in range(n)] if n > 1
                      else [Background(_band_share, make, result, pid, enabled=False, **kw)])
+
+    def keep(self) -> None:
+        """Keep what the bands take from the factorisation (all segments), so that they
+        can still be built here after it is let go."""
+        from vectoradjust.accuracy.derived import segment_covariances
+
+        self.kept.update({d.name: segment_covariances(self.run, d)
+                          for d in self.run.databases})
 
     def result(self, progress=None):
         """The whole layer (waits for the processes, forwarding their progress)."""
@@ -164,13 +172,18 @@ class _BandsAlongside:
             shutil.rmtree(self.folder, ignore_errors=True)
 
 
-def _band_share(make, result, parent: int, **kwargs):
-    """``make(result, **kwargs)``; in a process of its own (not ``parent``) without the
-    factorisation, which the bands' kept covariances make unnecessary: the copy-on-write
-    pages of the parent's factorisation are not held by the band processes too."""
+def _band_share(make, result, parent: int, kept: dict, part: tuple = (0, 1), **kwargs):
+    """``make(result, part=part, **kwargs)`` with the covariances ``kept`` (if any).
+
+    In a process of its own (not ``parent``) the covariances of its share are taken from
+    the factorisation first and the factorisation is let go: its copy-on-write pages are
+    not held by the band processes too."""
     if os.getpid() != parent:
+        from vectoradjust.accuracy.derived import segment_covariances
+
+        kept = {d.name: segment_covariances(result, d, part) for d in result.databases}
         result.result.release_factorisation()
-    return make(result, **kwargs)
+    return make(result, part=part, covariances=kept or None, **kwargs)
 
 
 def _summarised(result, started: list, args):
@@ -178,9 +191,12 @@ def _summarised(result, started: list, args):
     factorisation let go: nothing after the adjustment needs it but the conflation rasters
     (the bands took their covariances), so about 1 GB at 10^6 shape points is free for
     the tests and the layers."""
+    bands = started[0] if started else None
     if not getattr(args, "conflation_raster", False):
+        if bands is not None:
+            bands.keep()
         result.result.release_factorisation()
-    return started[0] if started else None
+    return bands
 
 
 def _bands_alongside(result, args, preload=None):
