@@ -310,3 +310,21 @@ def test_vce_estimates_each_databases_accuracy(scenario):
         if f"{d.name}:v" in kept:
             assert not g["estimable"] and g["not_applied"]["relative_sd"] > 0.25
     assert abs(r.summary["covariance_scale"]["factor"] - 1) < 0.05
+
+
+def test_on_adjusted_sees_the_final_adjustment_before_the_tables(scenario):
+    """The command line forks the band processes in ``on_adjusted``: the adjustment and
+    its covariances are final there; the tables are filled in afterwards."""
+    seen = {}
+
+    def early(r):
+        seen["xyz"] = r.result.xyz.copy()
+        seen["cov"] = r.result.point_cov.copy()
+        seen["tables"] = (dict(r.control_points), [dict(d.features) for d in r.databases])
+        seen["summary"] = dict(r.summary)
+
+    out = run(scenario.to_project_data(), on_adjusted=early)
+    assert np.array_equal(seen["xyz"], out.result.xyz)
+    assert np.array_equal(seen["cov"], out.result.point_cov)
+    assert seen["tables"] == ({}, [{} for _ in out.databases]) and seen["summary"] == {}
+    assert out.control_points and all(d.features for d in out.databases)

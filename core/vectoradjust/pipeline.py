@@ -265,10 +265,12 @@ def run(
     is_cancelled : callable, optional
         Polled between iterations.
     on_adjusted : callable, optional
-        ``on_adjusted(run)`` as soon as the adjustment, the control points' and the
-        vertices' tables are final, before the statistics, the control-only run and the
-        conflation: the command line starts the uncertainty bands (which need no more)
-        in other processes there. ``run.summary`` is still empty at that point.
+        ``on_adjusted(run)`` as soon as the adjustment is final: before the control
+        points' and the vertices' tables, the statistics, the control-only run and the
+        conflation. The command line starts the uncertainty bands (which need no more)
+        in other processes there. ``run.summary`` is still empty at that point, and
+        ``run.control_points`` and the databases' ``vertices``, ``features`` and
+        ``truth`` are not filled in yet.
 
     Returns
     -------
@@ -299,11 +301,11 @@ def run(
         image_ids=image_ids.tolist(), obs_rows=setup.obs_rows, databases=setup.databases,
         control_points={}, summary={}, warnings=warnings, passes=solution.passes,
     )
+    if on_adjusted is not None:
+        on_adjusted(out)
     tabulate_control(out, cls.ctrl_of_obs, cls.is_check, cls.img_of_obs, setup.imap)
     for d in out.databases:
         tabulate_database(out, d)
-    if on_adjusted is not None:
-        on_adjusted(out)
     report(0.78, "feature length accuracy")
     _derived(out)
     report(0.81, "statistics, reliability and accuracy statements")
