@@ -69,7 +69,7 @@ __all__ = [
 ]
 
 EO_NAMES = ("XL", "YL", "ZL", "omega", "phi", "kappa")
-_CHUNK_OBS = 2048  # observations per block of the vectorised cofactor computation
+_CHUNK_OBS = 16384  # observations per block of the cofactors (as adjust.bundle)
 
 
 def critical_value(alpha0: float = 0.001) -> float:
