@@ -818,32 +818,23 @@ def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.
     """
     res = run.result
     kept = None if covariances is None else covariances.get(db.name)
-    if kept is None:
-        _check_result(res)
+    if kept is None:  # from the factorisation now
+        kept = segment_covariances(run, db, part)
     vp = np.asarray(db.vertex_point, np.int64)
     a = _measured_segments(db, part)
     pa, pb = vp[a], vp[a + 1]
+    row = np.searchsorted(kept.start, a)
+    if np.any(row >= len(kept.start)) or np.any(
+            kept.start[np.minimum(row, max(len(kept.start) - 1, 0))] != a):
+        raise ValueError(f"segment_bands: the covariances given are not those of "
+                         f"database {db.name!r}")
     cov = np.zeros((a.size, 6, 6))
-    if a.size and kept is not None:  # computed before the factorisation was let go
-        row = np.searchsorted(kept.start, a)
-        if np.any(row >= len(kept.start)) or np.any(kept.start[np.minimum(
-                row, len(kept.start) - 1)] != a):
-            raise ValueError(f"segment_bands: the covariances given are not those of "
-                             f"database {db.name!r}")
-        own = kept.own_a is None
+    if a.size:
+        own = kept.own_a is None  # the points' own blocks from point_cov
         cov[:, :3, :3] = res.point_cov[pa] if own else kept.own_a[row]
         cov[:, 3:, 3:] = res.point_cov[pb] if own else kept.own_b[row]
-        cab = kept.cross[row]
-        cov[:, :3, 3:] = cab
-        cov[:, 3:, :3] = np.swapaxes(cab, 1, 2)
-    elif a.size:
-        cov[:, :3, :3] = res.point_cov[pa] if res.point_cov is not None else \
-            cross_covariance(res, pa, pa)
-        cov[:, 3:, 3:] = res.point_cov[pb] if res.point_cov is not None else \
-            cross_covariance(res, pb, pb)
-        cab = cross_covariance(res, pa, pb)
-        cov[:, :3, 3:] = cab
-        cov[:, 3:, :3] = np.swapaxes(cab, 1, 2)
+        cov[:, :3, 3:] = kept.cross[row]
+        cov[:, 3:, :3] = np.swapaxes(kept.cross[row], 1, 2)
     sel = [0, 1, 3, 4]
     xy, offsets = g_band_rings(res.xyz[pa], res.xyz[pb], cov[:, sel][:, :, sel], confidence,
                                **kwargs)
