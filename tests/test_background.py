@@ -280,3 +280,69 @@ def test_the_last_progress_message_of_a_child_is_not_dropped(monkeypatch):
     assert job.forked
     assert job.result(lambda f, m="": seen.append((f, m))) == 7
     assert seen[-1] == (1.0, "finished") and len(seen) < 6
+
+
+def _sample_run(sample_dir):
+    from vectoradjust.files.project import load_project
+    from vectoradjust.files.readers import load_project_data
+    from vectoradjust.pipeline import run
+
+    return run(load_project_data(load_project(sample_dir / "project.toml")))
+
+
+def _arrow_rows(path):
+    import pyarrow as pa
+
+    with pa.OSFile(str(path), "rb") as f:
+        return pa.ipc.open_file(f).read_all()
+
+
+@fork_only
+@pytest.mark.io
+@pytest.mark.parametrize("saved", [True, False])
+def test_the_parent_keeps_the_covariances_the_band_processes_saved(sample_dir, tmp_path,
+                                                                  monkeypatch, saved):
+    """Each band process saves its share's covariances; the parent then computes none
+    (it reads a file only for a process that failed) and builds that share from the file
+    after the factorisation is gone: the same bands as the process's. A process that
+    could not save them leaves the parent to compute its share's covariances."""
+    pytest.importorskip("pyarrow")
+    import time
+
+    from vectoradjust.accuracy import derived
+    from vectoradjust.cli import commands
+    from vectoradjust.files import derived_outputs as do
+
+    monkeypatch.setenv("VECTORADJUST_WORKERS", "2")
+    if not do.arrow_layers():
+        pytest.skip("the band processes write Arrow files only with pyarrow and GDAL >= 3.8")
+    if not saved:
+        def cannot(path, kept):
+            raise OSError("disk full")
+        monkeypatch.setattr(commands, "_save_covariances", cannot)
+    result = _sample_run(sample_dir)
+    bands = commands._BandsAlongside(result, tmp_path / "out")
+    assert all(j.forked for j in bands.jobs) and bands.parts == [(0, 2), (1, 2)]
+    files = [commands._covariance_file(bands.folder, p) for p in bands.parts]
+    if saved:  # the processes save them first thing: wait for both files
+        deadline = time.monotonic() + 120
+        while not all(f.is_file() for f in files) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    made, real = [], derived.segment_covariances
+    monkeypatch.setattr(derived, "segment_covariances",
+                        lambda run, d, part=(0, 1): made.append(part) or real(run, d, part))
+    children = [j.result() for j in bands.jobs]  # the processes' own files
+    bands.keep()
+    result.result.release_factorisation()
+    names = [d.name for d in result.databases]
+    if saved:
+        assert made == [] and bands.kept == dict(zip(bands.parts, files))
+    else:
+        assert made == [(0, 2)] * len(names) + [(1, 2)] * len(names)
+        assert not any(f.exists() for f in files)
+    for part, child in zip(bands.parts, children):  # as if the process had failed
+        here = commands._band_share(do.uncertainty_bands_file, result, os.getpid(),
+                                    bands.kept, part=part, folder=tmp_path)
+        a, b = _arrow_rows(child), _arrow_rows(here)
+        assert a.num_rows == b.num_rows > 0 and a.equals(b)
+    bands.close()

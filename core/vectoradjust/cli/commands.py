@@ -140,22 +140,30 @@ class _BandsAlongside:
             make, kw = do.uncertainty_bands_file, {"folder": self.folder}
         else:  # the polygons come back through the pipe
             make, kw = do.uncertainty_bands_frame, {}
-        # the covariances the bands take from the factorisation, for building them here
-        # once it is let go (a failed process, no fork): filled in by keep()
+        # the covariances the bands take from the factorisation, for building a share here
+        # once it is let go (a failed process, no fork): filled in by keep(), per share
         self.kept: dict = {}
         kw["kept"] = self.kept
         pid = os.getpid()
-        self.jobs = ([Background(_band_share, make, result, pid, part=(i, n), **kw)
-                      for i in range(n)] if n > 1
+        self.parts = [(i, n) for i in range(n)] if n > 1 else [(0, 1)]
+        self.jobs = ([Background(_band_share, make, result, pid, part=p, **kw)
+                      for p in self.parts] if n > 1
                      else [Background(_band_share, make, result, pid, enabled=False, **kw)])
+        self.forked = [j.forked for j in self.jobs]  # (a job forgets its process at the end)
 
     def keep(self) -> None:
-        """Keep what the bands take from the factorisation (all segments), so that they
-        can still be built here after it is let go."""
+        """Keep what the bands take from the factorisation, so that every share can
+        still be built here after it is let go: the file a band process saved its
+        share's covariances in (:func:`_band_share`), else the covariances computed now."""
         from vectoradjust.accuracy.derived import segment_covariances
 
-        self.kept.update({d.name: segment_covariances(self.run, d)
-                          for d in self.run.databases})
+        for part, forked in zip(self.parts, self.forked):
+            saved = _covariance_file(self.folder, part) if forked else None
+            if saved is not None and saved.is_file():
+                self.kept[part] = saved  # read only if the process fails
+            else:
+                self.kept[part] = {d.name: segment_covariances(self.run, d, part)
+                                   for d in self.run.databases}
 
     def result(self, progress=None):
         """The whole layer (waits for the processes, forwarding their progress)."""
@@ -172,18 +180,65 @@ class _BandsAlongside:
             shutil.rmtree(self.folder, ignore_errors=True)
 
 
+def _covariance_file(folder, part: tuple) -> Optional[Path]:
+    """Where the band process of ``part`` saves its share's covariances (None: nowhere)."""
+    return None if folder is None else Path(folder) / f"covariances_{part[0]}_of_{part[1]}.npz"
+
+
+def _save_covariances(path: Path, kept: dict) -> None:
+    """The :class:`SegmentCovariances` of every database in one ``.npz`` file, moved into
+    place when complete (the parent takes the file as soon as it exists)."""
+    import numpy as np
+
+    arrays = {}
+    for i, (name, c) in enumerate(kept.items()):
+        arrays[f"name_{i}"] = np.array(name)
+        for field in ("start", "cross", "own_a", "own_b"):
+            if getattr(c, field) is not None:
+                arrays[f"{field}_{i}"] = getattr(c, field)
+    tmp = path.with_name("." + path.name + ".part")
+    with open(tmp, "wb") as f:
+        np.savez(f, n=np.array(len(kept)), **arrays)
+    os.replace(tmp, path)
+
+
+def _load_covariances(path: Path) -> dict:
+    """The covariances :func:`_save_covariances` saved, by database name."""
+    import numpy as np
+
+    from vectoradjust.accuracy.derived import SegmentCovariances
+
+    with np.load(path) as z:
+        return {str(z[f"name_{i}"]): SegmentCovariances(
+            *(z[f"{field}_{i}"] if f"{field}_{i}" in z.files else None
+              for field in ("start", "cross", "own_a", "own_b")))
+            for i in range(int(z["n"]))}
+
+
 def _band_share(make, result, parent: int, kept: dict, part: tuple = (0, 1), **kwargs):
-    """``make(result, part=part, **kwargs)`` with the covariances ``kept`` (if any).
+    """``make(result, part=part, **kwargs)`` with the covariances ``kept[part]`` (if any).
 
     In a process of its own (not ``parent``) the covariances of its share are taken from
     the factorisation first and the factorisation is let go: its copy-on-write pages are
-    not held by the band processes too."""
+    not held by the band processes too. With a ``folder`` the covariances are saved there
+    (:func:`_covariance_file`) before the bands are built: the parent then need not
+    compute them again for the case that this process fails."""
     if os.getpid() != parent:
         from vectoradjust.accuracy.derived import segment_covariances
 
-        kept = {d.name: segment_covariances(result, d, part) for d in result.databases}
+        mine = {d.name: segment_covariances(result, d, part) for d in result.databases}
         result.result.release_factorisation()
-    return make(result, part=part, covariances=kept or None, **kwargs)
+        path = _covariance_file(kwargs.get("folder"), part)
+        if path is not None:
+            try:
+                _save_covariances(path, mine)
+            except OSError:  # the parent computes them itself (keep)
+                pass
+    else:
+        mine = kept.get(part)
+        if isinstance(mine, Path):
+            mine = _load_covariances(mine)
+    return make(result, part=part, covariances=mine or None, **kwargs)
 
 
 def _summarised(result, started: list, args):
