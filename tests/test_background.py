@@ -332,13 +332,16 @@ def test_the_parent_keeps_the_covariances_the_band_processes_saved(sample_dir, t
     monkeypatch.setattr(derived, "segment_covariances",
                         lambda run, d, part=(0, 1): made.append(part) or real(run, d, part))
     children = [j.result() for j in bands.jobs]  # the processes' own files
-    bands.keep()
+    said = []
+    bands.keep(lambda f, m: said.append((f, m)))
     result.result.release_factorisation()
     names = [d.name for d in result.databases]
     if saved:
-        assert made == [] and bands.kept == dict(zip(bands.parts, files))
+        assert made == [] and bands.kept == dict(zip(bands.parts, files)) and said == []
     else:
         assert made == [(0, 2)] * len(names) + [(1, 2)] * len(names)
+        assert [m for _, m in said] == [  # the time it takes is not silent
+            f"uncertainty bands: covariances of the segments (share {i} of 2)" for i in (1, 2)]
         assert not any(f.exists() for f in files)
     for part, child in zip(bands.parts, children):  # as if the process had failed
         here = commands._band_share(do.uncertainty_bands_file, result, os.getpid(),

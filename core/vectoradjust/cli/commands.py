@@ -151,10 +151,11 @@ class _BandsAlongside:
                      else [Background(_band_share, make, result, pid, enabled=False, **kw)])
         self.forked = [j.forked for j in self.jobs]  # (a job forgets its process at the end)
 
-    def keep(self) -> None:
+    def keep(self, progress=None) -> None:
         """Keep what the bands take from the factorisation, so that every share can
         still be built here after it is let go: the file a band process saved its
-        share's covariances in (:func:`_band_share`), else the covariances computed now."""
+        share's covariances in (:func:`_band_share`), else the covariances computed now
+        (``progress(1.0, message)`` says so)."""
         from vectoradjust.accuracy.derived import segment_covariances
 
         for part, forked in zip(self.parts, self.forked):
@@ -162,6 +163,9 @@ class _BandsAlongside:
             if saved is not None and saved.is_file():
                 self.kept[part] = saved  # read only if the process fails
             else:
+                if progress is not None:
+                    progress(1.0, "uncertainty bands: covariances of the segments "
+                                  f"(share {part[0] + 1} of {part[1]})")
                 self.kept[part] = {d.name: segment_covariances(self.run, d, part)
                                    for d in self.run.databases}
 
@@ -226,6 +230,8 @@ def _band_share(make, result, parent: int, kept: dict, part: tuple = (0, 1), **k
     if os.getpid() != parent:
         from vectoradjust.accuracy.derived import segment_covariances
 
+        if kwargs.get("progress") is not None:
+            kwargs["progress"](0.0, "uncertainty bands: covariances of the segments")
         mine = {d.name: segment_covariances(result, d, part) for d in result.databases}
         result.result.release_factorisation()
         path = _covariance_file(kwargs.get("folder"), part)
@@ -241,7 +247,7 @@ def _band_share(make, result, parent: int, kept: dict, part: tuple = (0, 1), **k
     return make(result, part=part, covariances=mine or None, **kwargs)
 
 
-def _summarised(result, started: list, args):
+def _summarised(result, started: list, args, progress=None):
     """The bands' processes once the run is summarised (None: no bands), and the
     factorisation let go: nothing after the adjustment needs it but the conflation rasters
     (the bands took their covariances), so about 1 GB at 10^6 shape points is free for
@@ -249,7 +255,7 @@ def _summarised(result, started: list, args):
     bands = started[0] if started else None
     if not getattr(args, "conflation_raster", False):
         if bands is not None:
-            bands.keep()
+            bands.keep(progress)
         result.result.release_factorisation()
     return bands
 
@@ -355,7 +361,7 @@ def cmd_adjust(args) -> int:
         for b in (b for b in [*started, pre] if b is not None):
             b.close()
         raise
-    bands = _summarised(result, started, args)
+    bands = _summarised(result, started, args, bar)
     warm = Preload(_PLOTTING)  # the bands' processes have started (forked without it)
     report = None
     try:
