@@ -7,13 +7,19 @@ Run on demand (not part of the test suite), from the repository root:
     python benchmarks/run.py --no-cli        # solver rows only
     python benchmarks/run.py --cli-max 1e5   # the whole-CLI column up to 10^5 only
     python benchmarks/run.py --core /path/to/other/checkout/core   # time another version
+    python benchmarks/run.py --repeat 3      # each whole-CLI run 3 times: median, range
 
 Rows (each measurement in its own child process; ``solve s`` is wall time, ``CPU s`` the
 CPU time of the solving process, all its threads - on a machine shared with other jobs
 the wall time depends on the load, the CPU time much less):
 
 Peak memory comes from ``resource.getrusage(RUSAGE_CHILDREN)`` of a small wrapper
-process whose only child is the measured command.
+process whose only child is the measured command; so does ``CLI CPU s``, the user +
+system time of the whole CLI run with every process it forked (band processes, report,
+``[truth]``). That CPU time divided by the cores is the least wall time any overlap of
+the stages could reach. With ``--repeat N`` each CLI run is taken N times: ``CLI s`` is
+the median wall time (the range is printed below the table), ``CLI CPU s`` the median
+CPU time and ``CLI MB`` the largest peak.
 
 * ``pair N``: a stereo pair with N shape points (:func:`vectoradjust.simulate.block.make_block`,
   60 % forward overlap, control and tie points): the time of
@@ -79,13 +85,15 @@ np.save(sys.argv[2], res.xyz)
 _WRAP = (
     "import resource, subprocess, sys\n"
     "rc = subprocess.call(sys.argv[2:])\n"
-    "open(sys.argv[1], 'w').write(str(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss))\n"
+    "u = resource.getrusage(resource.RUSAGE_CHILDREN)\n"
+    "open(sys.argv[1], 'w').write(f'{u.ru_maxrss} {u.ru_utime + u.ru_stime}')\n"
     "sys.exit(rc)\n"
 )
 
 
-def _child(cmd: list, env: dict) -> tuple[float, float, str]:
-    """Run ``cmd``; wall time (s), peak RSS (MB) of that process, its stdout."""
+def _child(cmd: list, env: dict, cpu: bool = False):
+    """Run ``cmd``; wall time (s), peak RSS (MB) of the largest process, its stdout (and
+    with ``cpu`` the user + system time of it and every process it waited for)."""
     with tempfile.NamedTemporaryFile(suffix=".rss", delete=False) as fh:
         rss_file = fh.name
     t0 = time.perf_counter()
@@ -94,9 +102,11 @@ def _child(cmd: list, env: dict) -> tuple[float, float, str]:
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-3000:]}")
-    rss = int(Path(rss_file).read_text()) / 1024.0
+    maxrss, cpu_s = Path(rss_file).read_text().split()
     os.unlink(rss_file)
-    return wall, rss, proc.stdout
+    if cpu:
+        return wall, int(maxrss) / 1024.0, proc.stdout, float(cpu_s)
+    return wall, int(maxrss) / 1024.0, proc.stdout
 
 
 def _env(core: Path) -> dict:
@@ -129,17 +139,24 @@ def _solve_row(label: str, blk, work: Path, core: Path) -> dict:
     return rec
 
 
-def _cli_row(n: int, work: Path, core: Path) -> tuple[float, float]:
+def _cli_row(n: int, work: Path, core: Path, repeat: int = 1) -> dict:
+    """``vectoradjust adjust`` on the simulated project of ``n`` shape points, ``repeat``
+    times: median, least and largest wall time, median CPU time, largest peak."""
+    import statistics
+
     from vectoradjust.simulate import make_scenario, write_project
 
     proj = work / f"project_{n}"
     if not (proj / "project.toml").exists():
         sc = make_scenario(1, n_shape_points=n, databases=("OSM", "TNM"))
         write_project(sc, proj)
-    wall, rss, _ = _child([sys.executable, "-m", "vectoradjust.cli", "adjust",
-                           str(proj / "project.toml"), "--out", str(work / f"out_{n}"), "-q"],
-                          _env(core))
-    return wall, rss
+    runs = [_child([sys.executable, "-m", "vectoradjust.cli", "adjust",
+                    str(proj / "project.toml"), "--out", str(work / f"out_{n}"), "-q"],
+                   _env(core), cpu=True) for _ in range(max(1, repeat))]
+    walls = [r[0] for r in runs]
+    return {"wall": statistics.median(walls), "min": min(walls), "max": max(walls),
+            "cpu": statistics.median(r[3] for r in runs), "rss": max(r[1] for r in runs),
+            "runs": len(runs)}
 
 
 def _least_squares(blk, ours_xyz):
@@ -209,6 +226,8 @@ def main(argv=None) -> int:
     ap.add_argument("--core", type=Path, default=CORE,
                     help="core/ directory of the version to time (default: this checkout)")
     ap.add_argument("--work", type=Path, help="keep problems and outputs here")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="whole-CLI runs per row (median and range; default 1)")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(CORE))
     from vectoradjust.simulate.block import make_block
@@ -220,7 +239,9 @@ def main(argv=None) -> int:
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {os.cpu_count()} cores")
     print(f"{'row':14s} {'points':>9s} {'obs':>9s} {'solve s':>8s} {'CPU s':>7s} "
           f"{'CE/LE s':>8s} "
-          f"{'solve MB':>9s} {'CLI s':>8s} {'CLI MB':>8s} {'it':>3s} {'s0^2':>7s}")
+          f"{'solve MB':>9s} {'CLI s':>8s} {'CLI CPU s':>10s} {'CLI MB':>8s} {'it':>3s} "
+          f"{'s0^2':>7s}")
+    ranges = []
     pair_1e4 = None
     rows = [(f"pair {n:.0e}", dict(n_strips=1, images_per_strip=2, n_shape_points=n))
             for n in sizes]
@@ -230,12 +251,17 @@ def main(argv=None) -> int:
     for label, kw in rows:
         blk = make_block(**kw, seed=1)
         rec = _solve_row(label, blk, work, args.core)
-        cli = (float("nan"), float("nan"))
+        nan = float("nan")
+        cli = {"wall": nan, "cpu": nan, "rss": nan}
         if label.startswith("pair") and not args.no_cli and kw["n_shape_points"] <= args.cli_max:
-            cli = _cli_row(kw["n_shape_points"], work, args.core)
+            cli = _cli_row(kw["n_shape_points"], work, args.core, args.repeat)
+            if cli["runs"] > 1:
+                ranges.append(f"{label}: {cli['runs']} CLI runs, {cli['min']:.1f}-"
+                              f"{cli['max']:.1f} s")
         print(f"{label:14s} {rec['points']:9d} {rec['observations']:9d} {rec['adjust']:8.2f} "
               f"{rec.get('adjust_cpu', float('nan')):7.2f} "
-              f"{rec['ce90']:8.2f} {rec['solve_rss']:9.0f} {cli[0]:8.1f} {cli[1]:8.0f} "
+              f"{rec['ce90']:8.2f} {rec['solve_rss']:9.0f} {cli['wall']:8.1f} "
+              f"{cli['cpu']:10.1f} {cli['rss']:8.0f} "
               f"{rec['iterations']:3d} {rec['sigma0_squared']:7.4f}", flush=True)
         if label == "pair 1e+04":
             pair_1e4 = (blk, rec)
@@ -247,6 +273,8 @@ def main(argv=None) -> int:
         print(f"least_squares on pair 1e4 (trf/lsmr, analytic sparse Jacobian): {dt:.2f} s "
               f"({nfev} evaluations) vs {rec['adjust']:.2f} s: ratio {dt / rec['adjust']:.1f}; "
               f"largest coordinate difference {diff:.2e} m")
+    for line in ranges:
+        print(f"# {line}")
     print(f"# files in {work}")
     return 0
 
