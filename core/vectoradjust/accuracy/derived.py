@@ -833,8 +833,9 @@ def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.
         own = kept.own_a is None  # the points' own blocks from point_cov
         cov[:, :3, :3] = res.point_cov[pa] if own else kept.own_a[row]
         cov[:, 3:, 3:] = res.point_cov[pb] if own else kept.own_b[row]
-        cov[:, :3, 3:] = kept.cross[row]
-        cov[:, 3:, :3] = np.swapaxes(kept.cross[row], 1, 2)
+        cab = kept.cross[row]
+        cov[:, :3, 3:] = cab
+        cov[:, 3:, :3] = np.swapaxes(cab, 1, 2)
     sel = [0, 1, 3, 4]
     xy, offsets = g_band_rings(res.xyz[pa], res.xyz[pb], cov[:, sel][:, :, sel], confidence,
                                **kwargs)

@@ -192,14 +192,15 @@ def _covariance_file(folder, part: tuple) -> Optional[Path]:
 def _save_covariances(path: Path, kept: dict) -> None:
     """The :class:`SegmentCovariances` of every database in one ``.npz`` file, moved into
     place when complete (the parent takes the file as soon as it exists)."""
+    import dataclasses
+
     import numpy as np
 
     arrays = {}
     for i, (name, c) in enumerate(kept.items()):
         arrays[f"name_{i}"] = np.array(name)
-        for field in ("start", "cross", "own_a", "own_b"):
-            if getattr(c, field) is not None:
-                arrays[f"{field}_{i}"] = getattr(c, field)
+        arrays.update({f"{f.name}_{i}": getattr(c, f.name) for f in dataclasses.fields(c)
+                       if getattr(c, f.name) is not None})  # (asdict would copy them)
     tmp = path.with_name("." + path.name + ".part")
     with open(tmp, "wb") as f:
         np.savez(f, n=np.array(len(kept)), **arrays)
@@ -208,14 +209,16 @@ def _save_covariances(path: Path, kept: dict) -> None:
 
 def _load_covariances(path: Path) -> dict:
     """The covariances :func:`_save_covariances` saved, by database name."""
+    import dataclasses
+
     import numpy as np
 
     from vectoradjust.accuracy.derived import SegmentCovariances
 
+    names = [f.name for f in dataclasses.fields(SegmentCovariances)]
     with np.load(path) as z:
         return {str(z[f"name_{i}"]): SegmentCovariances(
-            *(z[f"{field}_{i}"] if f"{field}_{i}" in z.files else None
-              for field in ("start", "cross", "own_a", "own_b")))
+            **{k: z[f"{k}_{i}"] for k in names if f"{k}_{i}" in z.files})
             for i in range(int(z["n"]))}
 
 
