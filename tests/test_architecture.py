@@ -33,6 +33,11 @@ HEART_MAX_LAYER = LAYERS["pipeline"]
 HEART_THIRD_PARTY = {"numpy", "scipy"}
 #: lazily imported optional packages allowed in the heart, module -> packages
 HEART_LAZY_ALLOWED = {"vectoradjust.accuracy.buffer": {"shapely"}}
+#: modules of the heart that import an optional package at their top and are themselves
+#: only imported lazily, by one module that falls back when the import fails
+HEART_OPTIONAL_MODULES = {
+    "vectoradjust.accuracy._bandkernel": ({"numba"}, "vectoradjust.accuracy.derived"),
+}
 #: functions allowed over MAX_FUNCTION_LINES, with the reason
 LONG_FUNCTIONS_ALLOWED: dict = {}
 MAX_FUNCTION_LINES = 80
@@ -183,8 +188,18 @@ def test_heart_imports_only_numpy_and_scipy():
                 continue
             if lazy and top in HEART_LAZY_ALLOWED.get(mod, set()):
                 continue
+            if top in HEART_OPTIONAL_MODULES.get(mod, (set(),))[0]:
+                continue
             bad.append(f"{mod} imports {imp}" + (" (lazily)" if lazy else ""))
     assert not bad, "\n".join(sorted(set(bad)))
+
+
+def test_optional_heart_modules_are_imported_lazily_by_their_one_user():
+    for opt, (_, user) in HEART_OPTIONAL_MODULES.items():
+        assert opt in MODULES
+        users = {(mod, lazy) for mod, path in MODULES.items()
+                 for imp, lazy in _imports(path, mod) if imp == opt}
+        assert users == {(user, True)}, (opt, users)
 
 
 def test_core_never_imports_qgis():

@@ -596,6 +596,11 @@ def g_band_rings(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
     for ``shapely.linearrings(xy, indices=...)`` without a Python list of arrays. The
     parameters are those of :func:`g_band_batch`.
 
+    With numba installed, ``_KERNEL_MIN`` segments or more are built by the compiled
+    kernel of :mod:`vectoradjust.accuracy._bandkernel` (the same expressions one segment
+    at a time, the same rings: ``tests/test_gband_kernel.py``), fewer, or all when
+    ``VECTORADJUST_NUMBA=0``, by the numpy code.
+
     Returns
     -------
     xy : numpy.ndarray, shape (N, 2)
@@ -612,6 +617,9 @@ def g_band_rings(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
     if n_pairs < 1 or n_directions < 8 or n_directions % 4:
         raise ValueError("g_band_batch needs n_pairs >= 1 and n_directions a multiple of 4, >= 8")
     k = prop.confidence_scale(confidence, 2)
+    kernel = _ring_kernel() if m >= _KERNEL_MIN else None
+    if kernel is not None:
+        return _compiled_rings(kernel, a, b, c4, k, n_pairs, n_directions, progress)
     # bounded temporaries: (chunk, P, P (M / 2 + 1)) per chunk
     chunk = max(16, _BAND_BUDGET // (n_pairs * n_pairs * (n_directions // 2 + 1)))
     xys, offs, base = [], [np.zeros(1, np.int64)], 0
@@ -625,6 +633,88 @@ def g_band_rings(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
             progress(min(i + chunk, m) / m)
     xy = np.concatenate(xys) if xys else np.zeros((0, 2))
     return xy, np.concatenate(offs)
+
+
+#: segments per call of the compiled ring kernel (progress and cancel in between)
+_KERNEL_CHUNK = 8_192
+#: fewer segments go to the numpy code: loading the compiled kernel from numba's cache
+#: costs about 0.3 s per process (about 8 s the first time, when numba compiles it)
+_KERNEL_MIN = 10_000
+_KERNEL: list = []  # the compiled kernel once looked for (None: numpy only)
+
+
+def warm_ring_kernel(n_segments: int) -> bool:
+    """Load (or compile, the first time) the compiled ring kernel now, if
+    :func:`g_band_rings` will use it for ``n_segments`` segments; e.g. once in a parent
+    before it forks the processes that build the bands. True if it is ready."""
+    kernel = _ring_kernel() if n_segments >= _KERNEL_MIN else None
+    if kernel is None:
+        return False
+    _compiled_rings(kernel, np.zeros((1, 2)), np.ones((1, 2)), np.eye(4)[None], 1.0, 6, 24,
+                    None)
+    return True
+
+
+def _ring_kernel():
+    """The compiled ring kernel (:mod:`._bandkernel`, numba), or None without numba.
+
+    Looked for once per process. ``VECTORADJUST_NUMBA=0`` in the environment keeps the
+    numpy code (e.g. to compare the two).
+    """
+    import os
+
+    if os.environ.get("VECTORADJUST_NUMBA", "1").strip() in ("0", "no", "false"):
+        return None
+    if not _KERNEL:
+        try:
+            from vectoradjust.accuracy import _bandkernel
+        except ImportError:  # no numba (e.g. QGIS's Python): the numpy code
+            _KERNEL.append(None)
+        else:
+            _KERNEL.append(_bandkernel.rings)
+    return _KERNEL[0]
+
+
+def _compiled_rings(kernel, a, b, c4, k, n_pairs, n_directions, progress):
+    """:func:`g_band_rings` by the compiled kernel, ``_KERNEL_CHUNK`` segments a call;
+    the few segments it leaves (an input or a point not finite) by the numpy code."""
+    m = a.shape[0]
+    t = np.linspace(0.0, 1.0, n_pairs + 1)
+    du = 2.0 * np.pi / n_directions
+    ang = du * np.arange(n_directions)
+    uc, us = np.cos(ang), np.sin(ang)
+    uc[np.abs(uc) < 1e-15], us[np.abs(us) < 1e-15] = 0.0, 0.0
+    const = (k, t, (1 - t) ** 2, 2 * (1 - t) * t, t * t, uc, us, float(np.tan(du)),
+             float(np.tan(0.5 * du)), du)
+    xys, counts = [], []
+    for i in range(0, m, _KERNEL_CHUNK):
+        j = min(i + _KERNEL_CHUNK, m)
+        xy, cnt, ok = kernel(np.ascontiguousarray(a[i:j]), np.ascontiguousarray(b[i:j]),
+                             np.ascontiguousarray(c4[i:j]), *const)
+        if not ok.all():
+            xy, cnt = _splice(xy, cnt, ok, *_g_band_flat(
+                a[i:j][~ok], b[i:j][~ok], c4[i:j][~ok], k, n_pairs, n_directions))
+        xys.append(xy)
+        counts.append(cnt)
+        if progress is not None:
+            progress(j / m)
+    xy = np.concatenate(xys) if xys else np.zeros((0, 2))
+    return xy, np.concatenate([np.zeros(1, np.int64), np.cumsum(np.concatenate(counts or [
+        np.zeros(0, np.int64)]))])
+
+
+def _splice(xy, cnt, ok, xy_b, off_b):
+    """Rings ``(xy, cnt)`` of the rows ``ok`` and ``(xy_b, off_b)`` of the others, put
+    together in row order."""
+    cnt = np.asarray(cnt, np.int64).copy()
+    cnt[~ok] = np.diff(off_b)
+    start_a = np.concatenate([[0], np.cumsum(cnt[ok])[:-1]]).astype(np.int64)
+    start = np.empty(len(cnt), np.int64)
+    start[ok], start[~ok] = start_a, off_b[:-1] + len(xy)  # rows of [xy; xy_b]
+    src = np.concatenate([xy, xy_b])
+    first = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    take = np.repeat(start - first, cnt) + np.arange(int(cnt.sum()))
+    return src[take], cnt
 
 
 def g_band_batch(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,

@@ -269,6 +269,11 @@ def _bands_alongside(result, args, preload=None):
         return None
     if preload is not None:  # no module half imported in the children
         preload.wait()
+    from vectoradjust.accuracy.derived import warm_ring_kernel
+    from vectoradjust.cli.background import workers
+
+    # the compiled ring kernel loaded once here, not in every band process
+    warm_ring_kernel(sum(len(d.vertex_point) for d in result.databases) // workers())
     return _BandsAlongside(result, args.out)
 
 

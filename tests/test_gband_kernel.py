@@ -1,0 +1,163 @@
+"""The compiled G-band ring kernel (numba, issue 13) against the numpy code.
+
+Truth here is the vectorised numpy construction of :func:`derived.g_band_rings`, which
+``tests/test_gband_envelope.py`` checks against the definition of the band (sampled
+ellipses, dense envelopes, ``union_all``). The kernel repeats its floating-point
+expressions in the same order, so the rings must come out the same point for point.
+The kernel is only used where numba is installed: without it (QGIS's Python) the module
+is skipped and the numpy code is what runs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vectoradjust.accuracy import derived
+
+pytest.importorskip("numba")
+
+
+@pytest.fixture
+def kernel(monkeypatch):
+    """The compiled kernel for any number of segments."""
+    monkeypatch.delenv("VECTORADJUST_NUMBA", raising=False)
+    monkeypatch.setattr(derived, "_KERNEL_MIN", 0)
+    k = derived._ring_kernel()
+    assert k is not None
+    return k
+
+
+def _numpy_rings(monkeypatch, *args, **kwargs):
+    with monkeypatch.context() as mp:
+        mp.setenv("VECTORADJUST_NUMBA", "0")
+        assert derived._ring_kernel() is None
+        return derived.g_band_rings(*args, **kwargs)
+
+
+def _segments(m, seed, scale=0.06, length=(0.8, 2.5)):
+    """Segments of random direction with correlated end-point covariances."""
+    rng = np.random.default_rng(seed)
+    p1 = rng.normal(size=(m, 2)) * 50
+    ang = rng.uniform(0, 2 * np.pi, m)
+    p2 = p1 + rng.uniform(*length, (m, 1)) * np.column_stack([np.cos(ang), np.sin(ang)])
+    a = rng.normal(size=(m, 4, 4)) * scale
+    return p1, p2, a @ np.swapaxes(a, 1, 2) + np.eye(4) * scale**2
+
+
+def _helsinki_segments():
+    """Consecutive vertices of the real Helsinki OSM centrelines (tests/data/helsinki,
+    ODbL, (c) OpenStreetMap contributors), with covariances like an adjustment's: the
+    two end points share most of their error (correlation 0.6 .. 0.95)."""
+    from pathlib import Path
+
+    from vectoradjust.simulate import read_road_lines
+
+    lines = read_road_lines(Path(__file__).parent / "data" / "helsinki"
+                            / "helsinki_roads.geojson")
+    p1 = np.concatenate([np.asarray(c, float)[:-1, :2] for c in lines.lines])
+    p2 = np.concatenate([np.asarray(c, float)[1:, :2] for c in lines.lines])
+    m = len(p1)
+    rng = np.random.default_rng(5)
+    own = rng.normal(size=(m, 2, 2)) * 0.3
+    own = own @ np.swapaxes(own, 1, 2) + np.eye(2) * 0.01
+    rho = rng.uniform(0.6, 0.95, m)[:, None, None]
+    c = np.zeros((m, 4, 4))
+    c[:, :2, :2] = own
+    c[:, 2:, 2:] = own * rng.uniform(0.7, 1.4, (m, 1, 1))
+    c[:, :2, 2:] = rho * own
+    c[:, 2:, :2] = rho * np.swapaxes(own, 1, 2)
+    return p1, p2, c
+
+
+@pytest.mark.parametrize("n_pairs,n_directions", [(6, 24), (3, 8), (8, 32), (1, 12)])
+def test_kernel_rings_equal_the_numpy_rings(kernel, monkeypatch, n_pairs, n_directions):
+    p1, p2, c = _segments(3000, n_pairs)
+    ref = _numpy_rings(monkeypatch, p1, p2, c, 0.9, n_pairs, n_directions)
+    got = derived.g_band_rings(p1, p2, c, 0.9, n_pairs, n_directions)
+    assert np.array_equal(got[1], ref[1])
+    assert np.array_equal(got[0], ref[0])
+
+
+def test_kernel_rings_equal_the_numpy_rings_on_real_roads(kernel, monkeypatch):
+    p1, p2, c = _helsinki_segments()
+    assert len(p1) > 700
+    for conf, scale in ((0.9, 1.0), (0.5, 1.0), (0.9, 0.01), (0.9, 100.0)):
+        ref = _numpy_rings(monkeypatch, p1, p2, c * scale, conf)
+        got = derived.g_band_rings(p1, p2, c * scale, conf)
+        assert np.array_equal(got[1], ref[1]) and np.array_equal(got[0], ref[0])
+
+
+def test_kernel_on_degenerate_segments(kernel, monkeypatch):
+    """Zero length, no uncertainty, singular, long and short segments, and inputs that
+    are not finite (left to the numpy code, spliced in at their place)."""
+    p1, p2, c = _segments(400, 9)
+    p2[:20] = p1[:20]  # zero length
+    c[20:40] = 0.0  # no uncertainty: the segment itself
+    v = np.random.default_rng(2).normal(size=(20, 4, 1))
+    c[40:60] = v @ np.swapaxes(v, 1, 2) * 0.01  # rank one
+    p2[60:80] = p1[60:80] + 1e-4  # much shorter than the ellipses
+    p2[80:100] = p1[80:100] + 5e3  # much longer
+    c[100:120] *= 1e6
+    c[120:125] = np.nan  # not finite: empty rings
+    p1[125:130, 0] = np.inf
+    c[130, 1, 1] = -1.0  # not positive (clipped like the numpy code)
+    ref = _numpy_rings(monkeypatch, p1, p2, c)
+    got = derived.g_band_rings(p1, p2, c)
+    assert np.array_equal(got[1], ref[1]) and np.array_equal(got[0], ref[0])
+    assert np.all(np.diff(got[1])[120:130] == 0)  # the rows the numpy code took
+
+
+def test_splice_puts_rings_back_in_row_order():
+    xy = np.arange(10.0).reshape(5, 2)  # rows 0 (2 points) and 2 (3 points)
+    xy_b = -np.arange(8.0).reshape(4, 2)  # rows 1 (0 points), 3 (4 points)
+    ok = np.array([True, False, True, False])
+    out, cnt = derived._splice(xy, np.array([2, 0, 3, 0]), ok, xy_b, np.array([0, 0, 4]))
+    assert list(cnt) == [2, 0, 3, 4]
+    assert np.array_equal(out, np.concatenate([xy[:2], xy[2:], xy_b]))
+
+
+def test_kernel_reports_progress_per_chunk(kernel, monkeypatch):
+    monkeypatch.setattr(derived, "_KERNEL_CHUNK", 64)
+    p1, p2, c = _segments(300, 4)
+    seen = []
+    xy, off = derived.g_band_rings(p1, p2, c, progress=seen.append)
+    assert seen == [64 / 300, 128 / 300, 192 / 300, 256 / 300, 1.0]
+    ref = _numpy_rings(monkeypatch, p1, p2, c)
+    assert np.array_equal(off, ref[1]) and np.array_equal(xy, ref[0])
+    xy0, off0 = derived.g_band_rings(p1[:0], p2[:0], c[:0])
+    assert xy0.shape == (0, 2) and list(off0) == [0]
+
+
+def test_kernel_only_for_many_segments_and_warmed_once(monkeypatch):
+    monkeypatch.delenv("VECTORADJUST_NUMBA", raising=False)
+    used = []
+    real = derived._compiled_rings
+    monkeypatch.setattr(derived, "_compiled_rings", lambda *a: used.append(len(a[1])) or real(*a))
+    p1, p2, c = _segments(50, 1)
+    derived.g_band_rings(p1, p2, c)
+    assert used == []  # fewer than _KERNEL_MIN: numpy
+    assert not derived.warm_ring_kernel(derived._KERNEL_MIN - 1) and used == []
+    assert derived.warm_ring_kernel(derived._KERNEL_MIN) and used == [1]
+    monkeypatch.setattr(derived, "_KERNEL_MIN", 50)
+    derived.g_band_rings(p1, p2, c)
+    assert used == [1, 50]
+
+
+def test_without_numba_the_numpy_code_runs(monkeypatch):
+    import sys
+
+    import vectoradjust.accuracy as package
+
+    monkeypatch.setattr(derived, "_KERNEL", [])
+    monkeypatch.setitem(sys.modules, "vectoradjust.accuracy._bandkernel", None)
+    monkeypatch.delattr(package, "_bandkernel", raising=False)
+    assert derived._ring_kernel() is None  # the import failed: numpy, and remembered
+    assert derived._KERNEL == [None]
+    assert not derived.warm_ring_kernel(10**6)
+    monkeypatch.setattr(derived, "_KERNEL", [])
+    monkeypatch.delitem(sys.modules, "vectoradjust.accuracy._bandkernel")
+    monkeypatch.setenv("VECTORADJUST_NUMBA", "0")
+    assert derived._ring_kernel() is None and derived._KERNEL == []
+    monkeypatch.delenv("VECTORADJUST_NUMBA")
+    assert derived._ring_kernel() is not None
