@@ -129,19 +129,40 @@ def test_kernel_reports_progress_per_chunk(kernel, monkeypatch):
     assert xy0.shape == (0, 2) and list(off0) == [0]
 
 
-def test_kernel_only_for_many_segments_and_warmed_once(monkeypatch):
+def test_kernel_only_for_many_segments_and_loaded_once(monkeypatch):
     monkeypatch.delenv("VECTORADJUST_NUMBA", raising=False)
+    monkeypatch.setattr(derived, "_KERNEL", [])  # not looked for yet in this process
     used = []
     real = derived._compiled_rings
     monkeypatch.setattr(derived, "_compiled_rings", lambda *a: used.append(len(a[1])) or real(*a))
     p1, p2, c = _segments(50, 1)
     derived.g_band_rings(p1, p2, c)
-    assert used == []  # fewer than _KERNEL_MIN: numpy
+    assert used == [] and derived._KERNEL == []  # fewer than _KERNEL_MIN: numpy only
     assert not derived.warm_ring_kernel(derived._KERNEL_MIN - 1) and used == []
-    assert derived.warm_ring_kernel(derived._KERNEL_MIN) and used == [1]
+    assert derived.warm_ring_kernel(derived._KERNEL_MIN) and used == [1]  # loaded now
+    assert derived.warm_ring_kernel(derived._KERNEL_MIN) and used == [1]  # once
     monkeypatch.setattr(derived, "_KERNEL_MIN", 50)
     derived.g_band_rings(p1, p2, c)
     assert used == [1, 50]
+
+
+def test_a_kernel_that_fails_leaves_the_numpy_code_with_a_warning(monkeypatch):
+    from vectoradjust.accuracy import _bandkernel
+
+    def broken(*args):
+        raise RuntimeError("cannot cache function 'rings': no locator available")
+
+    monkeypatch.delenv("VECTORADJUST_NUMBA", raising=False)
+    monkeypatch.setattr(derived, "_KERNEL", [])
+    monkeypatch.setattr(_bandkernel, "rings", broken)
+    with pytest.warns(RuntimeWarning, match="no locator available.*numpy code"):
+        assert derived._ring_kernel() is None
+    assert derived._KERNEL == [None]
+    monkeypatch.setattr(derived, "_KERNEL_MIN", 0)
+    p1, p2, c = _segments(40, 3)
+    got = derived.g_band_rings(p1, p2, c)
+    ref = _numpy_rings(monkeypatch, p1, p2, c)
+    assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
 
 
 def test_without_numba_the_numpy_code_runs(monkeypatch):

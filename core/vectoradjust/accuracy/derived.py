@@ -647,16 +647,12 @@ def warm_ring_kernel(n_segments: int) -> bool:
     """Load (or compile, the first time) the compiled ring kernel now, if
     :func:`g_band_rings` will use it for ``n_segments`` segments; e.g. once in a parent
     before it forks the processes that build the bands. True if it is ready."""
-    kernel = _ring_kernel() if n_segments >= _KERNEL_MIN else None
-    if kernel is None:
-        return False
-    _compiled_rings(kernel, np.zeros((1, 2)), np.ones((1, 2)), np.eye(4)[None], 1.0, 6, 24,
-                    None)
-    return True
+    return n_segments >= _KERNEL_MIN and _ring_kernel() is not None
 
 
 def _ring_kernel():
-    """The compiled ring kernel (:mod:`._bandkernel`, numba), or None without numba.
+    """The compiled ring kernel (:mod:`._bandkernel`, numba), loaded from numba's cache
+    or compiled, or None: no numba, or numba cannot compile it here (a warning says why).
 
     Looked for once per process. ``VECTORADJUST_NUMBA=0`` in the environment keeps the
     numpy code (e.g. to compare the two).
@@ -669,6 +665,17 @@ def _ring_kernel():
         try:
             from vectoradjust.accuracy import _bandkernel
         except ImportError:  # no numba (e.g. QGIS's Python): the numpy code
+            _KERNEL.append(None)
+            return None
+        try:  # compiled (about 8 s, once) or loaded from numba's cache (about 0.3 s) now
+            _compiled_rings(_bandkernel.rings, np.zeros((1, 2)), np.ones((1, 2)),
+                            np.eye(4)[None], 1.0, 6, 24, None)
+        except Exception as exc:  # noqa: BLE001 - any failure of numba: the numpy code
+            import warnings
+
+            warnings.warn(f"the compiled G-band kernel is not available ({exc!r}); the "
+                          "bands are built by the numpy code (the same rings, slower)",
+                          RuntimeWarning, stacklevel=2)
             _KERNEL.append(None)
         else:
             _KERNEL.append(_bandkernel.rings)
