@@ -10,6 +10,8 @@ is skipped and the numpy code is what runs.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -182,3 +184,41 @@ def test_without_numba_the_numpy_code_runs(monkeypatch):
     assert derived._ring_kernel() is None and derived._KERNEL == []
     monkeypatch.delenv("VECTORADJUST_NUMBA")
     assert derived._ring_kernel() is not None
+
+
+@pytest.mark.io
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forks on Linux only")
+def test_the_command_line_builds_the_same_bands_with_the_kernel(sample_dir, tmp_path,
+                                                                monkeypatch):
+    """The kernel loaded in the parent, then used in the forked band processes: the
+    same uncertainty_bands layer as the numpy code."""
+    pytest.importorskip("geopandas")
+    import os
+
+    import pyogrio
+
+    from vectoradjust.cli import main
+
+    real = derived._compiled_rings
+
+    def counted(*args):  # a file per process that used the kernel
+        (tmp_path / f"used-{os.getpid()}").touch()
+        return real(*args)
+
+    monkeypatch.setenv("VECTORADJUST_WORKERS", "2")
+    monkeypatch.setattr(derived, "_KERNEL_MIN", 0)
+    monkeypatch.setattr(derived, "_KERNEL", [])  # to be loaded by the command's parent
+    monkeypatch.setattr(derived, "_compiled_rings", counted)
+    layers = {}
+    for numba in ("1", "0"):
+        monkeypatch.setenv("VECTORADJUST_NUMBA", numba)
+        out = tmp_path / f"numba{numba}"
+        assert main(["adjust", str(sample_dir / "project.toml"), "--out", str(out), "-q"]) == 0
+        layers[numba] = pyogrio.read_dataframe(out / "adjusted.gpkg", layer="uncertainty_bands")
+        if numba == "1":  # the parent (loading it) and both band processes used it
+            assert len(list(tmp_path.glob("used-*"))) == 3
+            assert (tmp_path / f"used-{os.getpid()}").exists()
+    a, b = layers["1"], layers["0"]
+    assert len(a) == len(b) > 10
+    assert a.geometry.geom_equals_exact(b.geometry, 0.0).all()
+    assert (a.drop(columns="geometry") == b.drop(columns="geometry")).all().all()
