@@ -140,9 +140,13 @@ def test_kernel_only_for_many_segments_and_loaded_once(monkeypatch):
     p1, p2, c = _segments(50, 1)
     derived.g_band_rings(p1, p2, c)
     assert used == [] and derived._KERNEL == []  # fewer than _KERNEL_MIN: numpy only
-    assert not derived.warm_ring_kernel(derived._KERNEL_MIN - 1) and used == []
-    assert derived.warm_ring_kernel(derived._KERNEL_MIN) and used == [1]  # loaded now
-    assert derived.warm_ring_kernel(derived._KERNEL_MIN) and used == [1]  # once
+    said = []
+    assert not derived.warm_ring_kernel(derived._KERNEL_MIN - 1, said.append)
+    assert used == [] and said == []
+    assert derived.warm_ring_kernel(derived._KERNEL_MIN, said.append)
+    assert used == [1] and len(said) == 1 and "loading" in said[0]  # loaded now, said so
+    assert derived.warm_ring_kernel(derived._KERNEL_MIN, said.append)
+    assert used == [1] and len(said) == 1  # once
     monkeypatch.setattr(derived, "_KERNEL_MIN", 50)
     derived.g_band_rings(p1, p2, c)
     assert used == [1, 50]

@@ -28,6 +28,7 @@ Heart module: numpy and scipy only (and other vectoradjust heart modules).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, NamedTuple, Optional, Union
@@ -643,11 +644,20 @@ _KERNEL_MIN = 10_000
 _KERNEL: list = []  # the compiled kernel once looked for (None: numpy only)
 
 
-def warm_ring_kernel(n_segments: int) -> bool:
+def warm_ring_kernel(n_segments: int, progress: Optional[Callable[[str], None]] = None) -> bool:
     """Load (or compile, the first time) the compiled ring kernel now, if
     :func:`g_band_rings` will use it for ``n_segments`` segments; e.g. once in a parent
-    before it forks the processes that build the bands. True if it is ready."""
-    return n_segments >= _KERNEL_MIN and _ring_kernel() is not None
+    before it forks the processes that build the bands. True if it is ready.
+
+    ``progress(message)`` is called before it is looked for (once per process): loading
+    takes about 0.3 s, compiling the first time after installation about 8 s.
+    """
+    if n_segments < _KERNEL_MIN:
+        return False
+    if not _KERNEL and progress is not None and os.environ.get(
+            "VECTORADJUST_NUMBA", "1").strip() not in ("0", "no", "false"):
+        progress("loading the compiled ring kernel (compiled once after installing)")
+    return _ring_kernel() is not None
 
 
 def _ring_kernel():
@@ -657,8 +667,6 @@ def _ring_kernel():
     Looked for once per process. ``VECTORADJUST_NUMBA=0`` in the environment keeps the
     numpy code (e.g. to compare the two).
     """
-    import os
-
     if os.environ.get("VECTORADJUST_NUMBA", "1").strip() in ("0", "no", "false"):
         return None
     if not _KERNEL:

@@ -263,7 +263,7 @@ def _summarised(result, started: list, args, progress=None):
     return bands
 
 
-def _bands_alongside(result, args, preload=None):
+def _bands_alongside(result, args, preload=None, progress=None):
     """The uncertainty bands, started in other processes (None: ``--no-bands``)."""
     if getattr(args, "no_bands", False) or not result.databases:
         return None
@@ -273,7 +273,8 @@ def _bands_alongside(result, args, preload=None):
     from vectoradjust.cli.background import workers
 
     # the compiled ring kernel loaded once here, not in every band process
-    warm_ring_kernel(sum(len(d.vertex_point) for d in result.databases) // workers())
+    say = None if progress is None else (lambda m: progress(0.75, f"uncertainty bands: {m}"))
+    warm_ring_kernel(sum(len(d.vertex_point) for d in result.databases) // workers(), say)
     return _BandsAlongside(result, args.out)
 
 
@@ -364,7 +365,7 @@ def cmd_adjust(args) -> int:
     started: list = []  # the bands start in other processes once the adjustment is final
     try:
         result = run(data, vectors=args.vectors, progress=bar,
-                     on_adjusted=lambda r: started.append(_bands_alongside(r, args, warm)))
+                     on_adjusted=lambda r: started.append(_bands_alongside(r, args, warm, bar)))
     except BaseException:
         for b in (b for b in [*started, pre] if b is not None):
             b.close()
