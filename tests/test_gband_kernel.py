@@ -108,6 +108,9 @@ def test_kernel_on_degenerate_segments(kernel, monkeypatch):
     got = derived.g_band_rings(p1, p2, c)
     assert np.array_equal(got[1], ref[1]) and np.array_equal(got[0], ref[0])
     assert np.all(np.diff(got[1])[120:130] == 0)  # the rows the numpy code took
+    c[:] = np.nan  # no row for the kernel: every one from the numpy code
+    got = derived.g_band_rings(p1, p2, c)
+    assert got[0].shape == (0, 2) and np.array_equal(got[1], np.zeros(401, np.int64))
 
 
 def test_splice_puts_rings_back_in_row_order():
@@ -117,6 +120,9 @@ def test_splice_puts_rings_back_in_row_order():
     out, cnt = derived._splice(xy, np.array([2, 0, 3, 0]), ok, xy_b, np.array([0, 0, 4]))
     assert list(cnt) == [2, 0, 3, 4]
     assert np.array_equal(out, np.concatenate([xy[:2], xy[2:], xy_b]))
+    none = np.zeros(2, bool)  # every row from the second set
+    out, cnt = derived._splice(xy[:0], np.zeros(2, np.int64), none, xy_b, np.array([0, 1, 4]))
+    assert list(cnt) == [1, 3] and np.array_equal(out, xy_b[:4])
 
 
 def test_kernel_reports_progress_per_chunk(kernel, monkeypatch):

@@ -6,9 +6,11 @@ polygons of the pair hulls, the common tangents by bisection and regula falsi, t
 upper envelope of each side's chains at every chain vertex, straight runs thinned to
 ``1e-9`` of the band's scale, the ring), written as loops over one segment so that no
 ``(chunk, P, P K)`` temporaries are made. Every floating-point expression is that of the
-numpy code, in the same order and without ``fastmath``; only ``arctan`` (which decides
-nothing but the sign and the 1e-6 rad guard of a tangent's angle) may differ by an ulp.
-``tests/test_gband_kernel.py`` checks the rings against the numpy code.
+numpy code, in the same order and without ``fastmath``. Only the library functions
+``hypot`` (the segment's length) and ``arctan`` (which decides nothing but the sign and
+the 1e-6 rad guard of a tangent's angle) may come from another maths library than
+numpy's and differ by an ulp. ``tests/test_gband_kernel.py`` checks that the rings are
+the numpy code's, point for point.
 
 This module imports numba at the top and is itself imported lazily, only by
 :func:`vectoradjust.accuracy.derived._ring_kernel`, which falls back to the numpy code

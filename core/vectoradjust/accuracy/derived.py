@@ -723,12 +723,11 @@ def _splice(xy, cnt, ok, xy_b, off_b):
     together in row order."""
     cnt = np.asarray(cnt, np.int64).copy()
     cnt[~ok] = np.diff(off_b)
-    start_a = np.concatenate([[0], np.cumsum(cnt[ok])[:-1]]).astype(np.int64)
-    start = np.empty(len(cnt), np.int64)
-    start[ok], start[~ok] = start_a, off_b[:-1] + len(xy)  # rows of [xy; xy_b]
+    start = np.empty(len(cnt), np.int64)  # first point of each row in [xy; xy_b]
+    start[ok] = np.cumsum(cnt[ok]) - cnt[ok]
+    start[~ok] = off_b[:-1] + len(xy)
     src = np.concatenate([xy, xy_b])
-    first = np.concatenate([[0], np.cumsum(cnt)[:-1]])
-    take = np.repeat(start - first, cnt) + np.arange(int(cnt.sum()))
+    take = np.repeat(start - (np.cumsum(cnt) - cnt), cnt) + np.arange(int(cnt.sum()))
     return src[take], cnt
 
 
