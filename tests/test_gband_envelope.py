@@ -259,16 +259,18 @@ def test_union_per_feature_against_union_all():
     assert out[0].geom_type == "MultiPolygon" and out[0].area == pytest.approx(2.0)
 
 
-def test_feature_unions_in_chunks_equal_one_union_per_feature():
+@pytest.mark.parametrize("shuffled", [True, False])
+def test_feature_unions_in_chunks_equal_one_union_per_feature(shuffled):
     shapely = pytest.importorskip("shapely")
     from types import SimpleNamespace
 
     from vectoradjust.files.derived_outputs import _feature_unions
 
     # 12 features of 1 .. 9 consecutive segments (a random walk each), shuffled groups
+    # or feature by feature (as segment_bands gives them: one run of points a chunk)
     rng = np.random.default_rng(8)
     pts, group = [], []
-    for f in rng.permutation(12):
+    for f in (rng.permutation(12) if shuffled else range(12)):
         walk = np.cumsum(rng.normal(0, 1.5, (int(rng.integers(2, 11)), 2)), axis=0) + f * 40
         pts += [(walk[j], walk[j + 1]) for j in range(len(walk) - 1)]
         group += [f] * (len(walk) - 1)

@@ -174,7 +174,8 @@ def _union_chunks(sb, group: np.ndarray, n: int, step, chunk: int = 50_000):
     """
     import shapely
 
-    order = np.argsort(group, kind="stable")
+    in_order = bool(np.all(group[1:] >= group[:-1]))  # segments feature by feature
+    order = np.arange(len(group)) if in_order else np.argsort(group, kind="stable")
     starts = np.searchsorted(group[order], np.arange(n + 1))  # segments of each feature
     g0 = 0
     while g0 < n:
@@ -183,12 +184,16 @@ def _union_chunks(sb, group: np.ndarray, n: int, step, chunk: int = 50_000):
         seg = order[starts[g0]:starts[g1]]
         lo, hi = sb.offsets[seg], sb.offsets[seg + 1]
         sizes = hi - lo
-        take = np.repeat(lo - np.concatenate([[0], np.cumsum(sizes)[:-1]]), sizes) + \
-            np.arange(int(sizes.sum()))
         ok = sizes >= 4  # fewer points: a degenerate ring (no finite covariance), no area
         polys = np.full(len(seg), shapely.from_wkt("POLYGON EMPTY"), dtype=object)
+        if in_order and ok.all():  # the rings of the chunk are one run of points
+            xy = sb.xy[sb.offsets[starts[g0]]:sb.offsets[starts[g1]]]
+        else:
+            take = np.repeat(lo - np.concatenate([[0], np.cumsum(sizes)[:-1]]), sizes) + \
+                np.arange(int(sizes.sum()))
+            xy = sb.xy[take[np.repeat(ok, sizes)]]
         polys[ok] = shapely.polygons(shapely.linearrings(
-            sb.xy[take[np.repeat(ok, sizes)]], indices=np.repeat(np.arange(ok.sum()), sizes[ok])))
+            xy, indices=np.repeat(np.arange(ok.sum()), sizes[ok])))
         bad = ~shapely.is_valid(polys)  # a ring may touch itself in degenerate cases
         polys[bad] = shapely.make_valid(polys[bad])
         yield g0, g1, list(_union_per_feature(polys, group[seg] - g0, g1 - g0))
