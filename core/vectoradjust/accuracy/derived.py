@@ -483,6 +483,19 @@ def _directions(n_directions: int, extra, phi):
     return lay
 
 
+def _band_constants(n_pairs: int, n_directions: int):
+    """What every segment's band shares (the numpy code and the compiled kernel alike):
+    the sample parameters ``t`` (P + 1,) and their weights ``(1 - t)^2``, ``2 (1 - t) t``,
+    ``t^2``; the direction step ``du`` and the uniform directions' cos, sin (M,), exact
+    zeros where they vanish."""
+    t = np.linspace(0.0, 1.0, n_pairs + 1)
+    du = 2.0 * np.pi / n_directions
+    ang = du * np.arange(n_directions)
+    uc, us = np.cos(ang), np.sin(ang)
+    uc[np.abs(uc) < 1e-15], us[np.abs(us) < 1e-15] = 0.0, 0.0
+    return t, (1 - t) ** 2, 2 * (1 - t) * t, t * t, du, uc, us
+
+
 def _pair_polygons(a, b, c4, k: float, n_pairs: int, n_directions: int):
     """Circumscribed polygons of the pair hulls of many segments, in the segment frame.
 
@@ -497,9 +510,8 @@ def _pair_polygons(a, b, c4, k: float, n_pairs: int, n_directions: int):
     with np.errstate(invalid="ignore", divide="ignore"):
         e_u = np.where(length[:, None] > 0, delta / length[:, None], [1.0, 0.0])
     c4 = 0.5 * (c4 + np.swapaxes(c4, 1, 2))
-    t = np.linspace(0.0, 1.0, n_pairs + 1)[None, :]
-    t0, t1 = (1 - t) ** 2, 2 * (1 - t) * t
-    t2 = t * t
+    t, t0, t1, t2, du, uc, us = _band_constants(n_pairs, n_directions)
+    t, t0, t1, t2 = t[None, :], t0[None, :], t1[None, :], t2[None, :]
 
     def q(i, j):  # (m, P+1) element (i, j) of F(t) C F(t)'
         return (t0 * c4[:, i, j, None] + 0.5 * t1 * (c4[:, i, 2 + j, None]
@@ -512,11 +524,7 @@ def _pair_polygons(a, b, c4, k: float, n_pairs: int, n_directions: int):
     ql[..., 1, 1] = ey * ey * qxx - 2 * ex * ey * qxy + ex * ex * qyy
     ql[..., 0, 1] = ql[..., 1, 0] = ex * ey * (qyy - qxx) + (ex * ex - ey * ey) * qxy
     tl = t * length[:, None]  # (m, P+1) centres along the segment
-    du = 2.0 * np.pi / n_directions
     xc, xs, phi = _tangent_normals(tl, ql, k, du)  # (m, P, 2)
-    ang = du * np.arange(n_directions)
-    uc, us = np.cos(ang), np.sin(ang)
-    uc[np.abs(uc) < 1e-15], us[np.abs(us) < 1e-15] = 0.0, 0.0
 
     def support(c, s, tl, ql):  # support of ellipses (m, n) in directions (..., d)
         v = c * c * ql[..., 0, 0, None] + 2.0 * c * s * ql[..., 0, 1, None] \
@@ -654,10 +662,14 @@ def warm_ring_kernel(n_segments: int, progress: Optional[Callable[[str], None]] 
     """
     if n_segments < _KERNEL_MIN:
         return False
-    if not _KERNEL and progress is not None and os.environ.get(
-            "VECTORADJUST_NUMBA", "1").strip() not in ("0", "no", "false"):
+    if not _KERNEL and progress is not None and not _numba_off():
         progress("loading the compiled ring kernel (compiled once after installing)")
     return _ring_kernel() is not None
+
+
+def _numba_off() -> bool:
+    """``VECTORADJUST_NUMBA=0`` (or ``no``, ``false``): the numpy code only."""
+    return os.environ.get("VECTORADJUST_NUMBA", "1").strip().lower() in ("0", "no", "false")
 
 
 def _ring_kernel():
@@ -667,7 +679,7 @@ def _ring_kernel():
     Looked for once per process. ``VECTORADJUST_NUMBA=0`` in the environment keeps the
     numpy code (e.g. to compare the two).
     """
-    if os.environ.get("VECTORADJUST_NUMBA", "1").strip() in ("0", "no", "false"):
+    if _numba_off():
         return None
     if not _KERNEL:
         try:
@@ -694,13 +706,8 @@ def _compiled_rings(kernel, a, b, c4, k, n_pairs, n_directions, progress):
     """:func:`g_band_rings` by the compiled kernel, ``_KERNEL_CHUNK`` segments a call;
     the few segments it leaves (an input or a point not finite) by the numpy code."""
     m = a.shape[0]
-    t = np.linspace(0.0, 1.0, n_pairs + 1)
-    du = 2.0 * np.pi / n_directions
-    ang = du * np.arange(n_directions)
-    uc, us = np.cos(ang), np.sin(ang)
-    uc[np.abs(uc) < 1e-15], us[np.abs(us) < 1e-15] = 0.0, 0.0
-    const = (k, t, (1 - t) ** 2, 2 * (1 - t) * t, t * t, uc, us, float(np.tan(du)),
-             float(np.tan(0.5 * du)), du)
+    t, t0, t1, t2, du, uc, us = _band_constants(n_pairs, n_directions)
+    const = (k, t, t0, t1, t2, uc, us, float(np.tan(du)), float(np.tan(0.5 * du)), du)
     xys, counts = [], []
     for i in range(0, m, _KERNEL_CHUNK):
         j = min(i + _KERNEL_CHUNK, m)
