@@ -37,6 +37,7 @@ HEART_LAZY_ALLOWED = {"vectoradjust.accuracy.buffer": {"shapely"}}
 #: only imported lazily, by one module that falls back when the import fails
 HEART_OPTIONAL_MODULES = {
     "vectoradjust.accuracy._bandkernel": ({"numba"}, "vectoradjust.accuracy.derived"),
+    "vectoradjust.accuracy._unionkernel": ({"numba"}, "vectoradjust.accuracy.derived"),
 }
 #: functions allowed over MAX_FUNCTION_LINES, with the reason
 LONG_FUNCTIONS_ALLOWED: dict = {}

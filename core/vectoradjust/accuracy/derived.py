@@ -646,25 +646,28 @@ def g_band_rings(p1, p2, cov_joint, confidence: float = 0.9, n_pairs: int = 6,
 
 #: segments per call of the compiled ring kernel (progress and cancel in between)
 _KERNEL_CHUNK = 8_192
-#: fewer segments go to the numpy code: loading the compiled kernel from numba's cache
-#: costs about 0.3 s per process (about 8 s the first time, when numba compiles it)
+#: fewer segments go to the numpy code (and their union to GEOS): loading the compiled
+#: kernels from numba's cache costs about 0.5 s per process (about 20 s the first time,
+#: when numba compiles them)
 _KERNEL_MIN = 10_000
 _KERNEL: list = []  # the compiled kernel once looked for (None: numpy only)
+_UNION: list = []  # the compiled union of the rings once looked for (None: GEOS only)
 
 
 def warm_ring_kernel(n_segments: int, progress: Optional[Callable[[str], None]] = None) -> bool:
-    """Load (or compile, the first time) the compiled ring kernel now, if
-    :func:`g_band_rings` will use it for ``n_segments`` segments; e.g. once in a parent
-    before it forks the processes that build the bands. True if it is ready.
+    """Load (or compile, the first time) the compiled band kernels now - the rings
+    (:func:`_ring_kernel`) and their union per feature (:func:`_union_kernel`) - if the
+    bands of ``n_segments`` segments will use them; e.g. once in a parent before it
+    forks the processes that build the bands. True if both are ready.
 
-    ``progress(message)`` is called before it is looked for (once per process): loading
-    takes about 0.3 s, compiling the first time after installation about 8 s.
+    ``progress(message)`` is called before they are looked for (once per process):
+    loading takes about 0.5 s, compiling the first time after installation about 20 s.
     """
     if n_segments < _KERNEL_MIN:
         return False
-    if not _KERNEL and progress is not None and not _numba_off():
-        progress("loading the compiled ring kernel (compiled once after installing)")
-    return _ring_kernel() is not None
+    if not (_KERNEL and _UNION) and progress is not None and not _numba_off():
+        progress("loading the compiled band kernels (compiled once after installing)")
+    return _ring_kernel() is not None and _union_kernel() is not None
 
 
 def _numba_off() -> bool:
@@ -700,6 +703,36 @@ def _ring_kernel():
         else:
             _KERNEL.append(_bandkernel.rings)
     return _KERNEL[0]
+
+
+def _union_kernel():
+    """The compiled union of the segment rings of each feature
+    (:func:`._unionkernel.union_rings`, numba), loaded from numba's cache or compiled,
+    or None: no numba, ``VECTORADJUST_NUMBA=0``, or numba cannot compile it here (a
+    warning says why); the bands are then united by GEOS. Looked for once per process.
+    """
+    if _numba_off():
+        return None
+    if not _UNION:
+        try:
+            from vectoradjust.accuracy import _unionkernel
+        except ImportError:  # no numba (e.g. QGIS's Python): GEOS
+            _UNION.append(None)
+            return None
+        try:  # two overlapping squares: compiled (about 10 s, once) or loaded now
+            sq = np.array([[0.0, 0], [2, 0], [2, 1], [0, 1], [0, 0]])
+            _unionkernel.union_rings(np.concatenate([sq, sq + 1]), np.array([0, 5, 10]),
+                                     np.array([0, 2]), np.ones(2, np.int8), 1e-10)
+        except Exception as exc:  # noqa: BLE001 - any failure of numba: GEOS
+            import warnings
+
+            warnings.warn(f"the compiled union of the bands is not available ({exc!r}); "
+                          "GEOS unites them (the same bands, slower)", RuntimeWarning,
+                          stacklevel=2)
+            _UNION.append(None)
+        else:
+            _UNION.append(_unionkernel.union_rings)
+    return _UNION[0]
 
 
 def _compiled_rings(kernel, a, b, c4, k, n_pairs, n_directions, progress):

@@ -272,7 +272,7 @@ def _bands_alongside(result, args, preload=None, progress=None):
     from vectoradjust.accuracy.derived import warm_ring_kernel
     from vectoradjust.cli.background import workers
 
-    # the compiled ring kernel loaded once here, not in every band process
+    # the compiled band kernels (rings, union) loaded once here, not in every band process
     say = None if progress is None else (lambda m: progress(0.75, f"uncertainty bands: {m}"))
     warm_ring_kernel(sum(len(d.vertex_point) for d in result.databases) // workers(), say)
     return _BandsAlongside(result, args.out)
