@@ -234,8 +234,9 @@ def test_the_command_line_builds_the_same_bands_with_the_kernel(sample_dir, tmp_
         out = tmp_path / f"numba{numba}"
         assert main(["adjust", str(sample_dir / "project.toml"), "--out", str(out), "-q"]) == 0
         layers[numba] = pyogrio.read_dataframe(out / "adjusted.gpkg", layer="uncertainty_bands")
-        if numba == "1":  # the parent (loading it) and both band processes used it
-            assert len(list(tmp_path.glob("used-*"))) == 3
+        if numba == "1":  # the parent (loading it), the child that looked for it first
+            # (_KernelsAlongside) and both band processes used it
+            assert len(list(tmp_path.glob("used-*"))) == 4
             assert (tmp_path / f"used-{os.getpid()}").exists()
             unions = list(tmp_path.glob("union-*"))  # in both band processes
             assert len(unions) == 2 and not (tmp_path / f"union-{os.getpid()}").exists()
@@ -244,3 +245,40 @@ def test_the_command_line_builds_the_same_bands_with_the_kernel(sample_dir, tmp_
     assert shapely.equals_exact(shapely.normalize(a.geometry.values),
                                 shapely.normalize(b.geometry.values), 1e-9).all()
     assert (a.drop(columns="geometry") == b.drop(columns="geometry")).all().all()
+
+
+@pytest.mark.io
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forks on Linux only")
+def test_the_command_line_compiles_the_kernels_in_a_child_while_it_adjusts(
+        sample_dir, tmp_path, monkeypatch):
+    """A forked child looks for (the first time: compiles) the band kernels while the
+    parent adjusts; only when the bands will use them."""
+    pytest.importorskip("geopandas")
+    import os
+
+    from vectoradjust.cli import commands, main
+
+    real = commands._compile_kernels
+
+    def counted(n, progress=None):  # a file per process that looked for them
+        (tmp_path / f"compile-{os.getpid()}").touch()
+        return real(n, progress)
+
+    monkeypatch.setattr(commands, "_compile_kernels", counted)
+    monkeypatch.setenv("VECTORADJUST_WORKERS", "2")
+    monkeypatch.delenv("VECTORADJUST_NUMBA", raising=False)
+    project = str(sample_dir / "project.toml")
+    # the sample has far fewer segments than _KERNEL_MIN: nothing started
+    assert main(["adjust", project, "--out", str(tmp_path / "a"), "-q"]) == 0
+    assert not list(tmp_path.glob("compile-*"))
+    monkeypatch.setattr(derived, "_KERNEL_MIN", 0)
+    monkeypatch.setattr(derived, "_KERNEL", [])
+    monkeypatch.setattr(derived, "_UNION", [])
+    assert main(["adjust", project, "--out", str(tmp_path / "b"), "-q"]) == 0
+    done = list(tmp_path.glob("compile-*"))
+    assert len(done) == 1 and done[0].name != f"compile-{os.getpid()}"  # in a child
+    assert derived._KERNEL[0] is not None and derived._UNION[0] is not None  # then loaded
+    done[0].unlink()
+    monkeypatch.setenv("VECTORADJUST_NUMBA", "0")  # switched off: nothing started
+    assert main(["adjust", project, "--out", str(tmp_path / "c"), "-q"]) == 0
+    assert not list(tmp_path.glob("compile-*"))

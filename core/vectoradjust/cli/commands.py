@@ -263,9 +263,11 @@ def _summarised(result, started: list, args, progress=None):
     return bands
 
 
-def _bands_alongside(result, args, preload=None, progress=None):
+def _bands_alongside(result, args, preload=None, progress=None, kernels=None):
     """The uncertainty bands, started in other processes (None: ``--no-bands``)."""
     if getattr(args, "no_bands", False) or not result.databases:
+        if kernels is not None:
+            kernels.close()
         return None
     if preload is not None:  # no module half imported in the children
         preload.wait()
@@ -274,8 +276,55 @@ def _bands_alongside(result, args, preload=None, progress=None):
 
     # the compiled band kernels (rings, union) loaded once here, not in every band process
     say = None if progress is None else (lambda m: progress(0.75, f"uncertainty bands: {m}"))
+    if kernels is not None:  # compiled or found by a child meanwhile: loaded from the cache
+        kernels.wait(say)
     warm_ring_kernel(sum(len(d.vertex_point) for d in result.databases) // workers(), say)
     return _BandsAlongside(result, args.out)
+
+
+def _compile_kernels(n_segments: int, progress=None) -> bool:
+    """The band kernels compiled into numba's cache, or found there (in a child)."""
+    from vectoradjust.accuracy.derived import warm_ring_kernel
+
+    return warm_ring_kernel(n_segments)
+
+
+class _KernelsAlongside:
+    """The compiled band kernels (:func:`vectoradjust.accuracy.derived.warm_ring_kernel`)
+    looked for by a forked child while the parent adjusts: numba compiles them there the
+    first time after installing (about 20 s, on the core the solve leaves idle) and writes
+    them into its cache, from which the parent then loads them (about 0.5 s). Nothing is
+    started when the bands will not use them (too few segments per band process, numba
+    missing or switched off)."""
+
+    def __init__(self, data, preload=None) -> None:
+        import importlib.util
+
+        from vectoradjust.accuracy import derived
+        from vectoradjust.cli.background import Background, workers
+
+        self.job = None
+        n = sum(len(layer.coords) for _, layer in data.vectors) // workers()
+        if n < derived._KERNEL_MIN or derived._numba_off() or \
+                importlib.util.find_spec("numba") is None:
+            return
+        if preload is not None:  # no module half imported in the child
+            preload.wait()
+        job = Background(_compile_kernels, n)
+        self.job = job if job.forked else None  # without a child: the parent loads them
+
+    def wait(self, say=None) -> None:
+        """Until the child has ended (it may still be compiling)."""
+        if self.job is not None:
+            if self.job.proc is not None and self.job.proc.is_alive() and say is not None:
+                say("waiting for the compiled band kernels (compiled once after installing)")
+            self.job.result(rerun=False)
+            self.close()
+
+    def close(self) -> None:
+        if self.job is not None:
+            self.job.close()
+            self.job = None
 
 
 def _output_folder(path) -> Path:
@@ -360,16 +409,21 @@ def cmd_adjust(args) -> int:
     truth = cli_buffer.project_truth(spec)
     # true centrelines: their tests' half on the database lines runs beside the adjustment
     pre = cli_buffer.TruthBeforeAlongside(data, *truth, warm) if truth is not None else None
+    # the band kernels compiled (once after installing, about 20 s) or found in numba's
+    # cache by a child while the adjustment runs, not by the parent when the bands start
+    kernels = _KernelsAlongside(data, warm)
     from vectoradjust.pipeline import run
 
     started: list = []  # the bands start in other processes once the adjustment is final
     try:
         result = run(data, vectors=args.vectors, progress=bar,
-                     on_adjusted=lambda r: started.append(_bands_alongside(r, args, warm, bar)))
+                     on_adjusted=lambda r: started.append(
+                         _bands_alongside(r, args, warm, bar, kernels)))
     except BaseException:
-        for b in (b for b in [*started, pre] if b is not None):
+        for b in (b for b in [*started, pre, kernels.job] if b is not None):
             b.close()
         raise
+    kernels.close()  # (ended by now, unless no band was started)
     bands = _summarised(result, started, args, bar)
     warm = Preload(_PLOTTING)  # the bands' processes have started (forked without it)
     report = None
