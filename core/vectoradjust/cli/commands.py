@@ -409,9 +409,7 @@ def cmd_adjust(args) -> int:
     truth = cli_buffer.project_truth(spec)
     # true centrelines: their tests' half on the database lines runs beside the adjustment
     pre = cli_buffer.TruthBeforeAlongside(data, *truth, warm) if truth is not None else None
-    # the band kernels compiled (once after installing, about 20 s) or found in numba's
-    # cache by a child while the adjustment runs, not by the parent when the bands start
-    kernels = _KernelsAlongside(data, warm)
+    kernels = _KernelsAlongside(data, warm)  # compiled or found while the adjustment runs
     from vectoradjust.pipeline import run
 
     started: list = []  # the bands start in other processes once the adjustment is final
