@@ -42,6 +42,16 @@ _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 
 @_jit
+def _misses(xy, e, ox, oy, x0, y0, x1, y1):
+    """True when edge ``e`` (from point ``e`` to ``e + 1``, local coordinates) misses the
+    box ``x0 .. x1, y0 .. y1`` or has no length."""
+    px, py = xy[e, 0] - ox, xy[e, 1] - oy
+    p2x, p2y = xy[e + 1, 0] - ox, xy[e + 1, 1] - oy
+    return min(px, p2x) > x1 or max(px, p2x) < x0 or min(py, p2y) > y1 or \
+        max(py, p2y) < y0 or (px == p2x and py == p2y)
+
+
+@_jit
 def _crossings(xy, off, rings, k, ox, oy, bb, eps, cand, cx, cy, er, ep):
     """All proper crossings of the ``k`` rings ``rings[:k]`` (bounding boxes ``bb``,
     local coordinates: minus ``(ox, oy)``).
@@ -65,21 +75,16 @@ def _crossings(xy, off, rings, k, ox, oy, bb, eps, cand, cx, cy, er, ep):
             b0, b1 = off[rings[jj]], off[rings[jj] + 1]
             nb = 0  # the edges of ring jj there
             for f in range(b0, b1 - 1):
-                qx, qy = xy[f, 0] - ox, xy[f, 1] - oy
-                q2x, q2y = xy[f + 1, 0] - ox, xy[f + 1, 1] - oy
-                if min(qx, q2x) > x1 or max(qx, q2x) < x0 or min(qy, q2y) > y1 or \
-                        max(qy, q2y) < y0 or (qx == q2x and qy == q2y):
-                    continue
-                cand[nb] = f
-                nb += 1
+                if not _misses(xy, f, ox, oy, x0, y0, x1, y1):
+                    cand[nb] = f
+                    nb += 1
             if nb == 0:
                 continue
             for e in range(a0, a1 - 1):
+                if _misses(xy, e, ox, oy, x0, y0, x1, y1):
+                    continue
                 px, py = xy[e, 0] - ox, xy[e, 1] - oy
                 p2x, p2y = xy[e + 1, 0] - ox, xy[e + 1, 1] - oy
-                if min(px, p2x) > x1 or max(px, p2x) < x0 or min(py, p2y) > y1 or \
-                        max(py, p2y) < y0 or (px == p2x and py == p2y):
-                    continue
                 rx, ry = p2x - px, p2y - py
                 ta = eps * np.sqrt(rx * rx + ry * ry)
                 for c in range(nb):
