@@ -675,64 +675,75 @@ def _numba_off() -> bool:
     return os.environ.get("VECTORADJUST_NUMBA", "1").strip().lower() in ("0", "no", "false")
 
 
+def _load_kernel(slot: list, load: Callable, trial: Callable, what: str, instead: str):
+    """A compiled kernel, looked for once per process and remembered in ``slot``:
+    ``load()`` imports its module (ImportError: no numba), ``trial(module)`` calls it
+    once - compiled now or loaded from numba's cache - and returns it. None (the
+    fallback ``instead`` runs) with ``VECTORADJUST_NUMBA=0``, without numba, or when
+    numba cannot compile or cache it (a ``RuntimeWarning`` says why)."""
+    if _numba_off():
+        return None
+    if not slot:
+        try:
+            module = load()
+        except ImportError:  # no numba (e.g. QGIS's Python): the fallback
+            slot.append(None)
+            return None
+        try:
+            kernel = trial(module)
+        except Exception as exc:  # noqa: BLE001 - any failure of numba: the fallback
+            import warnings
+
+            warnings.warn(f"{what} is not available ({exc!r}); {instead}", RuntimeWarning,
+                          stacklevel=3)
+            slot.append(None)
+        else:
+            slot.append(kernel)
+    return slot[0]
+
+
 def _ring_kernel():
     """The compiled ring kernel (:mod:`._bandkernel`, numba), loaded from numba's cache
-    or compiled, or None: no numba, or numba cannot compile it here (a warning says why).
+    or compiled (about 8 s, once), or None: no numba, or numba cannot compile it here (a
+    warning says why).
 
     Looked for once per process. ``VECTORADJUST_NUMBA=0`` in the environment keeps the
     numpy code (e.g. to compare the two).
     """
-    if _numba_off():
-        return None
-    if not _KERNEL:
-        try:
-            from vectoradjust.accuracy import _bandkernel
-        except ImportError:  # no numba (e.g. QGIS's Python): the numpy code
-            _KERNEL.append(None)
-            return None
-        try:  # compiled (about 8 s, once) or loaded from numba's cache (about 0.3 s) now
-            _compiled_rings(_bandkernel.rings, np.zeros((1, 2)), np.ones((1, 2)),
-                            np.eye(4)[None], 1.0, 6, 24, None)
-        except Exception as exc:  # noqa: BLE001 - any failure of numba: the numpy code
-            import warnings
+    def load():
+        from vectoradjust.accuracy import _bandkernel
 
-            warnings.warn(f"the compiled G-band kernel is not available ({exc!r}); the "
-                          "bands are built by the numpy code (the same rings, slower)",
-                          RuntimeWarning, stacklevel=2)
-            _KERNEL.append(None)
-        else:
-            _KERNEL.append(_bandkernel.rings)
-    return _KERNEL[0]
+        return _bandkernel
+
+    def trial(module):
+        _compiled_rings(module.rings, np.zeros((1, 2)), np.ones((1, 2)), np.eye(4)[None],
+                        1.0, 6, 24, None)
+        return module.rings
+
+    return _load_kernel(_KERNEL, load, trial, "the compiled G-band kernel",
+                        "the bands are built by the numpy code (the same rings, slower)")
 
 
 def _union_kernel():
     """The compiled union of the segment rings of each feature
-    (:func:`._unionkernel.union_rings`, numba), loaded from numba's cache or compiled,
-    or None: no numba, ``VECTORADJUST_NUMBA=0``, or numba cannot compile it here (a
-    warning says why); the bands are then united by GEOS. Looked for once per process.
+    (:func:`._unionkernel.union_rings`, numba), loaded from numba's cache or compiled
+    (about 11 s, once), or None: no numba, ``VECTORADJUST_NUMBA=0``, or numba cannot
+    compile it here (a warning says why); the bands are then united by GEOS. Looked for
+    once per process.
     """
-    if _numba_off():
-        return None
-    if not _UNION:
-        try:
-            from vectoradjust.accuracy import _unionkernel
-        except ImportError:  # no numba (e.g. QGIS's Python): GEOS
-            _UNION.append(None)
-            return None
-        try:  # two overlapping squares: compiled (about 10 s, once) or loaded now
-            sq = np.array([[0.0, 0], [2, 0], [2, 1], [0, 1], [0, 0]])
-            _unionkernel.union_rings(np.concatenate([sq, sq + 1]), np.array([0, 5, 10]),
-                                     np.array([0, 2]), np.ones(2, np.int8), 1e-10)
-        except Exception as exc:  # noqa: BLE001 - any failure of numba: GEOS
-            import warnings
+    def load():
+        from vectoradjust.accuracy import _unionkernel
 
-            warnings.warn(f"the compiled union of the bands is not available ({exc!r}); "
-                          "GEOS unites them (the same bands, slower)", RuntimeWarning,
-                          stacklevel=2)
-            _UNION.append(None)
-        else:
-            _UNION.append(_unionkernel.union_rings)
-    return _UNION[0]
+        return _unionkernel
+
+    def trial(module):  # two overlapping squares
+        sq = np.array([[0.0, 0], [2, 0], [2, 1], [0, 1], [0, 0]])
+        module.union_rings(np.concatenate([sq, sq + 1]), np.array([0, 5, 10]),
+                           np.array([0, 2]), np.ones(2, np.int8), 1e-10)
+        return module.union_rings
+
+    return _load_kernel(_UNION, load, trial, "the compiled union of the bands",
+                        "GEOS unites them (the same bands, slower)")
 
 
 def _compiled_rings(kernel, a, b, c4, k, n_pairs, n_directions, progress):
