@@ -62,6 +62,12 @@ class ImageSpec:
         Prior sigma of the angles (degrees); ``None`` = free parameter.
     date : str or None
         Acquisition date (ISO 8601) for provenance.
+    model : str
+        ``"frame"`` (a frame camera: collinearity, the default) or ``"rpc"`` (a satellite
+        image with rational polynomial coefficients; position and attitude unused).
+    rpc : vectoradjust.sensor.models.RpcImage or None
+        For ``model = "rpc"``: the RPC file, its bias model and the bias priors; its
+        ``rpc`` (the coefficients) is filled when the project's files are read.
     """
 
     id: str
@@ -70,6 +76,8 @@ class ImageSpec:
     sigma_position: Optional[float] = None
     sigma_attitude: Optional[float] = None
     date: Optional[str] = None
+    model: str = "frame"
+    rpc: Any = None
 
 
 @dataclass
@@ -354,3 +362,11 @@ class ProjectData:
     interior: dict = field(default_factory=dict)
     qa: Optional[dict] = None
     conflation: Optional[dict] = None
+    #: object coordinates to longitude, latitude and ellipsoidal height
+    #: (:class:`vectoradjust.sensor.ground.GroundFrame`); needed by RPC images, None without
+    ground_frame: Any = None
+
+    @property
+    def has_rpc(self) -> bool:
+        """Whether any image has an RPC model."""
+        return any(im.model == "rpc" for im in self.images)

@@ -38,7 +38,8 @@ def _check_errors(out: AdjustmentRun, eo: np.ndarray, check_obs) -> Optional[np.
     cnt = np.bincount(cinv, minlength=len(cids))
     meas, cam = out.data.measurements, out.data.camera
     xyz, _ = intersect(eo, cinv, img_idx, meas.xy[rows], meas.sigma[rows], len(cids),
-                       cam.focal_length, cam.principal_point)
+                       cam.focal_length, cam.principal_point,
+                       sensors=out.result.problem.sensors if out.result.problem else None)
     ok = cnt >= 2
     if not ok.any():
         return None

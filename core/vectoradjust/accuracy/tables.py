@@ -57,7 +57,8 @@ def _intersect_check_points(out: AdjustmentRun, ctrl_of_obs, is_check, img_of_ob
     xyz_c, cov_c = intersect(res.eo, cinv, imap[img_of_obs[chk]], meas.xy[chk],
                              meas.sigma[chk], len(cids), data.camera.focal_length,
                              data.camera.principal_point, eo_cov_full=eo_cov_full,
-                             variance_factor=res.variance_factor)
+                             variance_factor=res.variance_factor,
+                             sensors=None if res.problem is None else res.problem.sensors)
     ok = cnt >= 2
     adj[cids[ok]] = xyz_c[ok]
     cov[cids[ok]] = cov_c[ok]

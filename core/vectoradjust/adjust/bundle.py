@@ -29,12 +29,18 @@ import ctypes
 import os
 import sys
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Optional
 
 import numpy as np
 import scipy.linalg
 
+from vectoradjust.adjust.intersection import (  # noqa: F401 (inv3x3, ray_intersection: API)
+    _block_sum,
+    approximate_points,
+    inv3x3,
+    ray_intersection,
+)
 from vectoradjust.errors import CancelledError, NonConvergenceError, SingularityError
 from vectoradjust.sensor.collinearity import (
     partials,
@@ -42,6 +48,7 @@ from vectoradjust.sensor.collinearity import (
     rotation_derivatives,
     rotation_matrix,
 )
+from vectoradjust.sensor.models import SensorSet, observe_rpc
 
 __all__ = [
     "BundleProblem",
@@ -109,42 +116,6 @@ def _single_blas_thread():
             set_fn(n)
 
 
-def inv3x3(a: np.ndarray) -> np.ndarray:
-    """Closed-form inverse of a stack of 3x3 matrices ``(..., 3, 3)``.
-
-    Singular blocks give ``inf``/``nan`` entries; callers check the determinant.
-    """
-    a = np.asarray(a, float)
-    c00 = a[..., 1, 1] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 1]
-    c01 = a[..., 0, 2] * a[..., 2, 1] - a[..., 0, 1] * a[..., 2, 2]
-    c02 = a[..., 0, 1] * a[..., 1, 2] - a[..., 0, 2] * a[..., 1, 1]
-    c10 = a[..., 1, 2] * a[..., 2, 0] - a[..., 1, 0] * a[..., 2, 2]
-    c11 = a[..., 0, 0] * a[..., 2, 2] - a[..., 0, 2] * a[..., 2, 0]
-    c12 = a[..., 0, 2] * a[..., 1, 0] - a[..., 0, 0] * a[..., 1, 2]
-    c20 = a[..., 1, 0] * a[..., 2, 1] - a[..., 1, 1] * a[..., 2, 0]
-    c21 = a[..., 0, 1] * a[..., 2, 0] - a[..., 0, 0] * a[..., 2, 1]
-    c22 = a[..., 0, 0] * a[..., 1, 1] - a[..., 0, 1] * a[..., 1, 0]
-    det = a[..., 0, 0] * c00 + a[..., 0, 1] * c10 + a[..., 0, 2] * c20
-    out = np.stack(
-        [np.stack([c00, c01, c02], -1), np.stack([c10, c11, c12], -1),
-         np.stack([c20, c21, c22], -1)],
-        -2,
-    )
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return out / det[..., None, None]
-
-
-def _block_sum(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """Sum ``values`` (k, ...) into ``n`` bins by ``index`` (k,), vectorised."""
-    k = values.shape[0]
-    inner = values.shape[1:]
-    size = int(np.prod(inner)) if inner else 1
-    flat = values.reshape(k, size)
-    idx = (index[:, None] * size + np.arange(size)[None, :]).ravel()
-    out = np.bincount(idx, weights=flat.ravel(), minlength=n * size)
-    return out.reshape((n,) + inner)
-
-
 @dataclass
 class BundleProblem:
     """Arrays that define one adjustment.
@@ -187,6 +158,10 @@ class BundleProblem:
     #: where the iteration starts for the exterior orientation (default ``eo0``, which
     #: is also the prior mean); a warm start for repeated adjustments
     eo_start: Optional[np.ndarray] = None
+    #: the sensor model of each image (:class:`vectoradjust.sensor.models.SensorSet`); None:
+    #: every image is a frame camera. For an RPC image the six parameters are its
+    #: image-space bias (px) and its observations are pixels (column, row)
+    sensors: Optional[SensorSet] = None
 
     def __post_init__(self) -> None:
         self.principal_point = np.asarray(self.principal_point, float).reshape(2)
@@ -219,6 +194,21 @@ class BundleProblem:
         return w
 
     @property
+    def eo_fixed(self) -> np.ndarray:
+        """``(n, 6)`` bool: parameters held at ``eo0`` (not unknowns): the bias parameters
+        an RPC image's bias model does not estimate."""
+        if self.sensors is None:
+            return np.zeros(self.eo0.shape, bool)
+        return self.sensors.fixed()
+
+    @property
+    def is_rpc(self) -> np.ndarray:
+        """``(n,)`` bool: the image has an RPC model."""
+        if self.sensors is None:
+            return np.zeros(self.n_images, bool)
+        return self.sensors.is_rpc
+
+    @property
     def has_prior(self) -> np.ndarray:
         """Points with a coordinate prior (control and shape points)."""
         return np.abs(self.prior_weight).reshape(-1, 9).sum(axis=1) > 0
@@ -226,8 +216,9 @@ class BundleProblem:
     def counts(self) -> tuple[int, int]:
         """Number of observations ``n`` and of unknowns ``u`` (DESIGN section 3)."""
         n = 2 * len(self.obs_point) + 3 * int(self.has_prior.sum())
-        n += int((self.eo_weight > 0).sum())
-        u = 6 * self.n_images + 3 * self.n_points
+        fixed = self.eo_fixed
+        n += int(((self.eo_weight > 0) & ~fixed).sum())
+        u = 6 * self.n_images - int(fixed.sum()) + 3 * self.n_points
         return n, u
 
 
@@ -478,6 +469,7 @@ class _Block:
     pw: np.ndarray  # (3, 3, g) prior weights of the points
     prior: np.ndarray  # (3, g) prior coordinates (0 where there is no prior)
     has: np.ndarray  # (g,) whether the point has a prior
+    rpc_cols: Optional[np.ndarray] = None  # positions of the RPC images among ``images``
 
 
 @dataclass
@@ -495,6 +487,7 @@ def _layout(prob: BundleProblem, groups: _Groups) -> _Layout:
     six = np.arange(6)
     sw_all = 1.0 / prob.obs_sigma
     has = prob.has_prior
+    is_rpc = prob.is_rpc
     for imgs, pts, obs in zip(groups.images, groups.points, groups.obs):
         c = len(imgs)
         step = max(1, _CHUNK_OBS // c)
@@ -508,7 +501,8 @@ def _layout(prob: BundleProblem, groups: _Groups) -> _Layout:
                 xy=np.ascontiguousarray(prob.obs_xy[o].transpose(0, 2, 1)),
                 sw=np.ascontiguousarray(sw_all[o].transpose(0, 2, 1)), repeated=repeated,
                 pw=np.ascontiguousarray(prob.prior_weight[p].transpose(1, 2, 0)),
-                prior=np.where(has[p], prob.prior_xyz[p].T, 0.0), has=has[p]))
+                prior=np.where(has[p], prob.prior_xyz[p].T, 0.0), has=has[p],
+                rpc_cols=np.flatnonzero(is_rpc[imgs]) if is_rpc[imgs].any() else None))
     counts = np.bincount(prob.obs_point, minlength=prob.n_points)
     return _Layout(blocks, np.flatnonzero(counts == 0), has)
 
@@ -560,6 +554,30 @@ def _linearise(blk: _Block, cams, xyz: np.ndarray, f: float, pp: np.ndarray):
     return ell, b, xg
 
 
+def _linearise_block(blk: _Block, cams, xyz: np.ndarray, prob: BundleProblem, eo: np.ndarray):
+    """:func:`_linearise` through each image's sensor model: the frame images of the block
+    by the collinearity equations, its RPC images (``blk.rpc_cols``) by
+    :func:`vectoradjust.sensor.models.observe_rpc` (pixels, bias parameters)."""
+    f, pp = float(prob.focal_length), prob.principal_point
+    if blk.rpc_cols is None:
+        return _linearise(blk, cams, xyz, f, pp)
+    c, g = len(blk.images), len(blk.points)
+    xg = xyz[blk.points].T
+    ell, b = np.empty((c, 2, g)), np.empty((c, 2, 9, g))
+    frame_cols = np.setdiff1d(np.arange(c), blk.rpc_cols)
+    if frame_cols.size:
+        sub = replace(blk, images=blk.images[frame_cols], xy=blk.xy[frame_cols])
+        ell[frame_cols], b[frame_cols], _ = _linearise(sub, cams, xyz, f, pp)
+    llh, jac = prob.sensors.frame.to_geodetic(xg.T)
+    for j in blk.rpc_cols.tolist():
+        i = int(blk.images[j])
+        colrow, d_par, d_xyz = observe_rpc(prob.sensors.rpc[i], eo[i], llh, jac)
+        ell[j] = blk.xy[j] - colrow.T
+        b[j, :, :6] = d_par.transpose(1, 2, 0)
+        b[j, :, 6:] = d_xyz.transpose(1, 2, 0)
+    return ell, b, xg
+
+
 def _block_normals(blk: _Block, ell: np.ndarray, b: np.ndarray, nep: np.ndarray):
     """Normal-equation pieces of a block from its weighted design rows.
 
@@ -577,7 +595,10 @@ def _block_normals(blk: _Block, ell: np.ndarray, b: np.ndarray, nep: np.ndarray)
     tp = (b[:, :, 6:] * ell[:, :, None, :]).sum(axis=(0, 1))
     np.multiply(b[:, 0, :6, None, :], b[:, 0, None, 6:, :], out=nep)
     nep += b[:, 1, :6, None, :] * b[:, 1, None, 6:, :]
-    npp = -nep[:, :3].sum(axis=0)  # the position rows are minus the point rows
+    if blk.rpc_cols is None:
+        npp = -nep[:, :3].sum(axis=0)  # the position rows are minus the point rows
+    else:  # an RPC image's parameters are no position: the point rows' own products
+        npp = np.einsum("caig,cajg->ijg", b[:, :, 6:], b[:, :, 6:])
     return nee, te, npp, tp, float((lw * lw).sum())
 
 
@@ -670,7 +691,6 @@ def _eliminate_points(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np
                       check_points: bool):
     """Reduced camera system ``S dx_e = rhs`` with the points eliminated, block by block."""
     n = prob.n_images
-    f, pp = float(prob.focal_length), prob.principal_point
     cams = _cameras(eo)
     s = np.zeros((6 * n, 6 * n))
     rhs = np.zeros(6 * n)
@@ -680,7 +700,7 @@ def _eliminate_points(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np
     buf = np.empty(18 * len(prob.obs_point))
     at = 0
     for blk in lay.blocks:
-        ell, b, xg = _linearise(blk, cams, xyz, f, pp)
+        ell, b, xg = _linearise_block(blk, cams, xyz, prob, eo)
         c, g = len(blk.images), len(blk.points)
         nep = buf[at:at + 18 * c * g].reshape(c, 6, 3, g)
         at += 18 * c * g
@@ -708,7 +728,18 @@ def _eliminate_points(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np
     we = prob.eo_weight
     s[np.arange(6 * n), np.arange(6 * n)] += we.ravel()
     rhs += (we * np.where(we > 0, prob.eo0 - eo, 0.0)).ravel()
+    _hold_fixed(s, rhs, prob.eo_fixed.ravel())
     return s, rhs, parts, tps, inv3x3(lonely_npp), vtpv
+
+
+def _hold_fixed(s: np.ndarray, rhs: np.ndarray, fixed: np.ndarray) -> None:
+    """Take fixed parameters out of the reduced system (unit diagonal, no coupling, zero
+    right-hand side), so that their corrections are zero."""
+    if fixed.any():
+        s[fixed, :] = 0.0
+        s[:, fixed] = 0.0
+        s[fixed, fixed] = 1.0
+        rhs[fixed] = 0.0
 
 
 def _raise_undetermined(bad: np.ndarray) -> None:
@@ -792,6 +823,13 @@ def _final_residuals(prob: BundleProblem, lay: _Layout, eo: np.ndarray,
     v = np.empty((len(prob.obs_point), 2))
     behind = len(prob.obs_point)
     for blk in lay.blocks:
+        if blk.rpc_cols is not None:  # pixels of the RPC images; the frame images below
+            ell, _, _ = _linearise_block(blk, cams, xyz, prob, eo)
+            v[blk.obs] = -ell.transpose(0, 2, 1)
+            fc = np.setdiff1d(np.arange(len(blk.images)), blk.rpc_cols)
+            if not fc.size:
+                continue
+            blk = replace(blk, images=blk.images[fc], xy=blk.xy[fc], obs=blk.obs[fc])
         rr, _ = _rays(blk, cams, xyz, rows=3)
         q = rr[:, 2]
         if np.any(q >= 0):
@@ -844,12 +882,11 @@ def _kept_arrays(prob: BundleProblem, lay: _Layout, step: _Step, s_inv: np.ndarr
 def _kept_partials(prob: BundleProblem, lay: _Layout, step: _Step):
     """Unweighted partials ``a_eo (k, 2, 6)``, ``a_pt (k, 2, 3)`` at the last step's point."""
     k = len(prob.obs_point)
-    f, pp = float(prob.focal_length), prob.principal_point
     a_eo, a_pt = np.empty((k, 2, 6)), np.empty((k, 2, 3))
     a_eo2, a_pt2 = a_eo.reshape(k, 12), a_pt.reshape(k, 6)
     cams = _cameras(step.eo)
     for blk in lay.blocks:
-        _, b, _ = _linearise(blk, cams, step.xyz, f, pp)
+        _, b, _ = _linearise_block(blk, cams, step.xyz, prob, step.eo)
         c, g = len(blk.images), len(blk.points)
         rows = blk.obs.ravel()
         bt = b.reshape(c, 18, g).transpose(0, 2, 1).reshape(c * g, 2, 9)
@@ -870,6 +907,10 @@ def _converged_result(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np
     n = prob.n_images
     s_inv = scipy.linalg.cho_solve(step.factor, np.eye(6 * n))
     s_inv = 0.5 * (s_inv + s_inv.T)
+    fixed = prob.eo_fixed
+    if fixed.any():  # held parameters have no variance
+        s_inv[fixed.ravel(), :] = 0.0
+        s_inv[:, fixed.ravel()] = 0.0
     vf = s0sq if np.isfinite(s0sq) else 1.0
     eo_cov = vf * s_inv.reshape(n, 6, n, 6)[np.arange(n), :, np.arange(n), :]
     a_eo, a_pt, nep, npp_inv, q = _kept_arrays(prob, lay, step, s_inv, compute_covariance)
@@ -877,7 +918,7 @@ def _converged_result(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np
     has_prior = lay.has_prior
     v_point = np.where(has_prior[:, None], xyz - prob.prior_xyz, np.nan)
     we = prob.eo_weight
-    v_eo = np.where(we > 0, eo - prob.eo0, np.nan)
+    v_eo = np.where((we > 0) & ~fixed, eo - prob.eo0, np.nan)
     return BundleResult(
         eo=eo, xyz=xyz, eo_cov=eo_cov, point_cov=point_cov, v_image=v_image,
         v_point=v_point, v_eo=v_eo, vtpv=float(vtpv), n_obs=n_obs, n_unknowns=n_unk, dof=dof,
@@ -947,18 +988,18 @@ def _iterate(prob: BundleProblem, max_iterations: int, tolerance_position: float
         step = None  # free the previous step's blocks before building the next
         step = _gauss_newton_step(prob, lay, eo, xyz, check_points=it == 1)
         vtpv_now = step.vtpv_image + _prior_vtpv(prob, lay.has_prior, xyz, eo)
-        max_pos = max(np.abs(step.dx_e[:, :3]).max(initial=0.0),
-                      np.abs(step.dx_p).max(initial=0.0))
-        max_ang = np.abs(step.dx_e[:, 3:]).max(initial=0.0)
+        max_pos, max_ang, max_bias = _largest_corrections(prob, step)
         history.append({"iteration": it, "vtpv": vtpv_now, "max_position_correction": max_pos,
                         "max_angle_correction": max_ang})
-        _check_diverged(it, max_pos, max_ang, history)
+        if prob.sensors is not None and prob.is_rpc.any():
+            history[-1]["max_bias_correction"] = max_bias
+        _check_diverged(it, max_pos, max_ang + max_bias / 1e4, history)
         best = min(best, vtpv_now)
         eo += step.dx_e
         xyz += step.dx_p
         if progress is not None:
             progress(min(0.9, it / max_iterations), f"iteration {it}: v'Pv = {vtpv_now:.6g}")
-        if max_pos < tolerance_position and max_ang < tolerance_angle:
+        if max_pos < tolerance_position and max_ang < tolerance_angle and max_bias < TOLERANCE_BIAS:
             converged = True
             break
     if not converged:
@@ -967,6 +1008,21 @@ def _iterate(prob: BundleProblem, max_iterations: int, tolerance_position: float
     if progress is not None:
         progress(1.0, f"converged after {it} iterations")
     return result
+
+
+#: an RPC image's bias parameters are converged when every correction is below this (px)
+TOLERANCE_BIAS = 1e-5
+
+
+def _largest_corrections(prob: BundleProblem, step: _Step) -> tuple[float, float, float]:
+    """Largest position (m: frame cameras and points), angle (rad: frame cameras) and
+    bias (px: RPC images) correction of a step."""
+    rpc = prob.is_rpc
+    frame = step.dx_e[~rpc]
+    max_pos = max(np.abs(frame[:, :3]).max(initial=0.0), np.abs(step.dx_p).max(initial=0.0))
+    max_ang = float(np.abs(frame[:, 3:]).max(initial=0.0))
+    max_bias = float(np.abs(step.dx_e[rpc]).max(initial=0.0))
+    return float(max_pos), max_ang, max_bias
 
 
 def _prior_vtpv(prob: BundleProblem, has: np.ndarray, xyz: np.ndarray, eo: np.ndarray) -> float:
@@ -989,44 +1045,6 @@ def _vtpv(prob: BundleProblem, ell: np.ndarray, xyz: np.ndarray, eo: np.ndarray)
     return total
 
 
-def ray_intersection(
-    eo: np.ndarray,
-    obs_point: np.ndarray,
-    obs_image: np.ndarray,
-    obs_xy: np.ndarray,
-    n_points: int,
-    focal_length: float,
-    principal_point=(0.0, 0.0),
-) -> np.ndarray:
-    """Linear least-squares intersection of image rays (approximations for points).
-
-    Returns the point closest to all of its rays, ``(n_points, 3)``; points with fewer
-    than two rays get NaN.
-    """
-    eo = np.asarray(eo, float)
-    m_img = rotation_matrix(eo[:, 3], eo[:, 4], eo[:, 5]).reshape(-1, 3, 3)  # per image
-    v = np.column_stack([
-        obs_xy[:, 0] - principal_point[0],
-        obs_xy[:, 1] - principal_point[1],
-        np.full(len(obs_xy), -float(focal_length)),
-    ])
-    d = np.empty_like(v)  # M^T v (= v' M): direction in the ground frame, image by image
-    order = np.argsort(obs_image, kind="stable")
-    imgs, starts = np.unique(obs_image[order], return_index=True)
-    for i, lo, hi in zip(imgs.tolist(), starts.tolist(), [*starts[1:].tolist(), len(order)]):
-        sel = order[lo:hi]
-        d[sel] = v[sel] @ m_img[i]
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
-    c = eo[obs_image, :3]
-    a = _block_sum(obs_point, proj, n_points)
-    b = _block_sum(obs_point, c - d * np.sum(d * c, axis=1, keepdims=True), n_points)
-    counts = np.bincount(obs_point, minlength=n_points)
-    x = np.matmul(inv3x3(a), b[:, :, None])[:, :, 0]
-    x[counts < 2] = np.nan
-    return x
-
-
 def intersect(
     eo: np.ndarray,
     obs_point: np.ndarray,
@@ -1041,6 +1059,7 @@ def intersect(
     variance_factor: float = 1.0,
     max_iterations: int = 20,
     tolerance: float = 1e-6,
+    sensors: Optional[SensorSet] = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Forward intersection of points from fixed (adjusted) exterior orientation.
 
@@ -1063,6 +1082,9 @@ def intersect(
     max_iterations : int
     tolerance : float
         Largest coordinate correction (m) at convergence.
+    sensors : SensorSet, optional
+        The images' sensor models (RPC images: ``eo`` rows are their bias parameters and
+        ``obs_xy`` pixels); None: frame cameras.
 
     Returns
     -------
@@ -1071,16 +1093,19 @@ def intersect(
     cov : numpy.ndarray, shape (n_points, 3, 3)
     """
     pp = np.asarray(principal_point, float)
-    xyz = ray_intersection(eo, obs_point, obs_image, obs_xy, n_points, focal_length, pp)
+    if sensors is None or not sensors.is_rpc.any():
+        xyz = ray_intersection(eo, obs_point, obs_image, obs_xy, n_points, focal_length, pp)
+    else:
+        xyz = approximate_points(sensors, eo, obs_point, obs_image, obs_xy, n_points,
+                                 focal_length, pp)
     ok = np.isfinite(xyz).all(axis=1)
     use = ok[obs_point]
     op, oi, oxy, osg = obs_point[use], obs_image[use], obs_xy[use], obs_sigma[use]
     x = np.where(ok[:, None], xyz, 0.0)
     w = 1.0 / osg**2
     for _ in range(max_iterations):
-        pred = project(eo[oi], x[op], focal_length, pp)
+        pred, a_eo, a_pt = _observe(eo, oi, x[op], focal_length, pp, sensors)
         ell = oxy - pred
-        a_eo, a_pt = partials(eo[oi], x[op], focal_length)
         wap = a_pt * w[:, :, None]
         npp = _block_sum(op, np.einsum("kri,krj->kij", a_pt, wap), n_points)
         npp[~ok] = np.eye(3)
@@ -1089,7 +1114,7 @@ def intersect(
         x += dx
         if np.abs(dx).max(initial=0.0) < tolerance:
             break
-    a_eo, a_pt = partials(eo[oi], x[op], focal_length)
+    _, a_eo, a_pt = _observe(eo, oi, x[op], focal_length, pp, sensors)
     wap = a_pt * w[:, :, None]
     npp = _block_sum(op, np.einsum("kri,krj->kij", a_pt, wap), n_points)
     npp[~ok] = np.eye(3)
@@ -1105,3 +1130,26 @@ def intersect(
     x[~ok] = np.nan
     cov[~ok] = np.nan
     return x, cov
+
+
+def _observe(eo: np.ndarray, oi: np.ndarray, x: np.ndarray, focal_length: float,
+             pp: np.ndarray, sensors: Optional[SensorSet]):
+    """Computed image coordinates ``(k, 2)`` of points ``x (k, 3)`` on images ``oi`` and
+    the partials ``a_eo (k, 2, 6)``, ``a_pt (k, 2, 3)``, each image through its model."""
+    if sensors is None or not sensors.is_rpc[oi].any():
+        pred = project(eo[oi], x, focal_length, pp)
+        a_eo, a_pt = partials(eo[oi], x, focal_length)
+        return pred, a_eo, a_pt
+    k = len(oi)
+    pred, a_eo, a_pt = np.empty((k, 2)), np.empty((k, 2, 6)), np.empty((k, 2, 3))
+    rpc = sensors.is_rpc[oi]
+    if (~rpc).any():
+        pred[~rpc] = project(eo[oi[~rpc]], x[~rpc], focal_length, pp)
+        a_eo[~rpc], a_pt[~rpc] = partials(eo[oi[~rpc]], x[~rpc], focal_length)
+    llh, jac = sensors.frame.to_geodetic(x[rpc])
+    sel = np.flatnonzero(rpc)
+    for i in np.unique(oi[sel]).tolist():
+        on = oi[sel] == i
+        pred[sel[on]], a_eo[sel[on]], a_pt[sel[on]] = observe_rpc(
+            sensors.rpc[i], eo[i], llh[on], jac[on])
+    return pred, a_eo, a_pt

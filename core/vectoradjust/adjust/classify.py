@@ -21,6 +21,11 @@ from typing import Optional
 import numpy as np
 
 from vectoradjust.adjust.bundle import BundleProblem, ray_intersection
+from vectoradjust.adjust.intersection import (
+    approximate_points,
+    check_bias_determined,
+    pts_have_prior,
+)
 from vectoradjust.adjust.shapepoints import ShapePoints, extract_shape_points, lookup, string_codes
 from vectoradjust.errors import (
     ControlError,
@@ -31,6 +36,7 @@ from vectoradjust.errors import (
 )
 from vectoradjust.model import ProjectData
 from vectoradjust.results import DatabaseResult
+from vectoradjust.sensor.models import SensorSet
 
 __all__ = ["Classification", "BundleSetup", "classify_measurements", "build_problem"]
 
@@ -572,6 +578,10 @@ def _images_in_run(data: ProjectData, cls: Classification, use: np.ndarray, warn
     eo_sigma = np.full((len(img_used), 6), np.inf)
     for r, j in enumerate(img_used):
         im = data.images[j]
+        if im.model == "rpc":  # six bias parameters (px), starting at zero
+            eo0[r] = 0.0
+            eo_sigma[r] = im.rpc.bias_sigma
+            continue
         if im.sigma_position is not None:
             eo_sigma[r, :3] = im.sigma_position
         if im.sigma_attitude is not None:
@@ -619,18 +629,30 @@ def build_problem(data: ProjectData, cls: Classification, selected: set,
     o_xy = meas.xy[use]
     o_sig = meas.sigma[use]
     xyz0 = prior.copy()
+    sensors = None
+    if data.has_rpc:
+        sensors = SensorSet([data.images[j].rpc if data.images[j].model == "rpc" else None
+                             for j in img_used], data.ground_frame)
     if n_tie:
-        approx = ray_intersection(eo0, o_pt, o_img, o_xy, len(prior),
-                                  data.camera.focal_length, data.camera.principal_point)
+        if sensors is None:
+            approx = ray_intersection(eo0, o_pt, o_img, o_xy, len(prior),
+                                      data.camera.focal_length, data.camera.principal_point)
+        else:
+            approx = approximate_points(sensors, eo0, o_pt, o_img, o_xy, len(prior),
+                                        data.camera.focal_length, data.camera.principal_point)
         tie_sl = slice(len(prior) - n_tie, len(prior))
         xyz0[tie_sl] = approx[tie_sl]
         if not np.isfinite(xyz0[tie_sl]).all():
             raise MeasurementError("Tie points could not be intersected from the approximate "
                                    "exterior orientation",
                                    "Check the approximate positions and attitudes in [[images]]")
+    if sensors is not None:
+        check_bias_determined(sensors, eo_sigma, o_pt, o_img, o_xy, pts_have_prior(weight),
+                              [str(data.images[j].id) for j in img_used])
     prior_filled = np.where(np.isfinite(prior), prior, 0.0)
     problem = BundleProblem(data.camera.focal_length, data.camera.principal_point, eo0, eo_sigma,
-                            xyz0, prior_filled, weight, o_pt, o_img, o_xy, o_sig)
+                            xyz0, prior_filled, weight, o_pt, o_img, o_xy, o_sig,
+                            sensors=sensors)
     return BundleSetup(
         problem=problem,
         point_ids=np.array(pts.ids, dtype=object).astype(str),

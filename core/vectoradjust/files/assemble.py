@@ -22,6 +22,7 @@ from typing import Optional
 
 import numpy as np
 
+from vectoradjust.errors import ProjectError
 from vectoradjust.model import Camera, ControlPoints, Measurements, ProjectData
 from vectoradjust.sensor.interior import FiducialMeasurements, refine_measurements
 
@@ -98,15 +99,54 @@ def project_data(
     unit = spec.measurements.get("unit", "mm")
     if control is None:
         control = empty_control(f"{where} [control]")
-    interior = refine_measurements(
-        measurements, spec.images, spec.camera, spec.corrections, unit=unit,
-        fiducials=fiducials, control=control, map_projection=bool(map_projection))
-    camera = Camera(spec.camera.focal_length, interior.principal_point,
-                    calibration=spec.camera.calibration)
+    if any(im.model == "rpc" for im in spec.images):
+        meas, camera, report = _split_rpc(spec, measurements, unit, fiducials, control,
+                                          map_projection, where)
+    else:
+        interior = refine_measurements(
+            measurements, spec.images, spec.camera, spec.corrections, unit=unit,
+            fiducials=fiducials, control=control, map_projection=bool(map_projection))
+        camera = Camera(spec.camera.focal_length, interior.principal_point,
+                        calibration=spec.camera.calibration)
+        meas, report = interior.measurements, interior.report
     return ProjectData(
         crs=crs if crs is not None else spec.crs, camera=camera, images=spec.images,
-        measurements=interior.measurements, control=control, vectors=list(vectors),
+        measurements=meas, control=control, vectors=list(vectors),
         settings=spec.settings, truth=dict(truth or {}), corrections=spec.corrections,
         source=where, qa=(spec.raw or {}).get("qa"),
-        conflation=(spec.raw or {}).get("conflation"), interior=interior.report,
+        conflation=(spec.raw or {}).get("conflation"), interior=report,
     )
+
+
+def _subset(meas: Measurements, sel: np.ndarray) -> Measurements:
+    return Measurements(meas.point_id[sel], meas.image_id[sel], meas.xy[sel], meas.sigma[sel],
+                        source=meas.source, rows=np.asarray(meas.rows)[sel])
+
+
+def _split_rpc(spec, measurements: Measurements, unit: str, fiducials, control,
+               map_projection: bool, where: str):
+    """Measurements of a block with RPC images: the rows on RPC images stay pixels
+    (column, row; GDAL's convention), the frame images' rows are refined as usual."""
+    rpc_ids = [im.id for im in spec.images if im.model == "rpc"]
+    frames = [im for im in spec.images if im.model != "rpc"]
+    written = ((spec.raw or {}).get("measurements") or {}).get("unit")
+    if not frames and written is not None and unit != "pixel":
+        raise ProjectError(f"{where}: [measurements] unit = {unit!r}, but every image is an "
+                           "RPC image, measured in pixels", 'Write [measurements] unit = '
+                           '"pixel" (column, row; 0 at the corner of the first pixel)',
+                           path=where)
+    on_rpc = np.isin(measurements.image_id, rpc_ids)
+    out = _subset(measurements, np.arange(len(on_rpc)))
+    report = {"input_unit": unit, "rpc_images": rpc_ids,
+              "notes": ["measurements on RPC images are pixels (column, row), used as read"]}
+    if not frames:
+        return out, Camera(float("nan")), report
+    sel = np.flatnonzero(~on_rpc)
+    interior = refine_measurements(
+        _subset(measurements, sel), frames, spec.camera, spec.corrections, unit=unit,
+        fiducials=fiducials, control=control, map_projection=bool(map_projection))
+    out.xy[sel] = interior.measurements.xy
+    out.sigma[sel] = interior.measurements.sigma
+    camera = Camera(spec.camera.focal_length, interior.principal_point,
+                    calibration=spec.camera.calibration)
+    return out, camera, {**interior.report, "rpc_images": rpc_ids}

@@ -41,13 +41,14 @@ __all__ = ["PROJECT_SCHEMA", "ProjectSpec", "load_project", "parse_project", "ch
 #: ``[corrections]`` those of :func:`vectoradjust.sensor.interior.parse_corrections`;
 #: ``[qa]`` those of :class:`vectoradjust.qa.tolerances.QASpec`.
 PROJECT_SCHEMA: dict = {
-    "top level": ("name", "description", "crs", "vertical_crs", "camera", "corrections", "images",
+    "top level": ("name", "description", "crs", "vertical_crs", "heights", "camera",
+                  "corrections", "images",
                   "measurements", "control", "vectors", "adjustment", "truth", "qa",
                   "conflation"),
     "[camera]": tuple(_CAMERA_KEYS),
     "[corrections]": tuple(CORRECTION_KEYS),
     "[[images]]": ("id", "position", "attitude", "sigma_position", "sigma_attitude", "date",
-                   "path"),
+                   "path", "model", "rpc", "bias", "bias_sigma"),
     "[measurements]": ("path", "unit", "sigma", "fiducials"),
     "[control]": ("path", "crs", "vertical_crs"),
     "[[vectors]]": ("name", "path", "layer", "where", "id_field", "sigma",
@@ -114,6 +115,14 @@ class ProjectSpec:
     settings: AdjustmentSettings
     raw: dict = field(default_factory=dict)
     vertical_crs: Optional[str] = None
+    #: the kind of the project's heights, ``"ellipsoidal"`` or ``"orthometric"`` (required
+    #: with RPC images, whose heights are ellipsoidal); None when not given
+    heights: Optional[str] = None
+
+    @property
+    def has_rpc(self) -> bool:
+        """Whether any image has an RPC model."""
+        return any(im.model == "rpc" for im in self.images)
 
     def vector(self, name: str) -> VectorSpec:
         """The ``[[vectors]]`` entry called ``name``."""
@@ -214,13 +223,17 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
     if not isinstance(crs, str) or not crs.strip():
         raise _err(where, "crs is missing", 'Add crs = "EPSG:xxxxx" (a projected CRS in metres)')
 
+    images = _parse_images(raw.get("images"), where, base_dir)
     cam = raw.get("camera")
-    if not isinstance(cam, dict):
+    if cam is None and images and all(im.model == "rpc" for im in images):
+        cam, camera = {}, None  # satellite images only: no frame camera
+    elif not isinstance(cam, dict):
         raise _err(where, "[camera] is missing", "Add [camera] with focal_length (mm)")
-    camera = _parse_camera(cam, base_dir, where)
+    else:
+        camera = _parse_camera(cam, base_dir, where)
 
     corrections = _parse_corrections(raw.get("corrections", {}) or {}, where)
-    images = _parse_images(raw.get("images"), where)
+    heights = _parse_heights(raw, images, where)
     meas = _parse_measurements(raw.get("measurements"), base_dir, where)
     control = _parse_control(raw.get("control"), base_dir, where)
     vectors = _parse_vectors(raw.get("vectors", []) or [], base_dir, where)
@@ -239,7 +252,31 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
         measurements=meas, control=control, vectors=vectors, settings=settings, raw=raw,
         vertical_crs=_text(where, "vertical_crs", raw.get("vertical_crs"),
                            'vertical_crs = "EPSG:5703"'),
+        heights=heights,
     )
+
+
+def _parse_heights(raw: dict, images: list, where: str) -> Optional[str]:
+    """The top-level ``heights``: required with RPC images (their heights are
+    ellipsoidal; orthometric heights are converted with the ``vertical_crs``'s geoid)."""
+    heights = raw.get("heights")
+    if heights is None:
+        if any(im.model == "rpc" for im in images):
+            raise _err(where, "heights is missing: RPC images work in ellipsoidal heights, so "
+                       "the project must say which kind its control, DEM and road heights are",
+                       'Add heights = "ellipsoidal" (GNSS heights above the WGS84 ellipsoid) '
+                       'or heights = "orthometric" with vertical_crs = "EPSG:5773" (EGM96), '
+                       '"EPSG:3855" (EGM2008) or your datum\'s code')
+        return None
+    if heights not in ("ellipsoidal", "orthometric"):
+        raise _err(where, f"heights = {heights!r} is unknown",
+                   'Write heights = "ellipsoidal" or heights = "orthometric"')
+    if heights == "orthometric" and not raw.get("vertical_crs"):
+        raise _err(where, 'heights = "orthometric" needs the vertical datum to convert them '
+                   "to the ellipsoidal heights of the RPCs",
+                   'Add vertical_crs = "EPSG:5773" (EGM96 height), "EPSG:3855" (EGM2008) or '
+                   "your datum's code")
+    return heights
 
 
 def _suggestion(key: str, allowed) -> Optional[str]:
@@ -310,7 +347,7 @@ def _parse_corrections(corrections: Any, where: str) -> dict:
     return corrections
 
 
-def _parse_images(images_raw: Any, where: str) -> list:
+def _parse_images(images_raw: Any, where: str, base_dir: Path = Path(".")) -> list:
     """``[[images]]``: one :class:`ImageSpec` per entry, unique ids."""
     if isinstance(images_raw, Mapping):
         raise _err(where, "images is a single table", "Write [[images]] (an array of tables, "
@@ -330,6 +367,18 @@ def _parse_images(images_raw: Any, where: str) -> list:
         if iid in seen:
             raise _err(w, "is defined twice", "Give every image a unique id")
         seen.add(iid)
+        model = im.get("model", "frame")
+        if model not in ("frame", "rpc"):
+            raise _err(w, f"model = {model!r} is unknown",
+                       'Write model = "frame" (a camera) or model = "rpc" (a satellite image '
+                       "with rational polynomial coefficients)")
+        if model == "rpc":
+            images.append(_parse_rpc_image(im, iid, base_dir, w))
+            continue
+        for key in ("rpc", "bias", "bias_sigma"):
+            if key in im:
+                raise _err(w, f"{key} is given but the image is a frame camera",
+                           f'Add model = "rpc" to the entry, or remove {key}')
         if "position" not in im:
             raise _err(w, "has no position", "Add position = [XL, YL, ZL] (approximate, m)")
         pos = _vector3(w, "position", im["position"])
@@ -341,6 +390,41 @@ def _parse_images(images_raw: Any, where: str) -> list:
         date = im.get("date")
         images.append(ImageSpec(iid, pos, att, sp, sa, None if date is None else str(date)))
     return images
+
+
+def _parse_rpc_image(im: dict, iid: str, base_dir: Path, w: str) -> ImageSpec:
+    """An ``[[images]]`` entry with ``model = "rpc"``: RPC file, bias model, bias priors."""
+    from vectoradjust.sensor.models import RpcImage
+    from vectoradjust.sensor.rpc import BIAS_MODELS
+
+    for key in ("position", "attitude", "sigma_position", "sigma_attitude"):
+        if key in im:
+            raise _err(w, f"{key} is a frame camera's; an RPC image has no exterior "
+                       "orientation", f'Remove {key}, or write model = "frame"')
+    if "rpc" not in im:
+        raise _err(w, "has no rpc file", 'Add rpc = "image.tif" (an image with RPC metadata, '
+                   'or its _rpc.txt / .RPB file)')
+    path = _resolve(base_dir, im["rpc"], w, "rpc")
+    bias = im.get("bias", "shift")
+    if bias not in BIAS_MODELS:
+        raise _err(w, f"bias = {bias!r} is unknown",
+                   "Write bias = " + ", ".join(f'"{m}"' for m in BIAS_MODELS))
+    sig = im.get("bias_sigma")
+    if sig is None:
+        sigma = np.full(6, np.inf)
+    else:
+        vals = sig if isinstance(sig, (list, tuple)) else [sig]
+        if len(vals) not in (1, 2, 6):
+            raise _err(w, f"bias_sigma must be 1, 2 or 6 numbers (px), not {sig!r}",
+                       "Write bias_sigma = 5.0 (every bias parameter), [shift, drift/affine] "
+                       "or [a0, a1, a2, b0, b1, b2]")
+        v = np.array([_number(w, "bias_sigma", x, positive=True) for x in vals])
+        sigma = (np.full(6, v[0]) if len(v) == 1 else
+                 np.array([v[0], v[1], v[1], v[0], v[1], v[1]]) if len(v) == 2 else v)
+    date = im.get("date")
+    return ImageSpec(iid, np.zeros(3), np.zeros(3), None, None,
+                     None if date is None else str(date), model="rpc",
+                     rpc=RpcImage(None, bias, sigma, path))
 
 
 def _parse_control(control: Any, base_dir: Path, where: str) -> Optional[dict]:

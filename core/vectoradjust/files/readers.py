@@ -721,6 +721,24 @@ def load_project_data(project, vectors: Optional[list] = None,
     say("refining the image coordinates")
     # refinement (DESIGN 5), camera, [qa], truth: vectoradjust.files.assemble, shared with QGIS;
     # the project CRS is projected (checked above): earth curvature applies when asked
-    return project_data(spec, raw_meas, control, layers, crs=crs.to_string(), truth=truth,
+    data = project_data(spec, raw_meas, control, layers, crs=crs.to_string(), truth=truth,
                         fiducials=fiducials, map_projection=bool(crs.is_projected),
                         source=where)
+    if spec.has_rpc:
+        say("reading the RPCs of the satellite images")
+        read_rpc_images(data, spec, crs.to_string())
+    return data
+
+
+def read_rpc_images(data: ProjectData, spec: ProjectSpec, crs: str) -> None:
+    """Read the RPCs of the project's RPC images into their ``ImageSpec.rpc`` and give
+    ``data`` the ground frame (project CRS and heights to WGS84 longitude, latitude and
+    ellipsoidal height, :func:`vectoradjust.files.rpc.crs_frame`)."""
+    from vectoradjust.files.rpc import crs_frame, read_rpc
+
+    for im in data.images:
+        if im.model == "rpc" and im.rpc.rpc is None:
+            im.rpc.rpc = read_rpc(im.rpc.path)
+    data.ground_frame = crs_frame(crs, heights=spec.heights or "ellipsoidal",
+                                  geoid=spec.vertical_crs if spec.heights == "orthometric"
+                                  else None)
