@@ -74,7 +74,9 @@ def _images(out: AdjustmentRun) -> list:
     images = []
     used = {iid: j for j, iid in enumerate(out.image_ids)}
     for im in out.data.images:
-        if im.id in used:
+        if im.id in used and im.model == "rpc":
+            images.append(rpc_image_entry(im, res, used[im.id], out.data.settings.alpha))
+        elif im.id in used:
             j = used[im.id]
             sd = np.sqrt(np.diag(res.eo_cov[j]))
             images.append({
@@ -88,6 +90,43 @@ def _images(out: AdjustmentRun) -> list:
                            "attitude": list(map(float, im.attitude)), "sigma_position": None,
                            "sigma_attitude": None, "date": im.date, "used": False})
     return images
+
+
+def rpc_image_entry(im, res, j: int, alpha: float = 0.05) -> dict:
+    """An RPC image's estimated bias in the summary: values and sigmas (px), the
+    correlations of the estimated parameters, and whether the bias is significant.
+
+    The joint test compares ``b' C^-1 b`` of the estimated parameters with the
+    chi-square quantile ``1 - alpha`` (``k`` degrees of freedom); each parameter's test
+    compares ``|b| / sigma`` with the normal quantile ``1 - alpha / 2``.
+    """
+    from scipy.stats import chi2, norm
+
+    from vectoradjust.sensor.models import BIAS_PARAMETERS
+
+    free = im.rpc.free
+    b, cov = res.eo[j], res.eo_cov[j]
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    entry = {"id": im.id, "model": "rpc", "rpc": im.rpc.path, "bias_model": im.rpc.bias,
+             "bias": {n: float(b[k]) for k, n in enumerate(BIAS_PARAMETERS) if free[k]},
+             "sigma_bias": {n: float(sd[k]) for k, n in enumerate(BIAS_PARAMETERS) if free[k]},
+             "date": im.date, "used": True}
+    if not free.any():
+        return entry
+    idx = np.flatnonzero(free)
+    c = cov[np.ix_(idx, idx)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = c / np.outer(sd[idx], sd[idx])
+    stat = float(b[idx] @ np.linalg.solve(c, b[idx])) if np.all(sd[idx] > 0) else None
+    zq = float(norm.ppf(1 - alpha / 2))
+    entry["correlation"] = {"parameters": [BIAS_PARAMETERS[k] for k in idx],
+                            "matrix": np.round(corr, 6).tolist()}
+    entry["significance"] = {
+        "alpha": alpha, "statistic": stat, "dof": int(len(idx)),
+        "critical": float(chi2.ppf(1 - alpha, len(idx))),
+        "significant": None if stat is None else bool(stat > chi2.ppf(1 - alpha, len(idx))),
+        "parameters": {BIAS_PARAMETERS[k]: bool(abs(b[k]) > zq * sd[k]) for k in idx}}
+    return entry
 
 
 def _database_entry(d) -> dict:
