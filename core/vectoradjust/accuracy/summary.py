@@ -100,7 +100,7 @@ def rpc_image_entry(im, res, j: int, alpha: float = 0.05) -> dict:
     chi-square quantile ``1 - alpha`` (``k`` degrees of freedom); each parameter's test
     compares ``|b| / sigma`` with the normal quantile ``1 - alpha / 2``.
     """
-    from scipy.stats import chi2, norm
+    from scipy.special import gammaincinv, ndtri
 
     from vectoradjust.sensor.models import BIAS_PARAMETERS
 
@@ -118,13 +118,13 @@ def rpc_image_entry(im, res, j: int, alpha: float = 0.05) -> dict:
     with np.errstate(divide="ignore", invalid="ignore"):
         corr = c / np.outer(sd[idx], sd[idx])
     stat = float(b[idx] @ np.linalg.solve(c, b[idx])) if np.all(sd[idx] > 0) else None
-    zq = float(norm.ppf(1 - alpha / 2))
+    zq = float(ndtri(1 - alpha / 2))
+    crit = float(2.0 * gammaincinv(len(idx) / 2.0, 1 - alpha))  # chi-square quantile
     entry["correlation"] = {"parameters": [BIAS_PARAMETERS[k] for k in idx],
                             "matrix": np.round(corr, 6).tolist()}
     entry["significance"] = {
         "alpha": alpha, "statistic": stat, "dof": int(len(idx)),
-        "critical": float(chi2.ppf(1 - alpha, len(idx))),
-        "significant": None if stat is None else bool(stat > chi2.ppf(1 - alpha, len(idx))),
+        "critical": crit, "significant": None if stat is None else bool(stat > crit),
         "parameters": {BIAS_PARAMETERS[k]: bool(abs(b[k]) > zq * sd[k]) for k in idx}}
     return entry
 
