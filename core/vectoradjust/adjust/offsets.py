@@ -282,7 +282,7 @@ def shifted_problem(base: BundleProblem, db_xyz: np.ndarray, model: OffsetModel,
                          base.eo0, base.eo_sigma,
                          base.xyz0 if xyz0 is None else xyz0, prior, base.prior_weight,
                          base.obs_point, base.obs_image, base.obs_xy, base.obs_sigma,
-                         eo_start=eo_start)
+                         eo_start=eo_start, sensors=base.sensors)
 
 
 def apply_offsets(result: BundleResult, model: OffsetModel, estimate: OffsetEstimate,

@@ -155,7 +155,7 @@ def _reweight_two_pass(setup: BundleSetup, result: BundleResult, warnings: list)
     p = setup.problem
     setup.problem = BundleProblem(p.focal_length, p.principal_point, p.eo0, p.eo_sigma, p.xyz0,
                                   p.prior_xyz, weight, p.obs_point, p.obs_image, p.obs_xy,
-                                  p.obs_sigma)
+                                  p.obs_sigma, sensors=p.sensors)
     return kept
 
 
