@@ -736,9 +736,13 @@ def read_rpc_images(data: ProjectData, spec: ProjectSpec, crs: str) -> None:
     ellipsoidal height, :func:`vectoradjust.files.rpc.crs_frame`)."""
     from vectoradjust.files.rpc import crs_frame, read_rpc
 
+    rpcs = []
     for im in data.images:
-        if im.model == "rpc" and im.rpc.rpc is None:
-            im.rpc.rpc = read_rpc(im.rpc.path)
+        if im.model == "rpc":
+            if im.rpc.rpc is None:
+                im.rpc.rpc = read_rpc(im.rpc.path)
+            rpcs.append(im.rpc.rpc)
+    near = (float(np.mean([r.long_off for r in rpcs])), float(np.mean([r.lat_off for r in rpcs])))
     data.ground_frame = crs_frame(crs, heights=spec.heights or "ellipsoidal",
                                   geoid=spec.vertical_crs if spec.heights == "orthometric"
-                                  else None)
+                                  else None, near=near)
