@@ -273,3 +273,47 @@ def test_vertex_ce90_le90_cover_the_truth_on_rpc_pairs():
         le.append(np.abs(e[:, 2]) <= v["LE90"])
     assert 0.85 <= np.mean(ce) <= 0.95, np.mean(ce)
     assert 0.85 <= np.mean(le) <= 0.95, np.mean(le)
+
+
+def test_points_outside_the_rpc_domain_warn_far_outside_refused():
+    from vectoradjust import pipeline
+
+    data, _, _ = rpc_project(1)
+    data.control.xyz[:, 2] += 700.0  # 1.3-1.5 height scales from HEIGHT_OFF
+    out = pipeline.run(data)
+    assert any("outside the RPC's validity domain" in w for w in out.summary["warnings"])
+    data, _, _ = rpc_project(1)
+    data.control.xyz[:, 2] += 3000.0  # e.g. heights in feet or another datum's numbers
+    with pytest.raises(ProjectError, match="far outside the RPC's validity domain") as e:
+        pipeline.run(data)
+    assert "ellipsoidal" in e.value.mend and "crs" in e.value.mend
+
+
+@pytest.mark.io
+def test_satellite_sample_end_to_end(tmp_path):
+    """`vectoradjust adjust` on the satellite sample: the bias recovered, corrected RPCs
+    that reproduce the biased projection, the chi-square test passed."""
+    import csv
+
+    from vectoradjust.cli import main
+    from vectoradjust.files.rpc import read_rpc
+
+    sample = Path(__file__).resolve().parents[1] / "resources" / "sample" / "satellite"
+    assert main(["adjust", str(sample / "project.toml"), "-o", str(tmp_path), "-q",
+                 "--no-bands"]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["chi_square"]["passed"] is True
+    with open(sample / "truth_bias.csv", newline="") as fh:
+        truth = {r["image_id"]: r for r in csv.DictReader(fh)}
+    for entry in summary["images"]:
+        t = truth[entry["id"]]
+        for p in ("a0", "b0"):
+            assert abs(entry["bias"][p] - float(t[p])) < 4 * entry["sigma_bias"][p]
+        raw = read_rpc(sample / f"{entry['id']}_rpc.txt")
+        fixed = read_rpc(tmp_path / entry["corrected_rpc"]["file"])
+        lon, lat, h = raw.long_off, raw.lat_off, raw.height_off
+        shift = fixed.project(lon, lat, h) - raw.project(lon, lat, h)
+        np.testing.assert_allclose(shift[0], [entry["bias"]["a0"], entry["bias"]["b0"]],
+                                   atol=1e-6)
+    osm = summary["databases"][0]["truth"]
+    assert 0.8 <= osm["share_within_ce90"] <= 0.97 and osm["improvement"] > 0.7

@@ -24,6 +24,7 @@ from vectoradjust.adjust.bundle import BundleProblem, ray_intersection
 from vectoradjust.adjust.intersection import (
     approximate_points,
     check_bias_determined,
+    check_rpc_domain,
     pts_have_prior,
 )
 from vectoradjust.adjust.shapepoints import ShapePoints, extract_shape_points, lookup, string_codes
@@ -649,6 +650,9 @@ def build_problem(data: ProjectData, cls: Classification, selected: set,
     if sensors is not None:
         check_bias_determined(sensors, eo_sigma, o_pt, o_img, o_xy, pts_have_prior(weight),
                               [str(data.images[j].id) for j in img_used])
+    if sensors is not None:
+        check_rpc_domain(sensors, xyz0, o_pt, o_img, [str(data.images[j].id) for j in img_used],
+                         pts.ids, warnings)
     prior_filled = np.where(np.isfinite(prior), prior, 0.0)
     problem = BundleProblem(data.camera.focal_length, data.camera.principal_point, eo0, eo_sigma,
                             xyz0, prior_filled, weight, o_pt, o_img, o_xy, o_sig,

@@ -223,3 +223,50 @@ def check_bias_determined(sensors: SensorSet, eo_sigma: np.ndarray, obs_point: n
             "a-priori sigmas (bias_sigma = [shift px, drift px]), or use a smaller bias model"
             + (f" (bias = {smaller[-1]!r})" if smaller else ""),
             details={"image": image_ids[i], "bias": img.bias, "known_points": int(len(pts))})
+
+
+#: normalised RPC coordinates beyond which a point is refused (the RPC's polynomials are
+#: meaningless that far out: wrong CRS, zone, heights or image)
+FAR_OUTSIDE = 3.0
+
+
+def check_rpc_domain(sensors: SensorSet, xyz: np.ndarray, obs_point: np.ndarray,
+                     obs_image: np.ndarray, image_ids: list, point_ids, warnings: list) -> None:
+    """Warn about measured points outside an RPC's validity domain; refuse far outside.
+
+    A point whose normalised longitude, latitude or height (``RpcModel.normalized``)
+    exceeds 1.1 in magnitude is outside the domain the vendor fitted the RPCs on: a
+    warning. Beyond :data:`FAR_OUTSIDE` the point cannot be on the image at all.
+
+    Raises
+    ------
+    ProjectError
+        A point far outside, naming the image, the point, its height and the domain.
+    """
+    for i in sensors.rpc_images.tolist():
+        rpc = sensors.rpc[i].rpc
+        pts = np.unique(obs_point[obs_image == i])
+        pts = pts[np.isfinite(xyz[pts]).all(axis=1)]
+        if not len(pts):
+            continue
+        llh, _ = sensors.frame.to_geodetic(xyz[pts])
+        norm = np.abs(rpc.normalized(llh[:, 0], llh[:, 1], llh[:, 2]))
+        worst = norm.max(axis=1)
+        k = int(np.argmax(worst))
+        where = (f"e.g. point {str(point_ids[pts[k]])!r} at longitude {llh[k, 0]:.5f}, "
+                 f"latitude {llh[k, 1]:.5f}, height {llh[k, 2]:.1f} m; the RPC covers "
+                 f"longitude {rpc.long_off:.5f} +- {abs(rpc.long_scale):.5f}, latitude "
+                 f"{rpc.lat_off:.5f} +- {abs(rpc.lat_scale):.5f}, height {rpc.height_off:.0f} "
+                 f"+- {abs(rpc.height_scale):.0f} m (ellipsoidal)")
+        if worst[k] > FAR_OUTSIDE:
+            raise ProjectError(
+                f"RPC image {image_ids[i]!r}: {int((worst > FAR_OUTSIDE).sum())} measured "
+                f"point(s) lie far outside the RPC's validity domain ({where})",
+                "Check the project crs (zone), the point coordinates (X and Y swapped, "
+                "degrees), the heights (ellipsoidal for RPCs: heights = \"orthometric\" with "
+                "vertical_crs converts them) and that the measurements belong to this image")
+        if worst[k] > 1.1:
+            warnings.append(
+                f"RPC image {image_ids[i]!r}: {int((worst > 1.1).sum())} of {len(pts)} measured "
+                f"point(s) lie outside the RPC's validity domain ({where}); the RPC "
+                "extrapolates there")

@@ -487,6 +487,10 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
         if run.flagged:
             _write_flagged(run.flagged, tmp / "flagged_observations.csv")
             names.append("flagged_observations.csv")
+        if any(im.model == "rpc" for im in run.data.images):
+            from vectoradjust.files.rpc import write_corrected_rpcs
+
+            names += write_corrected_rpcs(run, tmp)  # also notes them in the summary
         step("writing summary.json")
         summary = dict(run.summary)
         summary["renamed_input_fields"] = renamed_input_fields(run_input_fields(run))

@@ -24,8 +24,8 @@ __all__ = ["write_satellite_sample", "SAMPLE_CRS"]
 #: the frame sample's CRS (UTM zone 16N)
 SAMPLE_CRS = "EPSG:32616"
 
-_PROJECT = """# Satellite sample written by vectoradjust.simulate.satellite_sample (seed {seed}); every
-# number is simulated. The frame sample's ground (..) seen by a pushbroom triplet with RPCs.
+_PROJECT = """# Satellite sample written by vectoradjust.simulate.satellite_sample (seed {seed});
+# every number is simulated: the frame sample's ground (..) seen by a pushbroom triplet.
 name = "vectoradjust simulated satellite triplet, seed {seed}"
 crs = "{crs}"
 heights = "ellipsoidal"         # the RPCs' heights; the sample's heights are taken as such
