@@ -1096,8 +1096,8 @@ def control_point_qa(ids: Sequence, residuals, roles: Sequence[str], spec: QASpe
     e_z = np.abs(res[:, 2])
     scale = 2.0 if point_rule == "limit" else 1.0
 
-    def limit(t):
-        return np.nan if t is None else scale * t
+    def limit(t):  # no tolerance (None), or none derivable (NaN: no focal length, RPCs)
+        return np.nan if t is None or not np.isfinite(t) else scale * t
 
     tol_xy = np.where(is_check, limit(tol.check_xy), limit(tol.gcp_xy))
     tol_z = np.where(is_check, limit(tol.check_z), limit(tol.gcp_z))
@@ -1113,7 +1113,7 @@ def control_point_qa(ids: Sequence, residuals, roles: Sequence[str], spec: QASpe
             continue
         sel_ids = [i for i, m in zip(ids, mask.tolist()) if m]
         for comp, vals, t in (("XY", e_xy[mask], txy), ("Z", e_z[mask], tz)):
-            if t is None:
+            if t is None or not np.isfinite(t):
                 continue
             stages.append(check_stage(f"block: {label} {comp}", vals, sel_ids, t, "mean",
                                       point_tolerance=scale * t, unit="m"))

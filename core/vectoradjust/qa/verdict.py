@@ -768,7 +768,10 @@ def _block_stages(run, spec: QASpec, f: float, r_mm: float, point_rule: str,
     stages += cqa.stages
     tolerances["block"] = cqa.tolerances.as_dict()
     tolerances["block"]["unit"] = "m"
-    if spec.product != "topographic map":
+    if spec.product != "topographic map" and not np.isfinite(f):
+        notes.append("orthophoto: the DTM tolerance 0.3 mm x f x M / r needs a frame camera's "
+                     "focal length; with RPC images it is not derived")
+    elif spec.product != "topographic map":
         dh, dh3 = orthophoto_dtm_tolerance(f, spec.product_scale, r_mm)
         tolerances["orthophoto"] = {"focal_length_mm": f, "scale": spec.product_scale,
                                     "working_radius_mm": r_mm, "dh_dtm_m": dh,
@@ -831,15 +834,21 @@ def accuracy_control(
     interior = getattr(data, "interior", None) or {}
     pixel, pixel_src = resolve_pixel_size(data.camera, spec, pixel_size, interior)
     tolerances, notes = _pixel_tolerances(point_rule, pixel)
-    stages, io_notes = _interior_orientation_stages(interior, pixel)
-    notes += io_notes
-    ro_stages, ro_notes, pair_stats = _relative_orientation_stages(
-        run, pairs, min_pair_points, pixel)
-    stages += ro_stages
-    notes += ro_notes
-    tr_stages, tr_notes, trip_stats = _triplet_stages(run, f, min_triplet_points, pixel)
-    stages += tr_stages
-    notes += tr_notes
+    if _problem(run).is_rpc.any():  # the frame camera's stages do not apply
+        stages, pair_stats, trip_stats = [], [], []
+        notes.append("RPC images: the interior orientation, relative orientation (vertical "
+                     "parallax) and triplet stages are frame camera stages and do not apply; "
+                     "the images' bias is in summary.json images[] (estimate, sigma, test)")
+    else:
+        stages, io_notes = _interior_orientation_stages(interior, pixel)
+        notes += io_notes
+        ro_stages, ro_notes, pair_stats = _relative_orientation_stages(
+            run, pairs, min_pair_points, pixel)
+        stages += ro_stages
+        notes += ro_notes
+        tr_stages, tr_notes, trip_stats = _triplet_stages(run, f, min_triplet_points, pixel)
+        stages += tr_stages
+        notes += tr_notes
     r_mm = _radius(run, spec, working_radius)
     cqa, used, bl_stages, bl_notes = _block_stages(run, spec, f, r_mm, point_rule, tolerances)
     stages += bl_stages
