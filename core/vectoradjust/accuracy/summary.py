@@ -8,12 +8,15 @@ flagged observations. Numpy only.
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 
 from vectoradjust.accuracy import stats
 from vectoradjust.accuracy.tables import one_vertex_per_point
 from vectoradjust.formatting import float_or_none
 from vectoradjust.results import AdjustmentRun
+from vectoradjust.sensor.models import corrected_rpc_names
 
 __all__ = ["MAX_FLAGGED_IN_SUMMARY", "float_or_none", "rmse_dict", "run_summary",
            "reliability_summary", "COMPARE_COLUMNS", "compare_row", "compare_columns"]
@@ -75,7 +78,8 @@ def _images(out: AdjustmentRun) -> list:
     used = {iid: j for j, iid in enumerate(out.image_ids)}
     for im in out.data.images:
         if im.id in used and im.model == "rpc":
-            images.append(rpc_image_entry(im, res, used[im.id], out.data.settings.alpha))
+            images.append(rpc_image_entry(im, res, used[im.id], out.data.settings.alpha,
+                                          corrected_rpc_names(out.data.images)[str(im.id)]))
         elif im.id in used:
             j = used[im.id]
             sd = np.sqrt(np.diag(res.eo_cov[j]))
@@ -92,17 +96,21 @@ def _images(out: AdjustmentRun) -> list:
     return images
 
 
-def rpc_image_entry(im, res, j: int, alpha: float = 0.05) -> dict:
+def rpc_image_entry(im, res, j: int, alpha: float = 0.05,
+                    corrected: Optional[str] = None) -> dict:
     """An RPC image's estimated bias in the summary: values and sigmas (px), the
     correlations of the estimated parameters, and whether the bias is significant.
 
     The joint test compares ``b' C^-1 b`` of the estimated parameters with the
     chi-square quantile ``1 - alpha`` (``k`` degrees of freedom); each parameter's test
-    compares ``|b| / sigma`` with the normal quantile ``1 - alpha / 2``.
+    compares ``|b| / sigma`` with the normal quantile ``1 - alpha / 2``. ``corrected``
+    names the RPC file with the bias folded in that the outputs hold; the fold's largest
+    misfit (px) goes with it.
     """
     from scipy.special import gammaincinv, ndtri
 
     from vectoradjust.sensor.models import BIAS_PARAMETERS
+    from vectoradjust.sensor.rpc import fold_bias
 
     free = im.rpc.free
     b, cov = res.eo[j], res.eo_cov[j]
@@ -111,6 +119,9 @@ def rpc_image_entry(im, res, j: int, alpha: float = 0.05) -> dict:
              "bias": {n: float(b[k]) for k, n in enumerate(BIAS_PARAMETERS) if free[k]},
              "sigma_bias": {n: float(sd[k]) for k, n in enumerate(BIAS_PARAMETERS) if free[k]},
              "date": im.date, "used": True}
+    if corrected is not None:
+        entry["corrected_rpc"] = {"file": corrected,
+                                  "fold_misfit_px": float(fold_bias(im.rpc.rpc, b)[1])}
     if not free.any():
         return entry
     idx = np.flatnonzero(free)

@@ -557,7 +557,31 @@ def cmd_demo(args) -> int:
           "of RMSE(V) and RMSE(database - truth) over the larger; improvement = 1 - "
           "RMSE(adjusted - truth) / RMSE(database - truth))")
     print(f"  reports: {out / 'all' / 'report.html'}, {out / 'compare' / 'report.html'}")
+    _demo_satellite(sample_project_dir() / "satellite", out / "satellite", args)
     return 0
+
+
+def _demo_satellite(folder: Path, out: Path, args) -> None:
+    """The demo's second part: the satellite sample (RPC triplet) adjusted, its bias and
+    its OSM row printed."""
+    import csv
+    import json
+
+    print(f"\n  satellite triplet with RPCs ({folder / 'project.toml'}) ->", out)
+    ns = argparse.Namespace(project=str(folder / "project.toml"), out=str(out),
+                            format=args.format, vectors=None, quiet=True)
+    cmd_adjust(ns)
+    summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    with open(folder / "truth_bias.csv", newline="", encoding="utf-8") as fh:
+        truth = {r["image_id"]: r for r in csv.DictReader(fh)}
+    print("  image   bias  a0 (columns)      b0 (rows)  px   true a0     b0   corrected RPC")
+    for e in summary["images"]:
+        b, sd, t = e["bias"], e["sigma_bias"], truth.get(e["id"], {})
+        print(f"  {e['id']:>5s}  {b['a0']:7.3f} +-{sd['a0']:.3f}  {b['b0']:7.3f} +-{sd['b0']:.3f}"
+              f"     {float(t.get('a0', 'nan')):7.3f} {float(t.get('b0', 'nan')):7.3f}   "
+              f"{e.get('corrected_rpc', {}).get('file', '-')}")
+    print_table([compare_row(summary)])
+    print(f"  report: {out / 'report.html'}")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1101,9 +1101,39 @@ def _summary_body(run, prefix: str = "") -> str:
     return "".join(out)
 
 
+def _rpc_images_body(images: list, prefix: str) -> str:
+    """The RPC images' estimated bias: values, sigmas, the significance test, the
+    corrected RPC file."""
+    rows = []
+    for im in images:
+        b, sd = im.get("bias") or {}, im.get("sigma_bias") or {}
+        sig = im.get("significance") or {}
+        rows.append([im.get("id", ""), im.get("bias_model", ""),
+                     "; ".join(f"{k} = {_fmt(v, 3)} ± {_fmt(sd.get(k), 3)}"
+                               for k, v in b.items()) or "–",
+                     _fmt(sig.get("statistic"), 1), _fmt(sig.get("critical"), 2),
+                     _fmt(sig.get("significant")),
+                     (im.get("corrected_rpc") or {}).get("file", "–"),
+                     _fmt((im.get("corrected_rpc") or {}).get("fold_misfit_px"), 6)])
+    heads = ["image", "bias model", "bias (px)", "b′C⁻¹b", "χ² limit",
+             "significant", "corrected RPC", "fold misfit (px)"]
+    return (_note("RPC images: the image-space bias (column a0 + a1 u + a2 v, row b0 + b1 u "
+                  "+ b2 v; u, v the normalised column and row) estimated with the adjustment, "
+                  "its a-posteriori standard deviations, the joint test of the bias against "
+                  "zero, and the RPC file with the bias folded in (next to the image, GDAL "
+                  "uses it instead of the image's own RPCs).")
+            + _table(heads, rows, ident=f"{prefix}rpc-images-table"))
+
+
 def _images_body(run, prefix: str = "") -> str:
     rows = []
-    for im in run.summary.get("images") or []:
+    everything = run.summary.get("images") or []
+    rpc = [im for im in everything if im.get("model") == "rpc"]
+    if rpc and len(rpc) == len(everything):
+        return _rpc_images_body(rpc, prefix)
+    for im in everything:
+        if im.get("model") == "rpc":
+            continue
         pos = im.get("position") or [None] * 3
         att = im.get("attitude") or [None] * 3
         sp = im.get("sigma_position") or [None] * 3
@@ -1119,7 +1149,8 @@ def _images_body(run, prefix: str = "") -> str:
     return (_note("Adjusted exterior orientation and its a-posteriori standard deviations "
                   "(\u03c3\u2080\u00b2 N\u207b\u00b9). Images without measurements keep their "
                   "approximations and are marked as not adjusted.")
-            + _table(heads, rows, ident=f"{prefix}images-table"))
+            + _table(heads, rows, ident=f"{prefix}images-table")
+            + (_rpc_images_body(rpc, prefix) if rpc else ""))
 
 
 _CP_COLS = [("point_id", "point", None), ("X", "X (m)", 3), ("Y", "Y (m)", 3),

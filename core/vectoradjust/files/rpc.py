@@ -579,11 +579,13 @@ def write_corrected_rpcs(run, folder: PathLike) -> list:
     """Each RPC image's RPCs with its estimated bias folded in, as GDAL side files.
 
     For an image whose RPCs came from ``img_01.tif`` (or ``img_01_rpc.txt``) this writes
-    ``img_01_rpc.txt`` into ``folder``: copied next to the image, GDAL uses it instead of
-    the image's own RPC tags (``gdalwarp -rpc`` orthorectifies with the corrected model
-    at once). A pure shift is folded exactly; drift and affine biases by refitting the
-    numerators (:func:`vectoradjust.sensor.rpc.fold_bias`), whose largest misfit is put
-    into the run's summary (``images[].corrected_rpc``) beside the file name.
+    ``img_01_rpc.txt`` into ``folder``
+    (:func:`vectoradjust.sensor.models.corrected_rpc_names`): copied next to the image,
+    GDAL uses it instead of the image's own RPC tags (``gdalwarp -rpc`` orthorectifies
+    with the corrected model at once). A pure shift is folded exactly; drift and affine
+    biases by refitting the numerators (:func:`vectoradjust.sensor.rpc.fold_bias`); the
+    file name and the fold's largest misfit are in the run's summary
+    (``images[].corrected_rpc``).
 
     Parameters
     ----------
@@ -595,23 +597,17 @@ def write_corrected_rpcs(run, folder: PathLike) -> list:
     list of str
         The file names written (in ``folder``).
     """
+    from vectoradjust.sensor.models import corrected_rpc_names
     from vectoradjust.sensor.rpc import fold_bias
 
     folder = Path(folder)
-    entries = {e["id"]: e for e in run.summary.get("images", []) if e.get("model") == "rpc"}
-    names = []
+    names = corrected_rpc_names(run.data.images)
+    written = []
     for j, iid in enumerate(run.image_ids):
         im = next((m for m in run.data.images if m.id == iid), None)
-        if im is None or im.model != "rpc" or iid not in entries:
+        if im is None or im.model != "rpc":
             continue
-        folded, misfit = fold_bias(im.rpc.rpc, run.result.eo[j])
-        stem = _stem(Path(im.rpc.path)) if im.rpc.path else str(iid)
-        if stem.lower().endswith("_rpc"):
-            stem = stem[:-4]
-        name = f"{stem}_rpc.txt"
-        if name in names:  # two images' RPCs from files of one name
-            name = f"{stem}_{iid}_rpc.txt"
-        write_rpc(folded, folder / name)
-        names.append(name)
-        entries[iid]["corrected_rpc"] = {"file": name, "fold_misfit_px": float(misfit)}
-    return names
+        folded, _ = fold_bias(im.rpc.rpc, run.result.eo[j])
+        write_rpc(folded, folder / names[str(iid)])
+        written.append(names[str(iid)])
+    return written

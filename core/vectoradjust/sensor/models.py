@@ -30,6 +30,7 @@ __all__ = [
     "SensorSet",
     "bias_free_mask",
     "observe_rpc",
+    "corrected_rpc_names",
 ]
 
 #: names of the six bias parameters of an RPC image, in the parameter vector's order
@@ -155,3 +156,33 @@ def observe_rpc(image: RpcImage, params: np.ndarray, llh: np.ndarray, jac: np.nd
     colrow, d_ground, d_params = biased_partials(image.rpc, llh[:, 0], llh[:, 1], llh[:, 2],
                                                  np.asarray(params, float))
     return colrow, d_params, np.einsum("gai,gij->gaj", d_ground, jac)
+
+
+def corrected_rpc_names(images: list) -> dict:
+    """File names of the corrected RPCs of a project's RPC images, by image id.
+
+    An image whose RPCs came from ``img_01.tif`` (or ``img_01_rpc.txt``, ``img_01.RPB``)
+    gets ``img_01_rpc.txt``, the side file GDAL reads for ``img_01.tif``; two images with
+    RPC files of one name get their id added.
+
+    Parameters
+    ----------
+    images : list of vectoradjust.model.ImageSpec
+
+    Returns
+    -------
+    dict of str to str
+    """
+    names: dict = {}
+    for im in images:
+        if im.model != "rpc":
+            continue
+        base = str(im.rpc.path or im.id).replace("\\", "/").rsplit("/", 1)[-1]
+        stem = base.rsplit(".", 1)[0] if "." in base else base
+        if stem.lower().endswith("_rpc"):
+            stem = stem[:-4]
+        name = f"{stem}_rpc.txt"
+        if name in names.values():
+            name = f"{stem}_{im.id}_rpc.txt"
+        names[str(im.id)] = name
+    return names
