@@ -317,3 +317,50 @@ def test_satellite_sample_end_to_end(tmp_path):
                                    atol=1e-6)
     osm = summary["databases"][0]["truth"]
     assert 0.8 <= osm["share_within_ce90"] <= 0.97 and osm["improvement"] > 0.7
+
+
+@pytest.mark.io
+def test_mixed_block_frame_pair_and_satellite_image(tmp_path):
+    """A block that mixes the frame sample's pair (mm, collinearity) with one satellite
+    image of the same ground (pixels, RPC with a shift): both models in one adjustment,
+    the frame cameras' orientation and the satellite image's bias estimated together."""
+    from vectoradjust.files.readers import load_project_data
+    from vectoradjust.pipeline import run
+
+    sample = Path(__file__).resolve().parents[1] / "resources" / "sample"
+    text = (sample / "project.toml").read_text()
+    text = text.replace('crs = "EPSG:32616"', 'crs = "EPSG:32616"\nheights = "ellipsoidal"')
+    for name in ("rc10.toml", "gcps.csv", "osm_roads.shp", "tnm_roads.shp", "tiger_roads.shp",
+                 "dem.tif", "truth_osm.csv", "truth_tnm.csv", "truth_tiger.csv",
+                 "truth_roads.shp"):
+        text = text.replace(f'"{name}"', f'"{(sample / name).as_posix()}"')
+    text = text.replace('path = "image_points.csv"', 'path = "mixed_points.csv"')
+    text = text.replace("[measurements]", '[[images]]\nid = "S1"\nmodel = "rpc"\nrpc = "'
+                        + (sample / "satellite" / "S1_rpc.txt").as_posix()
+                        + '"\nbias = "shift"\n\n[measurements]')
+    (tmp_path / "project.toml").write_text(text)
+    frame_rows = (sample / "image_points.csv").read_text().splitlines()
+    # the satellite image's control, check and tie points (its road vertices were imaged
+    # with identification errors of their own, which the frame pair's do not share)
+    known = {r.split(",")[0] for r in (sample / "truth_points.csv").read_text().splitlines()[1:]}
+    sat_rows = [r for r in (sample / "satellite" / "image_points.csv").read_text().splitlines()[1:]
+                if ",S1," in r and r.split(",")[0] in known]
+    (tmp_path / "mixed_points.csv").write_text("\n".join(frame_rows + sat_rows) + "\n")
+
+    data = load_project_data(tmp_path / "project.toml")
+    assert [im.model for im in data.images] == ["frame", "frame", "rpc"]
+    out = run(data)
+    prob = out.result.problem
+    assert prob.is_rpc.tolist() == [False, False, True]
+    sat = [e for e in out.summary["images"] if e["id"] == "S1"][0]
+    with open(sample / "satellite" / "truth_bias.csv") as fh:
+        truth = {r.split(",")[0]: r.split(",") for r in fh.read().splitlines()[1:]}
+    assert abs(sat["bias"]["a0"] - float(truth["S1"][1])) < 4 * sat["sigma_bias"]["a0"]
+    assert abs(sat["bias"]["b0"] - float(truth["S1"][4])) < 4 * sat["sigma_bias"]["b0"]
+    frames = [e for e in out.summary["images"] if e["id"] in ("L", "R")]
+    assert all(len(e["position"]) == 3 for e in frames)
+    assert out.summary["chi_square"]["passed"] is True
+    # the satellite image's residuals are pixels of about the simulated 0.3 px
+    on_sat = prob.obs_image == 2
+    rms = np.sqrt(np.mean(out.result.v_image[on_sat] ** 2, axis=0))
+    assert np.all((rms > 0.15) & (rms < 0.45)), rms
