@@ -8,6 +8,12 @@
   earth curvature (DESIGN section 5).
 - :mod:`~vectoradjust.sensor.interior` - the interior-orientation step applied to a
   project's measurements.
+- :mod:`~vectoradjust.sensor.rpc` - rational polynomial coefficients of satellite images
+  (RPC00B), their image-space bias and the corrected RPC.
+- :mod:`~vectoradjust.sensor.ground` - object coordinates to longitude, latitude and
+  ellipsoidal height (the RPCs' ground), with the Jacobian.
+- :mod:`~vectoradjust.sensor.models` - the seam: which model each image of an adjustment
+  has.
 
 Imports numpy and scipy only.
 """
