@@ -448,7 +448,7 @@ def _missing_grids(source, aoi) -> list:
                  if not g.available]
     except Exception:  # only for the message
         return []
-    # the ones projsync can fetch (on cdn.proj.org) first
+    # the ones projsync can fetch (from PROJ's content server) first
     ordered = [g.short_name for g in grids if g.direct_download]
     ordered += [g.short_name for g in grids if not g.direct_download]
     return list(dict.fromkeys(ordered))
@@ -464,7 +464,7 @@ def _no_geoid_error(source, vertical, aoi, why: str) -> CRSError:
         f"the heights cannot be converted from {vertical.name} to ellipsoidal heights: PROJ "
         f"has no geoid grid for it here{need}; {why}",
         f"Install the grid: projsync --file {name} (into {get_user_data_dir()}), or set "
-        "PROJ_NETWORK=ON to let PROJ fetch it from cdn.proj.org, or give the heights as "
+        "PROJ_NETWORK=ON to let PROJ download it, or give the heights as "
         "ellipsoidal (heights='ellipsoidal')")
 
 

@@ -31,14 +31,15 @@ the value at ``(col0 + c + 0.5, row0 + r + 0.5)``; interest points are pixel cen
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Optional, Sequence, Union
+from typing import Callable, Optional, Union
 
 import numpy as np
 
 from vectoradjust.errors import CRSError, ProjectError
-from vectoradjust.measure.geometry import WINDOW_K, inv2, window_axes
+from vectoradjust.measure.geometry import inv2, window_axes
 from vectoradjust.measure.matching import FLAGS
 from vectoradjust.measure.transfer import MatchSettings, match_batch
 from vectoradjust.sensor.rpc import RpcModel
@@ -60,6 +61,8 @@ _RAY_ITERATIONS = 12
 _RAY_TOL = 0.05
 #: floats of the search chips per batch (memory bound of a batch of matches)
 _BATCH_FLOATS = 3e7
+#: points per batch at most (batches of similar windows)
+_BATCH_POINTS = 64
 #: nearest seeds whose median height a point without a height gets
 _NEIGHBOURS = 4
 
@@ -305,8 +308,10 @@ def _ray_heights(rpc: RpcModel, px: np.ndarray, fn: Callable, start: float) -> n
 def _fill_heights(px: np.ndarray, h: np.ndarray, known: np.ndarray, sigma: float
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Heights and their sigmas: the known ones with ``sigma``; the others the median of
-    their nearest known points', with the spread of the known heights about such medians
-    (leave-one-out) as sigma (at least ``sigma``)."""
+    their nearest known points'. Their sigma is twice the robust spread (NMAD) of the
+    known heights about such medians (leave-one-out), times the distance to the nearest
+    known point in units of the known points' own median spacing (at least 1), and at
+    least ``sigma``: the further from known heights, the wider the window."""
     from scipy.spatial import cKDTree
 
     h = np.array(h, float)
@@ -316,17 +321,17 @@ def _fill_heights(px: np.ndarray, h: np.ndarray, known: np.ndarray, sigma: float
         return h, s
     k = min(_NEIGHBOURS, idx.size)
     tree = cKDTree(px[idx])
+    spread, spacing = 0.0, 1.0
     if idx.size > 1:  # leave-one-out prediction error of the known heights
-        _, nb = tree.query(px[idx], k=min(k + 1, idx.size))
-        loo = np.median(h[idx][np.atleast_2d(nb.T)[1:].T], axis=1)
-        spread = 1.4826 * np.median(np.abs(h[idx] - loo))
-        spread = max(spread, float(np.std(h[idx])) / 2.0)
-    else:
-        spread = 0.0
+        dist, nb = tree.query(px[idx], k=min(k + 1, idx.size))
+        loo = np.median(h[idx][nb[:, 1:]], axis=1)
+        spread = 1.4826 * float(np.median(np.abs(h[idx] - loo)))
+        spacing = max(float(np.median(dist[:, 1])), 1.0)
     rest = np.flatnonzero(~known)
-    _, nb = tree.query(px[rest], k=k)
+    dist, nb = tree.query(px[rest], k=k)
     h[rest] = np.median(h[idx][np.reshape(nb, (len(rest), -1))], axis=1)
-    s[rest] = max(float(sigma), 2.0 * spread)
+    far = np.maximum(np.reshape(dist, (len(rest), -1))[:, 0] / spacing, 1.0)
+    s[rest] = np.maximum(float(sigma), 2.0 * spread * far)
     return h, s
 
 
@@ -408,21 +413,30 @@ def _match(readers, rpcs, px: np.ndarray, h: np.ndarray, sigma_h: np.ndarray,
     pred, a, e = _transfer_geometry(rpcs[0], rpcs[1], px, h)
     out["pred"] = pred
     cov = _window_cov(e, sigma_h, sigma_b)
-    ok = _inside(pred, readers[1].size, st.half_template) & np.isfinite(cov).all(axis=(1, 2))
+    reach = st.k * np.asarray(sigma_h, float)[:, None] * e  # the window's ends
+    ok = np.zeros(n, bool)
+    for t in (0.0, -1.0, 1.0, -0.5, 0.5):  # the epipolar segment enters image 2
+        ok |= _inside(pred + t * reach, readers[1].size, st.half_template)
+    ok &= np.isfinite(cov).all(axis=(1, 2))
     out["flags"][~ok] |= TIE_FLAGS["off_image"]
     idx = np.flatnonzero(ok)
     if idx.size == 0:
         return out
-    rad = float(min(max(_radius(a[idx], cov[idx], st.k).max(), 3.0), cap))
-    st = dataclasses.replace(st, max_radius=rad)
-    hw = st.half_template + int(np.ceil(rad))
-    batch = max(1, int(_BATCH_FLOATS / (6.0 * (2 * hw + 1) ** 2)))
-    for s in range(0, idx.size, batch):
-        b = idx[s:s + batch]
+    rad = np.clip(_radius(a[idx], cov[idx], st.k), 3.0, cap)
+    order = np.argsort(rad, kind="stable")
+    idx, rad = idx[order], rad[order]
+    floats = 6.0 * (2 * (st.half_template + np.ceil(rad)) + 1) ** 2  # per point
+    s = 0
+    while s < idx.size:  # batches of similar windows, the largest radius of each
+        fit = np.arange(1, idx.size - s + 1) * floats[s:] <= _BATCH_FLOATS
+        e = s + max(1, min(int(fit.sum()), _BATCH_POINTS))
+        b, s = idx[s:e], e
+        stb = dataclasses.replace(st, max_radius=float(rad[e - 1]))
+        hw = st.half_template + int(np.ceil(stb.max_radius))
         grow = float(np.abs(a[b]).sum(axis=2).max())
         rc, ro = _read_chips(readers[0], px[b], st.half_template + 3)
         tc, to = _read_chips(readers[1], pred[b], int(np.ceil(grow * hw)) + 4)
-        res = match_batch(rc, ro, px[b], tc, to, pred[b], a[b], cov[b], st)
+        res = match_batch(rc, ro, px[b], tc, to, pred[b], a[b], cov[b], stb)
         out["px"][b], out["ncc"][b], out["rho"][b] = res.px, res.ncc, res.rho
         out["sigma"][b] = res.sigma
         out["flags"][b] |= res.flags
@@ -523,3 +537,84 @@ def _back_match(readers, rpcs, fwd: dict, px1: np.ndarray, h: np.ndarray, s: np.
     good = back["flags"] == 0
     err[ok[good]] = np.hypot(*(back["px"][good] - px1[ok[good]]).T)
     return err
+
+
+def rpc_tie_points(image_paths: Sequence, rpcs: Optional[Sequence] = None,
+                   height: HeightLike = None, *, height_sigma: Optional[float] = None,
+                   bias_sigma: float = 3.0, spacing: int = 48, n: Optional[int] = None,
+                   settings: Optional[MatchSettings] = None, back_tolerance: float = 0.5,
+                   min_roundness: float = 0.5, max_search: float = 800.0,
+                   n_seeds: int = 16) -> RpcTies:
+    """Measure tie points between two images with RPCs (see the module docstring).
+
+    Parameters
+    ----------
+    image_paths : sequence of 2 paths
+        Image 1 (where the interest points are chosen) and image 2; grey value: the mean
+        of the bands (:class:`vectoradjust.files.images.RasterioImage`).
+    rpcs : sequence of 2 RpcModel or None, optional
+        Their RPCs (default: read from the images, :func:`vectoradjust.files.rpc.read_rpc`).
+    height : None, float, path or callable
+        The surface the rays of image 1 are intersected with: a DEM/DSM GeoTIFF
+        (*ellipsoidal* heights, :func:`dem_height`), a function ``h(lon, lat)`` (NaN where
+        unknown), a constant ellipsoidal height (m), or None: the ``HEIGHT_OFF`` of
+        image 1's RPC. Points without a DEM height get the median height of their nearest
+        neighbours (with the spread of those heights in the window).
+    height_sigma : float, optional
+        Standard deviation (m) of those heights: the search window's extent along the
+        epipolar direction. Default: 5 m for a DEM or function; ``HEIGHT_SCALE / 3.717``
+        for a constant, so that the window covers the RPC's height domain (then seed
+        points are matched first, see the module docstring).
+    bias_sigma : float
+        Standard deviation (px) of the relative bias between the RPCs (window in every
+        direction).
+    spacing : int
+        Grid cell (px) of the interest points in image 1: one candidate per cell.
+    n : int, optional
+        At most this many candidates (the strongest).
+    settings : MatchSettings, optional
+        Matching thresholds (default :func:`tie_settings`); ``max_radius`` is the largest
+        window matched without seed points; the radius used is the window's own.
+    back_tolerance : float
+        Largest distance (px) between the back-matched and the original point of image 1.
+    min_roundness : float
+        Roundness threshold of the interest operator (:func:`interest_points`).
+    max_search : float
+        Largest search radius (px) of seed points.
+    n_seeds : int
+        Number of seed points when the height window is too large.
+
+    Returns
+    -------
+    RpcTies
+        Every candidate with its flags; ``ties.subset(ties.accepted)`` keeps the accepted.
+
+    Raises
+    ------
+    InputFileError
+        An image is missing or unreadable, or has no RPCs.
+    DEMError, CRSError
+        The DEM is unreadable or has no CRS.
+    ProjectError
+        Not two images; no seed point could be matched.
+    """
+    from vectoradjust.files.images import RasterioImage
+
+    paths, models = _inputs(image_paths, rpcs)
+    readers = [RasterioImage(p, f"image {i + 1}") for i, p in enumerate(paths)]
+    try:
+        st = settings or tie_settings()
+        px1, wt = interest_points(readers[0], spacing, border=st.half_template + 4,
+                                  min_roundness=min_roundness, n=n)
+        h, s, seeds = _prediction_heights(readers, models, px1, wt, height, height_sigma,
+                                          bias_sigma, st, max_search, n_seeds)
+        fwd = _match(readers, models, px1, h, s, bias_sigma, st, max_search)
+        err = _back_match(readers, models, fwd, px1, h, s, bias_sigma, st, max_search)
+    finally:
+        for r in readers:
+            r.close()
+    flags = fwd["flags"].copy()
+    with np.errstate(invalid="ignore"):
+        flags[(flags == 0) & ~(err <= back_tolerance)] |= TIE_FLAGS["back_mismatch"]
+    return RpcTies(px1, fwd["px"], fwd["ncc"], fwd["rho"], fwd["sigma"], err, h, fwd["pred"],
+                   wt, flags, seeds)
