@@ -367,3 +367,23 @@ def test_mixed_block_frame_pair_and_satellite_image(tmp_path):
     on_sat = prob.obs_image == 2
     rms = np.sqrt(np.mean(out.result.v_image[on_sat] ** 2, axis=0))
     assert np.all((rms > 0.15) & (rms < 0.45)), rms
+
+
+def test_unmeasured_vertices_of_rpc_projects_are_conflated():
+    """Vertices measured on no RPC image are corrected from the measured ones (conflation)
+    and come closer to the truth than the database, with a CE90 that holds them."""
+    from vectoradjust import pipeline
+    from vectoradjust.model import Measurements
+
+    data, true, _ = rpc_project(2)
+    m = data.measurements
+    keep = np.array([not p.startswith(("r0_", "r1_", "r2_")) for p in m.point_id])
+    data.measurements = Measurements(m.point_id[keep], m.image_id[keep], m.xy[keep],
+                                     m.sigma[keep])
+    v = pipeline.run(data).databases[0].vertices
+    un = np.isin(v["feature_id"].astype(str), ["r0", "r1", "r2"])
+    assert set(v["Source"][un]) <= {"interpolated", "extrapolated"}
+    e_adj = np.hypot(*(np.column_stack([v["AdjX"], v["AdjY"]])[un] - true[un, :2]).T)
+    e_db = np.hypot(*(data.vectors[0][1].coords[un, :2] - true[un, :2]).T)
+    assert np.sqrt(np.mean(e_adj**2)) < 0.6 * np.sqrt(np.mean(e_db**2))
+    assert np.mean(e_adj <= v["CE90"][un]) >= 0.8
