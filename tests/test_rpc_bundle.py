@@ -387,3 +387,15 @@ def test_unmeasured_vertices_of_rpc_projects_are_conflated():
     e_db = np.hypot(*(data.vectors[0][1].coords[un, :2] - true[un, :2]).T)
     assert np.sqrt(np.mean(e_adj**2)) < 0.6 * np.sqrt(np.mean(e_db**2))
     assert np.mean(e_adj <= v["CE90"][un]) >= 0.8
+
+
+def test_frame_only_methods_refuse_rpc_images():
+    from vectoradjust import pipeline
+    from vectoradjust.accuracy import derived
+
+    out = pipeline.run(rpc_project(4)[0])
+    for call in (lambda: derived.equal_error_grid(out, 50.0),
+                 lambda: derived.compare_two_step(out, ["P1", "P2"])):
+        with pytest.raises(ProjectError, match="frame camera methods") as e:
+            call()
+        assert "'P1'" in e.value.what and "--images" in e.value.mend

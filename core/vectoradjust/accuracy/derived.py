@@ -1407,7 +1407,21 @@ def _pair_indices(run: AdjustmentRun, image_pair) -> tuple[int, int]:
         if len(ids) < 2:
             raise ProjectError("The adjustment has fewer than two images, so there is no "
                                "stereo pair", "Measure points on at least two images")
-        return 0, 1
+        ia, ib = 0, 1
+    else:
+        ia, ib = _named_pair(ids, image_pair)
+    prob = run.result.problem
+    if prob is not None and prob.is_rpc[[ia, ib]].any():
+        raise ProjectError(
+            f"Images {ids[ia]!r} and {ids[ib]!r}: the equal-error map and the two-step "
+            "orientation are frame camera methods (a perspective centre, a rotation); an "
+            "RPC image has neither",
+            "Name two frame images with --images, or use adjust: its CE90/LE90 per vertex "
+            "cover RPC images")
+    return ia, ib
+
+
+def _named_pair(ids: list, image_pair) -> tuple[int, int]:
     pair = [str(i) for i in image_pair]
     bad = [i for i in pair if i not in ids]
     if len(pair) != 2 or bad or pair[0] == pair[1]:
