@@ -19,7 +19,8 @@ SAMPLE = Path(__file__).resolve().parents[1] / "resources" / "sample"
 
 def _project_with_unmeasured_database(tmp_path: Path) -> Path:
     for p in SAMPLE.iterdir():
-        shutil.copy(p, tmp_path / p.name)
+        if p.is_file():  # (the satellite sample is a folder of its own)
+            shutil.copy(p, tmp_path / p.name)
     text = (tmp_path / "project.toml").read_text()
     # a copy of the OSM layer with feature-index ids: no measurement names them
     extra = '\n[[vectors]]\nname = "EXTRA"\npath = "osm_roads.shp"\ndem = "dem.tif"\n'
