@@ -38,14 +38,14 @@ from typing import Callable, Optional, Union
 
 import numpy as np
 
-from vectoradjust.errors import CRSError, ProjectError
+from vectoradjust.errors import CRSError, DEMError, ProjectError
 from vectoradjust.measure.geometry import inv2, window_axes
 from vectoradjust.measure.matching import FLAGS
 from vectoradjust.measure.transfer import MatchSettings, match_batch
 from vectoradjust.sensor.rpc import RpcModel
 
 __all__ = ["TIE_FLAGS", "RpcTies", "rpc_tie_points", "interest_points", "dem_height",
-           "tie_settings"]
+           "tie_settings", "tie_problem"]
 
 #: flags of a tie (bits): those of :data:`vectoradjust.measure.matching.FLAGS` for the
 #: forward match, and:
@@ -210,9 +210,14 @@ def interest_points(reader, spacing: int = 48, border: int = 20, window: int = 7
     x0, x1, y0, y1 = border, width - border, border, height - border
     ncol = max((x1 - x0) // spacing, 0)
     pts, wts = [], []
+    if ncol == 0:
+        return np.zeros((0, 2)), np.zeros(0)
     for r0 in range(y0, y1 - spacing + 1, spacing):
-        img = reader.read(0, r0 - pad, width, spacing + 2 * pad)
+        lo, hi = max(r0 - pad, 0), min(r0 + spacing + pad, height)
+        img = reader.read(0, lo, width, hi - lo)
         img = np.where(np.isfinite(img), img, np.nanmean(img) if np.isfinite(img).any() else 0)
+        # beyond the image edge: the edge rows repeated (no artificial edge there)
+        img = np.pad(img, ((lo - (r0 - pad), r0 + spacing + pad - hi), (0, 0)), mode="edge")
         w, q = _foerstner(img, window)
         w = np.where(q >= min_roundness, w, -np.inf)[pad:pad + spacing, x0:x0 + ncol * spacing]
         cells = w.reshape(spacing, ncol, spacing).transpose(1, 0, 2).reshape(ncol, -1)
@@ -256,6 +261,10 @@ def dem_height(path) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     from vectoradjust.adjust.dem import bilinear
     from vectoradjust.files.readers import read_dem
 
+    if not Path(path).is_file():
+        raise DEMError(f"DEM {str(path)!r} does not exist",
+                       "Give a DEM or DSM GeoTIFF with ellipsoidal heights as height=, a "
+                       "height in metres, or None (the RPC's height offset)", path=str(path))
     grid, gt, nodata, crs = read_dem(str(path))
     if crs is None:
         raise CRSError(f"{path}: the DEM has no coordinate reference system",
@@ -470,6 +479,7 @@ def _prediction_heights(readers, rpcs, px1: np.ndarray, weight: np.ndarray,
     """Heights, their sigmas and the number of seeds for the prediction of every point."""
     fn, const = _height_source(height, rpcs[0])
     n = len(px1)
+    domain = rpcs[0].height_scale / st.k  # the window then spans the RPC's heights
     if fn is not None:
         ll = rpcs[0].localize(px1[:, 0], px1[:, 1], np.full(n, rpcs[0].height_off))
         first = np.asarray(fn(ll[:, 0], ll[:, 1]), float).reshape(-1)
@@ -479,8 +489,7 @@ def _prediction_heights(readers, rpcs, px1: np.ndarray, weight: np.ndarray,
         known = np.isfinite(h)
         h = np.where(known, h, start)
     else:
-        sigma = (rpcs[0].height_scale / st.k if height_sigma is None
-                 else float(height_sigma))
+        sigma = domain if height_sigma is None else float(height_sigma)
         h, known = np.full(n, const), np.ones(n, bool)
     _, a, e = _transfer_geometry(rpcs[0], rpcs[1], px1, h)
     rad = _radius(a, _window_cov(e, np.full(n, sigma), sigma_b), st.k)
@@ -488,8 +497,9 @@ def _prediction_heights(readers, rpcs, px1: np.ndarray, weight: np.ndarray,
     if small.sum() >= min(3, n):
         h, s = _fill_heights(px1, h, small, sigma)
         return h, s, 0
-    seeds, hs = _seed_heights(readers, rpcs, px1, weight, h, np.full(n, sigma), sigma_b,
-                              st, cap, n_seeds)
+    seeds, hs = _seed_heights(readers, rpcs, px1, weight, h,
+                              np.where(known, sigma, max(sigma, domain)), sigma_b, st, cap,
+                              n_seeds)
     if seeds.size == 0:
         raise ProjectError(
             f"no seed point of {min(n_seeds, n)} could be matched with a search window of "
@@ -618,3 +628,67 @@ def rpc_tie_points(image_paths: Sequence, rpcs: Optional[Sequence] = None,
         flags[(flags == 0) & ~(err <= back_tolerance)] |= TIE_FLAGS["back_mismatch"]
     return RpcTies(px1, fwd["px"], fwd["ncc"], fwd["rho"], fwd["sigma"], err, h, fwd["pred"],
                    wt, flags, seeds)
+
+
+def tie_problem(ties: RpcTies, rpcs: Sequence, frame, bias: Sequence = ("none", "shift"),
+                height: HeightLike = None, height_sigma: float = 5.0,
+                obs_sigma: float = 0.1):
+    """A bundle adjustment of the two images from the accepted tie points.
+
+    Parameters
+    ----------
+    ties : RpcTies
+        From :func:`rpc_tie_points`; only the accepted ties are used, point ``k`` of the
+        problem is the ``k``-th of them.
+    rpcs : sequence of 2 RpcModel
+    frame : GroundFrame
+        Object coordinates to geodetic, e.g.
+        :func:`vectoradjust.files.rpc.crs_frame` (``"EPSG:327zz"``, ellipsoidal heights).
+    bias : sequence of 2 str
+        Bias model of each image (:data:`vectoradjust.sensor.rpc.BIAS_MODELS`); the
+        default estimates the shift of image 2 relative to image 1 (held fixed).
+    height : None, float, path or callable
+        Optional height prior of every point: a DEM/DSM (ellipsoidal heights), a
+        function ``h(lon, lat)`` or a constant (m), sampled at the point's approximate
+        position. Without it the points have no prior: two images and a shift leave the
+        shift along the epipolar direction nearly undetermined (it moves every height
+        alike), which a height prior fixes.
+    height_sigma : float
+        Standard deviation (m) of the height prior (weight along the ellipsoid normal).
+    obs_sigma : float
+        Standard deviation (px) of each image coordinate.
+
+    Returns
+    -------
+    vectoradjust.adjust.bundle.BundleProblem
+        ``sensors`` holds the two :class:`~vectoradjust.sensor.models.RpcImage`; the
+        approximate points come from the RPCs without bias
+        (:func:`vectoradjust.adjust.intersection.rpc_intersection`).
+    """
+    from vectoradjust.adjust.bundle import BundleProblem
+    from vectoradjust.adjust.intersection import rpc_intersection
+    from vectoradjust.sensor.models import RpcImage, SensorSet
+
+    acc = ties.subset(ties.accepted)
+    m = len(acc.flags)
+    sensors = SensorSet([RpcImage(r, b) for r, b in zip(rpcs, bias)], frame)
+    op, oi = np.repeat(np.arange(m), 2), np.tile([0, 1], m)
+    obs = np.stack([acc.px1, acc.px2], axis=1).reshape(-1, 2)
+    xyz0 = rpc_intersection(sensors, np.zeros((2, 6)), op, oi, obs, m)
+    prior, weight = np.zeros((m, 3)), np.zeros((m, 3, 3))
+    fn = None
+    if height is not None:
+        fn, const = _height_source(height, rpcs[0])
+        if fn is None:
+            def fn(lon, lat):  # a constant height
+                return np.full(np.shape(lon), const)
+    if fn is not None and m:
+        llh, jac = frame.to_geodetic(xyz0)
+        z = np.asarray(fn(llh[:, 0], llh[:, 1]), float).reshape(-1)
+        ok = np.isfinite(z)
+        prior[ok] = frame.from_geodetic(np.column_stack([llh[ok, :2], z[ok]]))
+        g = jac[ok, 2, :]  # d h / d(X, Y, Z): the height's direction in the frame
+        weight[ok] = g[:, :, None] * g[:, None, :] / float(height_sigma) ** 2
+    return BundleProblem(np.nan, (0.0, 0.0), np.zeros((2, 6)), np.full((2, 6), np.inf), xyz0,
+                         prior, weight, op, oi, obs, np.full(obs.shape, float(obs_sigma)),
+                         sensors=sensors)
