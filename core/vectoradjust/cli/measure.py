@@ -16,7 +16,14 @@ measurements to ``DIR/image_points.csv`` in the contract format (photo mm) - rea
 automatic), correlation coefficient, LSM sigma and pixel position to
 ``DIR/image_points_quality.csv`` (the contract reader refuses extra columns).
 
-Images are named by ``path`` in each ``[[images]]`` entry or by ``--image ID=FILE``.
+Images are named by ``path`` in each ``[[images]]`` entry or by ``--image ID=FILE``; an
+RPC image (``model = "rpc"``) without ``path`` is read from its ``rpc`` file when that is
+an image (not an ``_rpc.txt`` / ``.RPB`` side file). RPC images' pixels are GDAL's
+(``0, 0`` at the upper-left corner of the first pixel) in every table; their search
+windows hold the bias of ``--orientation`` (a previous adjustment's estimate) or, before
+one, the project's ``bias_sigma`` (else the RPC's ``ERR_BIAS``, else 10 px shift and 2 px
+drift a priori), and the transfer's terrain height error along the reference image's
+line of sight (``--sigma-height``).
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -82,6 +90,10 @@ def _image_paths(spec, overrides: list) -> dict:
         if isinstance(entry, dict) and entry.get("path"):
             q = Path(str(entry["path"]))
             paths[str(entry["id"])] = str(q if q.is_absolute() else spec.base_dir / q)
+    for im in spec.images:  # an RPC image's rpc file may be the image itself
+        if im.id not in paths and im.model == "rpc" and im.rpc.path and \
+                Path(im.rpc.path).suffix.lower() not in (".txt", ".rpb"):
+            paths[im.id] = str(im.rpc.path)
     for o in overrides:
         if "=" not in o:
             raise ProjectError(f"--image {o!r} is not ID=FILE", "Write e.g. --image L=left.tif")
@@ -132,7 +144,8 @@ def _load(args):
         fiducials = read_fiducials(fid_path, "pixel")
     geoms = image_geometries(spec, orientation,
                              image_sizes={k: r.size for k, r in readers.items()},
-                             control=control, fiducials=fiducials)
+                             control=control, fiducials=fiducials,
+                             ground_frame=_ground_frame(spec, crs))
     layers, height = [], None
     for v in spec.vectors:
         layer = read_line_layer(v.path, v.name, v.id_field, _parts(crs)[0], v.layer, v.where)
@@ -146,6 +159,30 @@ def _load(args):
     if height is None and control is not None and len(control.xyz):
         height = float(np.mean(control.xyz[:, 2]))
     return spec, geoms, readers, points, height
+
+
+def _ground_frame(spec, crs):
+    """Read the RPCs of the project's RPC images; the ground frame (None without them)."""
+    if not spec.has_rpc:
+        return None
+    from types import SimpleNamespace
+
+    from vectoradjust.files.readers import read_rpc_images
+
+    holder = SimpleNamespace(images=spec.images, ground_frame=None)
+    read_rpc_images(holder, spec, crs.to_string())
+    return holder.ground_frame
+
+
+def _say_rpc(geoms: dict) -> None:
+    """One line per RPC image: where its bias and search window come from."""
+    from vectoradjust.measure.geometry import RpcGeometry
+
+    for iid, g in geoms.items():
+        if isinstance(g, RpcGeometry):
+            sd = np.sqrt(np.clip(np.diag(g.bias_cov)[[0, 3]], 0.0, None))
+            print(f"  RPC image {iid}: bias {g.bias[0]:.2f}, {g.bias[3]:.2f} px (column, "
+                  f"row shift), sigma {sd[0]:.3g}, {sd[1]:.3g} px from {g.bias_source}")
 
 
 def _dem_height(bilinear, grid, gt, nodata):
@@ -171,9 +208,11 @@ def cmd_predict(args) -> int:
     path = write_table(out / "measurement_template.csv", tab)
     if args.chips != "none":
         _write_chips(out / "chips", tab, readers, args.chip_size, args.chips,
-                     lambda f, m: bar(0.3 + 0.4 * f, m))
+                     lambda f, m: bar(0.3 + 0.4 * f, m),
+                     {k: g.index_offset for k, g in geoms.items()})
     print(f"vectoradjust measure predict: {len(tab['point_id'])} predictions on "
           f"{len(geoms)} images -> {path}")
+    _say_rpc(geoms)
     if args.roads:
         auto = measure_roads(geoms, readers, points, args.road_width,
                              progress=lambda f, m: bar(0.7 + 0.3 * f, m))
@@ -184,15 +223,21 @@ def cmd_predict(args) -> int:
     return 0
 
 
-def _write_chips(folder: Path, tab: dict, readers: dict, half: int, fmt: str, progress) -> None:
+def _write_chips(folder: Path, tab: dict, readers: dict, half: int, fmt: str, progress,
+                 offsets: Optional[dict] = None) -> None:
+    """A chip per row of ``tab``, centred on the array element of its pixel (``offsets``:
+    per image, the pixel coordinate of element 0's centre, 0.5 for GDAL's pixels)."""
     from vectoradjust.files.images import write_chip
 
     n = len(tab["point_id"])
     for i in range(n):  # I/O: one file per point and image
         iid, pid = str(tab["image_id"][i]), str(tab["point_id"][i])
-        c0, r0 = int(round(tab["col"][i])) - half, int(round(tab["row"][i])) - half
+        o = (offsets or {}).get(iid, 0.0)
+        col, row = (tab["col"][i] - o, tab["row"][i] - o) if o else (tab["col"][i],
+                                                                     tab["row"][i])
+        c0, r0 = int(round(col)) - half, int(round(row)) - half
         chip = readers[iid].read(c0, r0, 2 * half + 1, 2 * half + 1)
-        mark = (tab["col"][i] - c0, tab["row"][i] - r0)
+        mark = (col - c0, row - r0)
         write_chip(folder / iid / f"{_safe(pid)}.{fmt}", chip, c0, r0, mark)
         if progress is not None and i % 50 == 0:
             progress(i / max(n, 1), "writing chips")
@@ -226,8 +271,11 @@ def cmd_transfer(args) -> int:
     acc = int(res["accepted"].sum())
     print(f"vectoradjust measure transfer: {acc} of {len(res['accepted'])} transfers "
           f"accepted ({len(res['accepted']) - acc} flagged, see {out / 'transfer.csv'})")
-    print(f"  wrote {path} ({len(ip['point_id'])} measurements, "
-          f"{'pixels' if unit == 'pixel' else 'photo mm'})")
+    _say_rpc(geoms)
+    kind = "pixels" if unit == "pixel" else "photo mm"
+    if spec.has_rpc:
+        kind += ("; RPC images' rows in pixels" if unit != "pixel" else "")
+    print(f"  wrote {path} ({len(ip['point_id'])} measurements, {kind})")
     return 0
 
 

@@ -15,6 +15,17 @@ no raster library.
 * :func:`transfer` - points measured on one image found on the others (NCC + LSM);
 * :func:`measure_roads` - junctions and corners located on every image;
 * :func:`image_points` - the accepted measurements in the contract format.
+
+Satellite images with RPCs (``model = "rpc"``) get a :class:`measure.geometry.RpcGeometry`:
+their pixels are GDAL's (``(0, 0)`` the upper-left corner of the first pixel, the first
+pixel's centre at ``(0.5, 0.5)``), in the template, in the measured and transferred
+tables and in ``image_points.csv`` (``x, y`` = column, row and sigmas in pixels, as the
+adjustment reads rows on RPC images); windows of the image files are read at the array
+indices ``pixel - 0.5`` (``index_offset``). Their search windows hold the ground point's
+uncertainty and the bias's: the bias a previous adjustment estimated (``summary.json``
+given as ``orientation``) or, before one, the a-priori sigmas
+(:func:`measure.geometry.rpc_bias_prior`: ``bias_sigma``, else the RPC's ``ERR_BIAS``,
+else 10 px).
 """
 
 from __future__ import annotations
@@ -30,8 +41,11 @@ from vectoradjust.errors import CancelledError, MeasurementError
 from vectoradjust.measure.geometry import (
     WINDOW_K,
     ImageGeometry,
+    RpcGeometry,
     local_affine,
     pixel_covariance,
+    rpc_bias_prior,
+    transfer_covariance,
     window_axes,
 )
 from vectoradjust.measure.matching import flag_names
@@ -78,8 +92,9 @@ class PointSet:
 def image_geometries(spec, orientation: Optional[Mapping] = None,
                      default_sigma: tuple[float, float] = (5.0, 0.5),
                      image_sizes: Optional[Mapping] = None, control=None,
-                     fiducials=None) -> dict:
-    """One :class:`ImageGeometry` per ``[[images]]`` entry.
+                     fiducials=None, ground_frame=None) -> dict:
+    """One :class:`ImageGeometry` (:class:`RpcGeometry` for RPC images) per ``[[images]]``
+    entry.
 
     Parameters
     ----------
@@ -102,15 +117,29 @@ def image_geometries(spec, orientation: Optional[Mapping] = None,
         Fiducials measured in pixels (scanned film, ``[measurements] fiducials`` with
         ``unit = "pixel"``): each image with fiducials gets its fiducial affine, which
         then maps between its pixels and photo mm.
+    ground_frame : GroundFrame, optional
+        Object coordinates to WGS84 (:func:`vectoradjust.files.rpc.crs_frame`); needed,
+        with the RPCs read into the images' ``rpc.rpc``, when the project has RPC
+        images. Their bias is the one ``orientation`` estimated (with its covariance),
+        else zero with the a-priori sigmas of :func:`measure.geometry.rpc_bias_prior`.
+
+    Raises
+    ------
+    MeasurementError
+        An RPC image without its RPCs or without the ground frame.
     """
     switches, terrain = parse_corrections(spec.corrections)
     terrain, _ = terrain_height_for(control, terrain)
-    cal = spec.camera.calibration
+    cal = spec.camera.calibration if spec.camera is not None else None
     adjusted = {}
     for im in (orientation or {}).get("images", []) or []:
         adjusted[str(im.get("id"))] = im
     out = {}
     for im in spec.images:
+        if getattr(im, "model", "frame") == "rpc":
+            out[im.id] = _rpc_geometry(im, adjusted.get(im.id), ground_frame,
+                                       (image_sizes or {}).get(im.id), terrain)
+            continue
         pos, att = np.asarray(im.position, float), np.asarray(im.attitude, float)
         sp, sa = im.sigma_position, im.sigma_attitude
         if im.id in adjusted:
@@ -130,6 +159,40 @@ def image_geometries(spec, orientation: Optional[Mapping] = None,
             cal if size is None else dataclasses.replace(cal, image_size=tuple(size)))
         out[im.id] = ImageGeometry(im.id, eo, cam, switches, terrain, fit, sig)
     return out
+
+
+def _rpc_geometry(im, entry: Optional[Mapping], frame, size, terrain) -> RpcGeometry:
+    """The :class:`RpcGeometry` of an RPC image (bias from a summary entry, else prior)."""
+    if im.rpc is None or im.rpc.rpc is None or frame is None:
+        raise MeasurementError(
+            f"image {im.id!r} is an RPC image: measuring on it needs its RPCs and the "
+            "ground frame of the project CRS",
+            "Read the RPCs (vectoradjust.files.rpc.read_rpc) into the image's rpc.rpc and "
+            "pass ground_frame (vectoradjust.files.rpc.crs_frame), as vectoradjust "
+            "measure does", details={"image_id": im.id})
+    if entry is not None and entry.get("model") == "rpc":
+        bias, cov = _summary_bias(entry)
+        source = "the adjustment's estimate"
+    else:
+        bias = np.zeros(6)
+        cov, source = rpc_bias_prior(im.rpc.rpc, frame, im.rpc.bias, im.rpc.bias_sigma)
+    return RpcGeometry(im.id, im.rpc.rpc, frame, bias, cov,
+                       None if size is None else tuple(size), terrain, source)
+
+
+def _summary_bias(entry: Mapping) -> tuple[np.ndarray, np.ndarray]:
+    """Bias ``(6,)`` and its covariance ``(6, 6)`` from a ``summary.json`` image entry."""
+    from vectoradjust.sensor.models import BIAS_PARAMETERS
+
+    values, sigmas = entry.get("bias") or {}, entry.get("sigma_bias") or {}
+    b = np.array([float(values.get(n, 0.0)) for n in BIAS_PARAMETERS])
+    sd = np.array([float(sigmas.get(n, 0.0) or 0.0) for n in BIAS_PARAMETERS])
+    corr = np.eye(6)
+    c = entry.get("correlation")
+    if c and c.get("parameters"):
+        idx = [BIAS_PARAMETERS.index(str(p)) for p in c["parameters"]]
+        corr[np.ix_(idx, idx)] = np.nan_to_num(np.asarray(c["matrix"], float))
+    return b, corr * np.outer(sd, sd)
 
 
 def _sized(cal, size):
@@ -195,12 +258,17 @@ def predict(geoms: Mapping[str, ImageGeometry], points: PointSet, k: float = WIN
             progress: Progress = None, is_cancelled=None) -> dict:
     """Predicted position and search window of every point on every image it falls on.
 
+    The window is the ellipse ``k`` wide of :func:`measure.geometry.pixel_covariance`:
+    the point's database/survey covariance and the image's orientation (a frame camera)
+    or bias (an RPC image) uncertainty.
+
     Returns
     -------
     dict of numpy.ndarray
         Columns ``point_id, image_id, kind, col, row, x, y`` (x, y: photo mm as measured,
-        the contract's unit), ``win_major, win_minor, win_angle`` (search ellipse,
-        pixels, degrees), ``sigma_col, sigma_row`` (pixels), ``source`` = predicted and
+        the contract's unit; on RPC images the pixels), ``win_major, win_minor,
+        win_angle`` (search ellipse, pixels, degrees), ``sigma_col, sigma_row``
+        (pixels), ``source`` = predicted and
         the empty ``measured_col, measured_row`` for the analyst's measurements.
     """
     cols: dict = {k_: [] for k_ in ("point_id", "image_id", "kind", "col", "row", "x", "y",
@@ -210,9 +278,15 @@ def predict(geoms: Mapping[str, ImageGeometry], points: PointSet, k: float = WIN
         _tick(progress, is_cancelled, i / max(len(geoms), 1), f"predicting on {iid}")
         px = g.to_pixel(points.xyz)
         cov = pixel_covariance(g, points.xyz, points.sigma)
-        w, h = g.camera.image_size if g.camera.image_size is not None else (np.inf, np.inf)
-        inside = (px[:, 0] >= -0.5) & (px[:, 1] >= -0.5) & (px[:, 0] <= w - 0.5) & \
-                 (px[:, 1] <= h - 0.5)
+        if isinstance(g, RpcGeometry):  # GDAL's pixels: the image spans 0 .. size
+            w, h = g.image_size if g.image_size is not None else (np.inf, np.inf)
+            inside = (px[:, 0] >= 0.0) & (px[:, 1] >= 0.0) & (px[:, 0] <= w) & \
+                     (px[:, 1] <= h)
+        else:
+            w, h = g.camera.image_size if g.camera.image_size is not None else (np.inf,
+                                                                                 np.inf)
+            inside = (px[:, 0] >= -0.5) & (px[:, 1] >= -0.5) & (px[:, 0] <= w - 0.5) & \
+                     (px[:, 1] <= h - 0.5)
         ax = window_axes(cov[inside], k)
         mm = g.pixel_to_measured_mm(px[inside])
         cols["point_id"].append(points.ids[inside])
@@ -258,11 +332,40 @@ def _heights(height, g_src: ImageGeometry):
     return float(g_src.terrain_height)
 
 
-def _transfer_pair(src: ImageGeometry, dst: ImageGeometry, rd_src, rd_dst, ref_px, height,
-                   sigma_height: float, sigma_ref_px: float, st: MatchSettings) -> dict:
-    """Match the reference pixels of ``src`` on ``dst`` (batched)."""
+def _transfer_pair(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float,
+                   sigma_ref_px: float, st: MatchSettings) -> dict:
+    """Match the reference pixels of ``src`` on ``dst`` (batched).
+
+    Pixels are the images' own (``px``, ``pred``); chips are read and matched at array
+    indices (``pixel - index_offset``: 0.5 for GDAL's pixels of an RPC image).
+    """
     pred, a = local_affine(src, dst, ref_px, height)
     ground = src.to_ground(ref_px, height)
+    if isinstance(src, ImageGeometry) and isinstance(dst, ImageGeometry):
+        cov = _frame_transfer_cov(src, dst, ground, a, sigma_height, sigma_ref_px)
+    else:
+        cov = transfer_covariance(src, dst, ref_px, ground, a, sigma_height, sigma_ref_px)
+    o_src, o_dst = src.index_offset, dst.index_offset
+    ref_i = ref_px - o_src if o_src else ref_px
+    pred_i = pred - o_dst if o_dst else pred
+    h = st.half_template
+    scale = float(np.nanmax(np.abs(a))) if len(a) else 1.0
+    half_t = int(np.ceil(scale * (h + st.max_radius) * 1.5)) + 4
+    rc, ro = read_chips(rd_src, ref_i, h + 3)
+    tc, to = read_chips(rd_dst, np.nan_to_num(pred_i), half_t)
+    res = match_batch(rc, ro, ref_i, tc, to, pred_i, a, cov, st)
+    w, hh = rd_dst.size
+    off = ~np.all(np.isfinite(pred_i), axis=1) | (pred_i[:, 0] < 0) | (pred_i[:, 1] < 0) | \
+        (pred_i[:, 0] > w - 1) | (pred_i[:, 1] > hh - 1)
+    px = res.px + o_dst if o_dst else res.px
+    return {"pred": pred, "px": px, "ncc": res.ncc, "rho": res.rho, "sigma": res.sigma,
+            "flags": res.flags, "off_image": off}
+
+
+def _frame_transfer_cov(src: ImageGeometry, dst: ImageGeometry, ground, a, sigma_height,
+                        sigma_ref_px) -> np.ndarray:
+    """The search covariance of a transfer between two frame images (their orientation,
+    the reference pointing and the terrain height's uncertainty in the target's Z)."""
     src_only = ImageGeometry(src.image_id, src.eo, src.camera, src.corrections,
                              src.terrain_height, src.affine, src.sigma_eo)
     c_src = pixel_covariance(src_only, ground, np.zeros((len(ground), 3)))
@@ -272,17 +375,7 @@ def _transfer_pair(src: ImageGeometry, dst: ImageGeometry, rd_src, rd_dst, ref_p
                              dst.terrain_height, dst.affine, dst.sigma_eo)
     cov += pixel_covariance(dst_only, ground, np.c_[np.zeros((len(ground), 2)),
                                                    np.full(len(ground), sigma_height)])
-    h = st.half_template
-    scale = float(np.nanmax(np.abs(a))) if len(a) else 1.0
-    half_t = int(np.ceil(scale * (h + st.max_radius) * 1.5)) + 4
-    rc, ro = read_chips(rd_src, ref_px, h + 3)
-    tc, to = read_chips(rd_dst, np.nan_to_num(pred), half_t)
-    res = match_batch(rc, ro, ref_px, tc, to, pred, a, cov, st)
-    w, hh = rd_dst.size
-    off = ~np.all(np.isfinite(pred), axis=1) | (pred[:, 0] < 0) | (pred[:, 1] < 0) | \
-        (pred[:, 0] > w - 1) | (pred[:, 1] > hh - 1)
-    return {"pred": pred, "px": res.px, "ncc": res.ncc, "rho": res.rho, "sigma": res.sigma,
-            "flags": res.flags, "off_image": off}
+    return cov
 
 
 def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Mapping,
@@ -293,11 +386,15 @@ def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Map
 
     Parameters
     ----------
-    geoms : mapping of image id to ImageGeometry
+    geoms : mapping of image id to ImageGeometry or RpcGeometry
+        Any pair of frame and RPC images (the search window:
+        :func:`measure.geometry.transfer_covariance`; between two frame images as
+        before, the terrain height's uncertainty in the target's Z).
     readers : mapping of image id to reader
     measured : mapping
-        Columns ``point_id, image_id, col, row`` (pixels); the first image of a point
-        is its reference, images already measured are not transferred to.
+        Columns ``point_id, image_id, col, row`` (pixels; GDAL's on RPC images); the
+        first image of a point is its reference, images already measured are not
+        transferred to.
     height : callable or float, optional
         Terrain height ``(n, 2) -> (n,)`` (a DEM), default the mean terrain height.
     settings : MatchSettings, optional
@@ -381,6 +478,9 @@ def measure_roads(geoms: Mapping[str, ImageGeometry], readers: Mapping, points: 
     for n_img, (iid, g) in enumerate(geoms.items()):
         xyz = points.xyz[sel]
         pred = g.to_pixel(xyz)
+        o = g.index_offset  # chips are read and searched at array indices
+        if o:
+            pred = pred - o
         w, h = readers[iid].size
         ins = sel[(pred[:, 0] >= 0) & (pred[:, 1] >= 0) & (pred[:, 0] < w) & (pred[:, 1] < h)]
         for b0 in range(0, len(ins), BATCH):
@@ -394,10 +494,12 @@ def measure_roads(geoms: Mapping[str, ImageGeometry], readers: Mapping, points: 
             width_px = np.hypot(*(east - p0).T)
             wmax = float(width_px.max())
             half = int(np.ceil(wmax * (st.start + st.arm_length) + st.search + 2 * wmax)) + 3
-            chips, org = read_chips(readers[iid], p0, half)
-            r = centreline_crossing(chips, org, p0, dirs, width_px, st)
+            p0_i = p0 - o if o else p0
+            chips, org = read_chips(readers[iid], p0_i, half)
+            r = centreline_crossing(chips, org, p0_i, dirs, width_px, st)
+            found = r.px + o if o else r.px
             for key, val in (("point_id", points.ids[b]), ("image_id", np.full(len(b), iid)),
-                             ("col", r.px[:, 0]), ("row", r.px[:, 1]), ("pred_col", p0[:, 0]),
+                             ("col", found[:, 0]), ("row", found[:, 1]), ("pred_col", p0[:, 0]),
                              ("pred_row", p0[:, 1]), ("arms", r.arms_used), ("rms", r.rms),
                              ("flags", r.flags)):
                 rows[key].append(np.asarray(val))
@@ -418,7 +520,9 @@ def image_points(geoms: Mapping[str, ImageGeometry], manual: Optional[Mapping] =
     """The accepted measurements as ``image_points.csv`` columns (photo mm as measured).
 
     With ``unit = "pixel"`` (``[measurements] unit`` of a scanned-film project with
-    measured fiducials) ``x, y`` are the column and row and the sigmas are in pixels.
+    measured fiducials) ``x, y`` are the column and row and the sigmas are in pixels;
+    so are they, whatever the unit, on RPC images (the adjustment reads their rows as
+    pixels).
 
     Columns: ``point_id, image_id, x, y, sigma_x, sigma_y`` (mm; the contract) and
     ``source`` (manual, transferred, automatic), ``ncc``, ``lsm_sigma`` (pixels),

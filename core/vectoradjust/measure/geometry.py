@@ -13,25 +13,49 @@ collinearity equations (``DESIGN.md`` section 2) and the local Jacobian of the
 mm -> pixel mapping: ``C_px = J (A_pt C_xyz A_pt' + A_eo C_eo A_eo') J'``. A search window
 is the ellipse ``d' C_px^-1 d <= k^2``; ``k = 3.717`` holds a 2-D normal error with
 probability 0.999.
+
+An :class:`RpcGeometry` is the same for a satellite image with RPCs
+(:mod:`vectoradjust.sensor.rpc`): object point -> ground frame (longitude, latitude,
+ellipsoidal height) -> RPC -> plus the image-space bias ``a0 .. b2`` (the bias an
+adjustment estimated, else zero); its covariance is
+``C_px = A_pt C_xyz A_pt' + A_b C_b A_b'`` with the RPC partials chained through the
+ground frame's Jacobian (``A_pt``), the bias partials (``A_b``) and the bias covariance
+``C_b`` (estimated, else the a-priori sigmas of :func:`rpc_bias_prior`). Its pixels are
+GDAL's: ``(0, 0)`` is the upper-left *corner* of the first pixel, so the array element
+``[r, c]`` of an image is centred on ``(c + 0.5, r + 0.5)`` (``index_offset = 0.5``; a
+frame camera's pixel coordinates are array indices, ``index_offset = 0``).
+
+:func:`transfer_covariance` is the covariance of a point carried from one image to
+another over the terrain (the two images' orientation or bias, the pointing of the
+reference measurement, and the terrain height's uncertainty along the reference image's
+line of sight); it takes any pair of the two geometries.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Optional
+from typing import Any, Callable, ClassVar, Optional
 
 import numpy as np
 
 from vectoradjust.errors import CameraError
 from vectoradjust.sensor.camera import CameraCalibration
 from vectoradjust.sensor.collinearity import partials, project, rotation_matrix
+from vectoradjust.sensor.models import bias_free_mask
 from vectoradjust.sensor.refine import AffineFit, distort, refine
+from vectoradjust.sensor.rpc import biased_partials
 
 __all__ = [
     "ImageGeometry",
+    "RpcGeometry",
     "WINDOW_K",
+    "DEFAULT_BIAS_SIGMA",
     "pixel_covariance",
+    "rpc_bias_prior",
+    "point_at_height",
+    "height_parallax",
+    "transfer_covariance",
     "window_axes",
     "inside_window",
     "local_affine",
@@ -40,6 +64,13 @@ __all__ = [
 
 #: Scale of the search ellipse: P(chi2 with 2 dof <= k^2) = 0.999.
 WINDOW_K = 3.7169
+
+#: A-priori sigmas (px) of the bias parameters of an RPC image that the bias model
+#: estimates when neither the project (``bias_sigma``) nor an adjustment gives them: the
+#: shift ``a0, b0`` (unless the RPC states its ``ERR_BIAS``, converted to pixels) and the
+#: drift and affine terms ``a1, a2, b1, b2`` (px at the image edge). Vendor RPCs of
+#: today's sub-metre satellites are located within a few metres, i.e. some pixels.
+DEFAULT_BIAS_SIGMA = (10.0, 2.0)
 
 
 @dataclass
@@ -70,6 +101,9 @@ class ImageGeometry:
     terrain_height: Optional[float] = None
     affine: Optional[AffineFit] = None
     sigma_eo: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    #: pixel coordinate of the centre of the image array's element 0 (pixel
+    #: coordinates are array indices)
+    index_offset: ClassVar[float] = 0.0
 
     def __post_init__(self) -> None:
         self.eo = np.asarray(self.eo, float).reshape(6)
@@ -200,8 +234,9 @@ def pixel_covariance(geom: ImageGeometry, xyz: np.ndarray, cov_xyz: np.ndarray) 
 
     Parameters
     ----------
-    geom : ImageGeometry
-        Its ``sigma_eo`` is the orientation's uncertainty (independent parameters).
+    geom : ImageGeometry or RpcGeometry
+        Its ``sigma_eo`` is the orientation's uncertainty (independent parameters); an
+        RPC image's ``bias_cov`` that of its bias (:meth:`RpcGeometry.pixel_covariance`).
     xyz : array_like, shape (n, 3)
     cov_xyz : array_like, shape (n, 3, 3) or (n, 3)
         Covariance of each object point (or its standard deviations per axis).
@@ -211,6 +246,8 @@ def pixel_covariance(geom: ImageGeometry, xyz: np.ndarray, cov_xyz: np.ndarray) 
     numpy.ndarray, shape (n, 2, 2)
         ``J (A_pt C_xyz A_pt' + A_eo C_eo A_eo') J'``.
     """
+    if isinstance(geom, RpcGeometry):
+        return geom.pixel_covariance(xyz, cov_xyz)
     xyz = np.asarray(xyz, float).reshape(-1, 3)
     c = np.asarray(cov_xyz, float)
     if c.ndim == 2:
@@ -297,3 +334,343 @@ def local_affine(src: ImageGeometry, dst: ImageGeometry, px_src: np.ndarray,
     a[:, :, 0] = (q[1] - q[2]) / (2 * step)
     a[:, :, 1] = (q[3] - q[4]) / (2 * step)
     return q[0], a
+
+
+def _cov3(cov_xyz: np.ndarray, n: int) -> np.ndarray:
+    """Point covariances ``(n, 3, 3)`` from covariances or per-axis standard deviations."""
+    c = np.asarray(cov_xyz, float)
+    if c.ndim <= 2:
+        c = np.broadcast_to(c, (n, 3))[:, :, None] ** 2 * np.eye(3)
+    return np.broadcast_to(c, (n, 3, 3))
+
+
+@dataclass
+class RpcGeometry:
+    """A satellite image with RPCs, its image-space bias and the ground frame.
+
+    Attributes
+    ----------
+    image_id : str
+    rpc : vectoradjust.sensor.rpc.RpcModel
+        The vendor's RPCs (as delivered, without the bias).
+    frame : vectoradjust.sensor.ground.GroundFrame
+        Object coordinates ``X, Y, Z`` (m, project CRS and heights) to WGS84 longitude,
+        latitude and ellipsoidal height, with the Jacobian.
+    bias : numpy.ndarray, shape (6,)
+        ``a0, a1, a2, b0, b1, b2`` (px) added to the RPC's pixels
+        (:func:`vectoradjust.sensor.rpc.biased_partials`); zero when none is known.
+    bias_cov : numpy.ndarray, shape (6, 6)
+        Covariance of ``bias`` (px^2): an adjustment's estimate, or the a-priori sigmas
+        (:func:`rpc_bias_prior`).
+    image_size : (int, int) or None
+        Columns, rows of the image file.
+    terrain_height : float or None
+        Mean terrain height (object ``Z``, m), the transfer's height without a DEM.
+    bias_source : str
+        Where ``bias`` and ``bias_cov`` came from (for messages).
+
+    Notes
+    -----
+    Pixels are GDAL's corner convention (module docstring): ``index_offset = 0.5``.
+    """
+
+    image_id: str
+    rpc: Any
+    frame: Any
+    bias: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    bias_cov: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
+    image_size: Optional[tuple] = None
+    terrain_height: Optional[float] = None
+    bias_source: str = ""
+    #: pixel coordinate of the centre of the image array's element 0 (GDAL: a corner
+    #: at 0, the first pixel's centre at 0.5)
+    index_offset: ClassVar[float] = 0.5
+
+    def __post_init__(self) -> None:
+        self.bias = np.asarray(self.bias, float).reshape(6)
+        self.bias_cov = np.asarray(self.bias_cov, float).reshape(6, 6)
+
+    def observe(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixels of object points and their partials.
+
+        Parameters
+        ----------
+        xyz : array_like, shape (n, 3)
+            Object coordinates.
+
+        Returns
+        -------
+        px : numpy.ndarray, shape (n, 2)
+            Column, row (corner convention) with the bias; NaN (and NaN partials) for
+            points with a non-finite coordinate.
+        d_xyz : numpy.ndarray, shape (n, 2, 3)
+            ``d(column, row) / d(X, Y, Z)``.
+        d_bias : numpy.ndarray, shape (n, 2, 6)
+            ``d(column, row) / d(a0, a1, a2, b0, b1, b2)``.
+        """
+        xyz = np.asarray(xyz, float).reshape(-1, 3)
+        n = len(xyz)
+        px, d_xyz, d_bias = np.full((n, 2), np.nan), np.full((n, 2, 3), np.nan), \
+            np.full((n, 2, 6), np.nan)
+        ok = np.isfinite(xyz).all(axis=1)  # a failed intersection stays NaN
+        if not ok.any():
+            return px, d_xyz, d_bias
+        llh, jac = self.frame.to_geodetic(xyz[ok])
+        px[ok], d_ground, d_bias[ok] = biased_partials(self.rpc, llh[:, 0], llh[:, 1],
+                                                       llh[:, 2], self.bias)
+        d_xyz[ok] = np.einsum("nai,nij->naj", d_ground, jac)
+        return px, d_xyz, d_bias
+
+    def to_pixel(self, xyz: np.ndarray) -> np.ndarray:
+        """Object points ``(n, 3)`` -> pixel (column, row) ``(n, 2)`` (with the bias)."""
+        return self.observe(xyz)[0]
+
+    def pixel_covariance(self, xyz: np.ndarray, cov_xyz: np.ndarray) -> np.ndarray:
+        """Covariance ``(n, 2, 2)`` (px^2) of the predicted pixels of ``xyz``.
+
+        Parameters
+        ----------
+        xyz : array_like, shape (n, 3)
+        cov_xyz : array_like, shape (n, 3, 3) or (n, 3)
+            Covariance of each object point (or its standard deviations per axis).
+
+        Returns
+        -------
+        numpy.ndarray, shape (n, 2, 2)
+            ``A_pt C_xyz A_pt' + A_b C_b A_b'``.
+        """
+        _, a_pt, a_b = self.observe(xyz)
+        c = _cov3(cov_xyz, len(a_pt))
+        return (a_pt @ c @ np.swapaxes(a_pt, 1, 2)
+                + a_b @ self.bias_cov @ np.swapaxes(a_b, 1, 2))
+
+    def pixel_to_measured_mm(self, px: np.ndarray) -> np.ndarray:
+        """The measurement as ``image_points.csv`` holds it: an RPC image's rows are
+        pixels (column, row), so the pixels themselves."""
+        return np.array(px, float)
+
+    def raw_pixel(self, px: np.ndarray) -> np.ndarray:
+        """Observed pixels (corner convention, with the bias) -> the RPC's own pixels
+        (centre convention, without the bias), ``(n, 2)``.
+
+        The bias is affine in the RPC's centre-convention pixels, so it is removed
+        exactly by a 2 x 2 solve.
+        """
+        r, p = self.rpc, self.bias
+        pc = np.asarray(px, float).reshape(-1, 2) - 0.5
+        m = np.eye(2) + np.array([[p[1] / r.samp_scale, p[2] / r.line_scale],
+                                  [p[4] / r.samp_scale, p[5] / r.line_scale]])
+        k = np.array([p[0] - p[1] * r.samp_off / r.samp_scale - p[2] * r.line_off / r.line_scale,
+                      p[3] - p[4] * r.samp_off / r.samp_scale - p[5] * r.line_off / r.line_scale])
+        return (pc - k) @ np.linalg.inv(m).T
+
+    def _on_line(self, raw: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """Object points of raw pixels at ellipsoidal heights ``h`` (NaN where lost)."""
+        ll = self.rpc.localize(raw[:, 0], raw[:, 1], h, origin="center")
+        out = np.full((len(raw), 3), np.nan)
+        ok = np.isfinite(ll).all(axis=1) & np.isfinite(h)
+        if ok.any():
+            out[ok] = self.frame.from_geodetic(np.column_stack([ll[ok], h[ok]]))
+        out[~np.isfinite(out).all(axis=1)] = np.nan
+        return out
+
+    def at_height(self, px: np.ndarray, z: np.ndarray | float, iterations: int = 10,
+                  tol: float = 1e-6) -> np.ndarray:
+        """Points on the lines of sight of pixels at given object heights.
+
+        Parameters
+        ----------
+        px : array_like, shape (n, 2)
+        z : array_like, shape (n,) or float
+            Object heights (m; the project's heights, ellipsoidal or orthometric).
+        iterations, tol : int, float
+            The ellipsoidal height is corrected by the object height's misfit until it
+            moves less than ``tol`` m.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n, 3)
+        """
+        raw = self.raw_pixel(px)
+        z = np.broadcast_to(np.asarray(z, float), (len(raw),)).copy()
+        h = z.copy()
+        p = self._on_line(raw, h)
+        for _ in range(iterations):
+            dz = z - p[:, 2]
+            h = h + dz
+            p = self._on_line(raw, h)
+            if not np.any(np.abs(dz) > tol):
+                break
+        return p
+
+    def to_ground(self, px: np.ndarray, height: Callable[[np.ndarray], np.ndarray] | float,
+                  z0: Optional[float] = None, iterations: int = 30,
+                  tol: float = 1e-4) -> np.ndarray:
+        """Intersect the lines of sight of pixels with the terrain, ``(n, 3)``.
+
+        Parameters
+        ----------
+        px : array_like, shape (n, 2)
+            Pixels (corner convention, with the bias).
+        height : callable or float
+            ``height(xy (n, 2)) -> z (n,)`` (e.g. a DEM, object coordinates) or a
+            constant height.
+        z0 : float, optional
+            Starting ellipsoidal height (default the RPC's ``HEIGHT_OFF``).
+        iterations, tol : int, float
+            Fixed-point iteration ``Z <- height(XY(Z))`` (as
+            :meth:`ImageGeometry.to_ground`) until it moves less than ``tol`` m.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n, 3)
+            Points on the lines of sight; NaN where the RPC cannot be inverted.
+        """
+        raw = self.raw_pixel(px)
+        hfun = height if callable(height) else (lambda xy: np.full(len(xy), float(height)))
+        h = np.full(len(raw), float(self.rpc.height_off) if z0 is None else float(z0))
+        p = self._on_line(raw, h)
+        for _ in range(iterations):
+            ok = np.isfinite(p).all(axis=1)
+            dz = np.full(len(p), np.nan)
+            if ok.any():
+                dz[ok] = np.asarray(hfun(p[ok, :2]), float).reshape(-1) - p[ok, 2]
+            h = h + dz
+            p = self._on_line(raw, h)
+            if not np.any(np.abs(dz) > tol):
+                break
+        return p
+
+
+def rpc_bias_prior(rpc, frame, bias_model: str, bias_sigma: Optional[np.ndarray] = None,
+                   default: tuple[float, float] = DEFAULT_BIAS_SIGMA
+                   ) -> tuple[np.ndarray, str]:
+    """A-priori covariance of an RPC image's bias parameters for prediction windows.
+
+    Parameters the bias model estimates take their ``bias_sigma``; where that is not
+    finite (no prior), the shift takes the RPC's ``ERR_BIAS`` (the vendor's RMS bias,
+    metres per horizontal axis) through the RPC's ground-to-pixel partials at the centre
+    of its domain, ``C = ERR_BIAS^2 J J'``, or ``default[0]`` px when the RPC states none
+    (GDAL writes -1 for unknown), and the drift and affine terms ``default[1]`` px.
+    Parameters the model does not estimate are taken as zero (the bias model says they
+    are negligible; ``bias = "none"`` takes the RPCs as exact, e.g. corrected RPCs).
+
+    Parameters
+    ----------
+    rpc : RpcModel
+    frame : GroundFrame
+    bias_model : str
+        ``none``, ``shift``, ``shift+drift`` or ``affine``.
+    bias_sigma : array_like, shape (6,), optional
+        The project's ``bias_sigma`` (px; ``inf`` = none).
+    default : (float, float)
+        Shift and drift sigmas (px) without a prior (:data:`DEFAULT_BIAS_SIGMA`).
+
+    Returns
+    -------
+    cov : numpy.ndarray, shape (6, 6)
+        px^2.
+    source : str
+        Where the sigmas came from, for messages.
+    """
+    free = bias_free_mask(bias_model)
+    sig = np.full(6, np.inf) if bias_sigma is None else \
+        np.broadcast_to(np.asarray(bias_sigma, float), (6,))
+    cov = np.zeros((6, 6))
+    given = np.flatnonzero(free & np.isfinite(sig))
+    cov[given, given] = sig[given] ** 2
+    said = [f"bias_sigma {sig[given].max():g} px"] if len(given) else []
+    shift = [k for k in (0, 3) if free[k] and not np.isfinite(sig[k])]
+    err = rpc.err_bias
+    if shift and err is not None and err > 0:
+        llh0 = np.array([[rpc.long_off, rpc.lat_off, rpc.height_off]])
+        geom = RpcGeometry("", rpc, frame)
+        j = geom.observe(frame.from_geodetic(llh0))[1][0, :, :2]
+        c2 = err**2 * j @ j.T
+        pos = {0: 0, 3: 1}
+        for a in shift:
+            for b in shift:
+                cov[a, b] = c2[pos[a], pos[b]]
+        said.append(f"ERR_BIAS {err:g} m = {np.sqrt(np.diag(c2)).max():.2g} px")
+    elif shift:
+        cov[shift, shift] = default[0] ** 2
+        said.append(f"default shift {default[0]:g} px")
+    drift = [k for k in (1, 2, 4, 5) if free[k] and not np.isfinite(sig[k])]
+    if drift:
+        cov[drift, drift] = default[1] ** 2
+        said.append(f"default drift {default[1]:g} px")
+    return cov, ", ".join(said) if said else "none (the RPCs taken as exact)"
+
+
+def point_at_height(geom, px: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Points ``(n, 3)`` on the rays (lines of sight) of pixels at object heights ``z``.
+
+    Parameters
+    ----------
+    geom : ImageGeometry or RpcGeometry
+    px : array_like, shape (n, 2)
+    z : array_like, shape (n,)
+    """
+    if isinstance(geom, RpcGeometry):
+        return geom.at_height(px, z)
+    d = geom.ray(px)
+    c = geom.eo[:3]
+    t = (np.asarray(z, float) - c[2]) / d[:, 2]
+    return c + t[:, None] * d
+
+
+def height_parallax(src, dst, px_src: np.ndarray, ground: np.ndarray,
+                    dz: float = 1.0) -> np.ndarray:
+    """``d px_dst / d Z`` along the rays of ``src``'s pixels, ``(n, 2)`` px per metre.
+
+    A terrain height error moves the transferred point along the reference image's
+    line of sight, i.e. along the epipolar line in ``dst`` by this much per metre.
+
+    Parameters
+    ----------
+    src, dst : ImageGeometry or RpcGeometry
+    px_src : array_like, shape (n, 2)
+    ground : array_like, shape (n, 3)
+        The points on the rays (e.g. intersected with the terrain).
+    dz : float
+        Half the central-difference step (m).
+    """
+    z = np.asarray(ground, float)[:, 2]
+    hi = dst.to_pixel(point_at_height(src, px_src, z + dz))
+    lo = dst.to_pixel(point_at_height(src, px_src, z - dz))
+    return (hi - lo) / (2.0 * dz)
+
+
+def transfer_covariance(src, dst, px_src: np.ndarray, ground: np.ndarray,
+                        affine: np.ndarray, sigma_height: float,
+                        sigma_ref_px: float) -> np.ndarray:
+    """Covariance ``(n, 2, 2)`` (px^2 of ``dst``) of points carried from ``src`` to ``dst``.
+
+    ``A (C_src + s_ref^2 I) A' + C_dst + s_h^2 e e'``: the reference image's
+    orientation or bias (``C_src``, mapped by the local affine ``A``) and pointing
+    ``s_ref``, the target image's orientation or bias ``C_dst`` (both
+    :func:`pixel_covariance` of the ground points), and the terrain height's
+    uncertainty ``s_h`` along the epipolar direction ``e`` (:func:`height_parallax`).
+    The two images' errors are taken as independent.
+
+    Parameters
+    ----------
+    src, dst : ImageGeometry or RpcGeometry
+    px_src : array_like, shape (n, 2)
+        The reference pixels.
+    ground : array_like, shape (n, 3)
+        Their points on the terrain.
+    affine : array_like, shape (n, 2, 2)
+        ``d px_dst / d px_src`` (:func:`local_affine`).
+    sigma_height : float
+        Terrain height uncertainty (m).
+    sigma_ref_px : float
+        Pointing precision of the reference measurement (px).
+    """
+    ground = np.asarray(ground, float).reshape(-1, 3)
+    a = np.asarray(affine, float)
+    zero = np.zeros((len(ground), 3))
+    c_src = pixel_covariance(src, ground, zero) + sigma_ref_px**2 * np.eye(2)
+    cov = a @ c_src @ np.swapaxes(a, 1, 2) + pixel_covariance(dst, ground, zero)
+    e = height_parallax(src, dst, px_src, ground)
+    return cov + sigma_height**2 * e[:, :, None] * e[:, None, :]
