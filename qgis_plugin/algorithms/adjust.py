@@ -142,6 +142,7 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
         # true centrelines ([truth]): buffer shares before/after, into the summary
         project_truth_buffer(adj.prj, [out], context, feedback)
         project_truth_lines(adj.prj, [out], context, feedback)  # as vectoradjust adjust
+        rpc_files = self._corrected_rpcs(parameters, context, feedback, out)
         outputs = self._write(parameters, context, feedback, out, adj.road.fields,
                               adj.road.wkb, adj.prj.crs)
         report = write_html_report(self, parameters, context, feedback, self.REPORT, out)
@@ -158,9 +159,30 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
             "MEAN_CE90": s.get("mean_ce90"),
         })
         report_summary(feedback, s)
+        for path in rpc_files:
+            feedback.pushInfo(f"wrote the corrected RPCs {path}")
         feedback.setProgress(100)
         feedback.pushInfo(f"done in {time.perf_counter() - t0:.1f} s")
         return outputs
+
+    def _corrected_rpcs(self, parameters, context, feedback, out):
+        """RPC images: their RPCs with the bias folded in, ``<name>_rpc.txt`` beside the
+        summary (else the report), as ``vectoradjust adjust`` writes them into its folder.
+        Without either, none is written and the summary names none."""
+        if not any(im.model == "rpc" for im in out.data.images):
+            return []
+        from ..rpc_io import write_corrected_rpcs
+
+        paths = [self.parameterAsFileOutput(parameters, key, context)
+                 for key in (self.SUMMARY, self.REPORT)]
+        folder = next((os.path.dirname(os.path.abspath(p)) for p in paths if p), None)
+        if folder is None:
+            for entry in out.summary.get("images", []):
+                entry.pop("corrected_rpc", None)
+            feedback.pushInfo("the corrected RPCs (bias folded in) are written beside the "
+                              "summary or the report: give one of them to have them")
+            return []
+        return write_corrected_rpcs(out, folder, feedback.pushWarning)
 
     def _write(self, parameters, context, feedback, out, in_fields, source_wkb, crs):
         feedback.setProgressText("writing the outputs")
@@ -261,12 +283,26 @@ def report_summary(feedback, s):
                               f"{_f(r['rmse_horizontal'])} m")
     if s.get("mean_ce90") is not None:
         feedback.pushInfo(f"mean CE90 {_f(s['mean_ce90'])} m, mean LE90 {_f(s['mean_le90'])} m")
+    for im in s.get("images", []):
+        if im.get("model") == "rpc":
+            feedback.pushInfo(rpc_bias_text(im))
     for e in (s.get("conflation") or {}).get("databases", []):
         n = e.get("vertices") or {}
         feedback.pushInfo(f"conflation of {e['name']} ({e['status']}): "
                           + ", ".join(f"{n.get(k, 0)} {k}" for k in
                                       ("measured", "interpolated", "extrapolated", "unchanged"))
                           + " vertices")
+
+
+def rpc_bias_text(im):
+    """One log line for an RPC image's estimated bias (the summary's ``images[]`` entry):
+    ``S1: bias (shift) a0 = 3.389 +- 0.042 px, b0 = ... px; significant``."""
+    sd = im.get("sigma_bias") or {}
+    terms = ", ".join(f"{k} = {_f(v)} +- {_f(sd.get(k))}" for k, v in
+                      (im.get("bias") or {}).items()) or "no free parameter"
+    sig = (im.get("significance") or {}).get("significant")
+    verdict = "" if sig is None else "; significant" if sig else "; not significant"
+    return f"{im['id']}: bias ({im.get('bias_model')}) {terms} px{verdict}"
 
 
 def _f(v, nd=3):

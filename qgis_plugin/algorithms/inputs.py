@@ -83,6 +83,14 @@ sigma_position in m and sigma_attitude in degrees: empty = free, date) replace i
 [[images]]. The positions and attitudes are approximations that start the iteration.</li>
 <li><b>Ground CRS</b>: projected, metres; default the project's crs, else the road layer's
 CRS.</li>
+<li><b>Satellite images with RPCs</b> (<code>[[images]] model = "rpc"</code>, <code>rpc =
+"image.tif"</code> or its <code>_rpc.txt</code> / <code>.RPB</code>; no [camera] needed):
+the RPCs are read with QGIS's GDAL, the measurements are pixels (column, row), and the
+project's <code>heights</code> says what the heights are: <code>"ellipsoidal"</code>, or
+<code>"orthometric"</code> with <code>vertical_crs</code> (the geoid grid must be in QGIS's
+PROJ). Each image's estimated bias (px) is in the log and the summary; the RPCs with the bias
+folded in (<code>&lt;name&gt;_rpc.txt</code>) are written beside the summary or the
+report.</li>
 </ul>
 """
 
@@ -153,14 +161,32 @@ class ProjectInputs:
     fiducials: object = None
     vectors: list = field(default_factory=list)
 
-    def project_data(self, vectors, truth):
-        """The core's ProjectData for these road databases."""
+    def project_data(self, vectors, truth, context=None, feedback=None):
+        """The core's ProjectData for these road databases.
+
+        With RPC images (``[[images]] model = "rpc"``) their RPCs are read and the ground
+        frame set, as :func:`vectoradjust.files.readers.read_rpc_images` does on the
+        command line, through QGIS's GDAL and coordinate transformations
+        (:func:`qgis_plugin.rpc_io.read_rpc_images`); ``context`` gives the project's
+        datum transformations, ``feedback`` the warnings.
+        """
         from vectoradjust.files.assemble import project_data
 
         # the ground CRS is projected (checked): earth curvature applies when switched on
-        return project_data(self.spec, self.measurements, self.control, vectors,
+        data = project_data(self.spec, self.measurements, self.control, vectors,
                             crs=self.crs.authid() or self.crs.toWkt(), truth=truth,
                             fiducials=self.fiducials, map_projection=True, source=self.source)
+        if self.spec.has_rpc:
+            from ..rpc_io import read_rpc_images
+
+            if feedback is not None:
+                feedback.setProgressText("reading the RPCs of the satellite images")
+            read_rpc_images(data, self.spec, self.crs,
+                            context.transformContext() if context is not None else None,
+                            feedback.pushWarning if feedback is not None else None)
+            if feedback is not None:
+                feedback.pushInfo(f"ground frame: {data.ground_frame.description}")
+        return data
 
 
 def _blank(v):
@@ -311,10 +337,13 @@ def _require_sections(raw, where):
     """Raise ProjectError when the camera, the images or the image measurements are missing."""
     from vectoradjust.errors import ProjectError
 
-    if "camera" not in raw:
+    images = raw.get("images")
+    satellite = bool(images) and isinstance(images, list) and all(
+        isinstance(im, dict) and im.get("model") == "rpc" for im in images)
+    if "camera" not in raw and not satellite:  # RPC images need no frame camera
         raise ProjectError(f"{where}: no camera is given",
                            "Give a project file with [camera] or the focal length parameter")
-    if not raw.get("images"):
+    if not images:
         raise ProjectError(f"{where}: no images are given",
                            "Give a project file with [[images]] or fill in the Images table "
                            "(id, XL, YL, ZL, omega, phi, kappa)")
@@ -330,7 +359,11 @@ def _refuse_datums(spec) -> None:
     from vectoradjust.errors import ProjectError
 
     stated = [k for k in ("crs", "vertical_crs") if (spec.control or {}).get(k)]
-    if getattr(spec, "vertical_crs", None):
+    # orthometric heights of RPC images: the top-level vertical_crs is their datum, for the
+    # ground frame only (the control and DEM heights are taken in it, as on the command
+    # line with a 2D crs): rpc_io.ground_frame applies the geoid
+    rpc_heights = spec.has_rpc and spec.heights == "orthometric"
+    if getattr(spec, "vertical_crs", None) and not rpc_heights:
         stated.append("vertical_crs (top level)")
     if stated:
         raise ProjectError(
@@ -657,7 +690,8 @@ def project_data_with(prj, given, context, feedback):
         seen[spec.name] = where
     truth = {spec.name: t for spec, _, t, _ in items if t is not None}
     prj = _without_missing_roads(prj, given, feedback)
-    return prj.project_data([(spec, layer) for spec, layer, _, _ in items], truth)
+    return prj.project_data([(spec, layer) for spec, layer, _, _ in items], truth, context,
+                            feedback)
 
 
 def _without_missing_roads(prj, given, feedback):

@@ -40,7 +40,10 @@ precision, edge of the image, no texture, ambiguous. A flagged match is never ac
 <li><b>Project file</b> with the camera (<code>pixel_size</code>; <code>image_size</code> or
 the image files give the size), <code>[[images]]</code> (approximate orientation and its
 sigmas; <code>path</code> = the image file, needed for the transfer and the road junctions),
-<code>[control]</code> and <code>[[vectors]]</code> (optional, with a DEM).</li>
+<code>[control]</code> and <code>[[vectors]]</code> (optional, with a DEM). Satellite images
+with RPCs (<code>model = "rpc"</code>) are predicted through their RPCs (read with QGIS's
+GDAL) and the bias priors; their image file is <code>path</code>, else the
+<code>rpc</code> file when that is the image.</li>
 <li><b>Measured points</b> (optional): a CSV <code>point_id,image_id,col,row</code> (pixels)
 or the filled-in measurement template (<code>measured_col, measured_row</code>).</li>
 <li><b>Locate road junctions</b>: shape points where three or more road directions meet, or
@@ -68,6 +71,31 @@ FIELDS = ["image_id", "point_id", "kind", "source", "col", "row", "x_mm", "y_mm"
           "win_minor", "win_angle", "ncc", "rho", "sigma_px", "flags", "accepted"]
 TYPES = {"image_id": "s", "point_id": "s", "kind": "s", "source": "s", "flags": "s",
          "accepted": "i"}
+
+
+def _ground_frame(spec, crs, context, feedback):
+    """Read the RPCs of the project's RPC images (QGIS's GDAL) and return the ground
+    frame (QGIS's transformations; None without RPC images), as ``vectoradjust measure``
+    does with rasterio and pyproj."""
+    if not spec.has_rpc:
+        return None
+    from ..rpc_io import read_rpc_images
+
+    holder = SimpleNamespace(images=spec.images, ground_frame=None)
+    read_rpc_images(holder, spec, crs, context.transformContext(), feedback.pushWarning)
+    return holder.ground_frame
+
+
+def _say_rpc(geoms, feedback):
+    """One log line per RPC image: its bias and where it and the search window come from."""
+    from vectoradjust.measure.geometry import RpcGeometry
+
+    for iid, g in geoms.items():
+        if isinstance(g, RpcGeometry):
+            sd = np.sqrt(np.clip(np.diag(g.bias_cov)[[0, 3]], 0.0, None))
+            feedback.pushInfo(f"RPC image {iid}: bias {g.bias[0]:.2f}, {g.bias[3]:.2f} px "
+                              f"(column, row shift), sigma {sd[0]:.2f}, {sd[1]:.2f} px from "
+                              f"{g.bias_source}")
 
 
 class GdalImage:
@@ -151,6 +179,11 @@ class MeasureOnImages(VectorAdjustAlgorithm):
                 p = str(entry["path"])
                 p = p if os.path.isabs(p) else os.path.join(str(spec.base_dir), p)
                 readers[str(entry["id"])] = GdalImage(p, str(entry["id"]))
+        for im in spec.images:  # an RPC image's rpc file may be the image itself
+            if im.id not in readers and im.model == "rpc" and im.rpc.path and \
+                    os.path.splitext(str(im.rpc.path))[1].lower() not in (".txt", ".rpb"):
+                readers[im.id] = GdalImage(str(im.rpc.path), im.id)
+        frame = _ground_frame(spec, crs, context, feedback)
         prj = SimpleNamespace(crs=crs, source=where)
         layers, dem = [], None
         for entry in spec.vectors:
@@ -173,7 +206,8 @@ class MeasureOnImages(VectorAdjustAlgorithm):
 
             fiducials = read_fiducials(spec.measurements["fiducials"], "pixel")
         geoms = image_geometries(spec, image_sizes={k: r.size for k, r in readers.items()},
-                                 control=control, fiducials=fiducials)
+                                 control=control, fiducials=fiducials, ground_frame=frame)
+        _say_rpc(geoms, feedback)
         if height is None and control is not None and len(control.xyz):
             height = float(np.mean(control.xyz[:, 2]))
         return spec, geoms, readers, points, height

@@ -53,7 +53,14 @@ def test_no_second_gdal_after_every_algorithm(qgis_app, sample, tmp_path):
         "OUTPUT": "TEMPORARY_OUTPUT"})
     processing.run("vectoradjust:equalerrormap", {
         "PROJECT": f"{s}/project.toml", "OUTPUT": str(tmp_path / "ee.tif")})
+    # RPC images (their RPCs and the ground frame through QGIS's GDAL and transformations)
+    processing.run("vectoradjust:adjustroadvectors", {
+        "INPUT": f"{s}/osm_roads.shp", "PROJECT": f"{s}/satellite/project.toml",
+        "SHAPE_POINTS": "TEMPORARY_OUTPUT", "SUMMARY": str(tmp_path / "rpc" / "summary.json")})
+    processing.run("vectoradjust:measureonimages", {
+        "PROJECT": f"{s}/satellite/project.toml", "OUTPUT": "TEMPORARY_OUTPUT"})
     assert (tmp_path / "report.html").is_file() and (tmp_path / "ee.tif").is_file()
+    assert (tmp_path / "rpc" / "S1_rpc.txt").is_file()
     # the report's figures: matplotlib's Agg canvas, never pyplot (no GUI backend in QGIS)
     assert "matplotlib.pyplot" not in sys.modules
     assert not _loaded(SECOND_GDAL), f"loaded in the QGIS process: {_loaded(SECOND_GDAL)}"

@@ -25,7 +25,7 @@ import re
 import shutil
 import warnings
 from pathlib import Path
-from typing import Optional, Union
+from typing import Callable, Optional, Union
 
 import numpy as np
 
@@ -70,7 +70,7 @@ PathLike = Union[str, Path]
 
 
 # ---------------------------------------------------------------------- reading
-def read_rpc(path: PathLike) -> RpcModel:
+def read_rpc(path: PathLike, opener: Optional[Callable] = None) -> RpcModel:
     """The RPC model of an image or of an RPC side file.
 
     Parameters
@@ -80,6 +80,13 @@ def read_rpc(path: PathLike) -> RpcModel:
         GDAL finds next to it), or a side file itself: ``*_rpc.txt`` (GDAL's and
         GeoEye's ``KEY: value`` format, units after the values allowed) or ``*.RPB``
         (DigitalGlobe).
+    opener : callable, optional
+        ``opener(path) -> (tags, files)`` reads an image's metadata: ``tags`` its
+        ``RPC`` metadata domain as a dict (empty when it has none), ``files`` the files
+        GDAL opened for it, the image first (a side file among them is named as the
+        source). Any exception it raises means "not readable as an image". Default:
+        rasterio. The QGIS plugin passes one on QGIS's own GDAL
+        (``qgis_plugin/rpc_io.py``); side files are parsed here either way.
 
     Returns
     -------
@@ -102,7 +109,7 @@ def read_rpc(path: PathLike) -> RpcModel:
         return RpcModel.from_gdal(_parse_rpc_txt(_read_text(p), str(p)), source=str(p))
     if name.endswith(".rpb"):
         return RpcModel.from_gdal(_parse_rpb(_read_text(p), str(p)), source=str(p))
-    return _read_image_rpc(p)
+    return _read_image_rpc(p, opener or _rasterio_metadata)
 
 
 def _read_text(p: Path) -> str:
@@ -113,20 +120,27 @@ def _read_text(p: Path) -> str:
                              path=str(p)) from exc
 
 
-def _read_image_rpc(p: Path) -> RpcModel:
-    """RPCs of an image through GDAL (tags, RPC00B or side file)."""
+def _rasterio_metadata(p: Path) -> tuple:
+    """``(RPC tags, files)`` of an image through rasterio (GDAL)."""
     import rasterio
     import rasterio.errors
 
+    with warnings.catch_warnings():  # RPC images are rarely georeferenced
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with rasterio.open(p) as src:
+            return dict(src.tags(ns="RPC")), [str(f) for f in src.files]
+
+
+def _read_image_rpc(p: Path, opener: Callable) -> RpcModel:
+    """RPCs of an image through GDAL (tags, RPC00B or side file)."""
     try:
-        with warnings.catch_warnings():  # RPC images are rarely georeferenced
-            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-            with rasterio.open(p) as src:
-                tags = dict(src.tags(ns="RPC"))
-                files = [str(f) for f in src.files]
+        tags, files = opener(p)
+    except ImportError:  # a missing reader is no fault of the file
+        raise
     except Exception as exc:  # rasterio raises RasterioIOError, CPLE_* errors
         raise InputFileError(f"RPC file {p}: cannot be read as an image ({exc})",
                              _READ_MEND, path=str(p)) from exc
+    tags, files = dict(tags or {}), [str(f) for f in files or []]
     if not tags:
         stem = _stem(p)
         raise InputFileError(
