@@ -399,3 +399,25 @@ def test_frame_only_methods_refuse_rpc_images():
         with pytest.raises(ProjectError, match="frame camera methods") as e:
             call()
         assert "'P1'" in e.value.what and "--images" in e.value.mend
+
+
+@pytest.mark.io
+def test_corrected_rpcs_never_replace_the_inputs(tmp_path):
+    """Adjusting into the folder that holds the project's own S?_rpc.txt keeps them and
+    writes S?_corrected_rpc.txt instead (named in the summary)."""
+    import shutil
+
+    from vectoradjust.cli import main
+
+    sample = Path(__file__).resolve().parents[1] / "resources" / "sample"
+    work = tmp_path / "satellite"
+    shutil.copytree(sample / "satellite", work)
+    text = (work / "project.toml").read_text().replace('"../', f'"{sample.as_posix()}/')
+    (work / "project.toml").write_text(text)
+    before = (work / "S1_rpc.txt").read_bytes()
+    assert main(["adjust", str(work / "project.toml"), "-o", str(work), "-q", "--no-bands"]) == 0
+    assert (work / "S1_rpc.txt").read_bytes() == before
+    summary = json.loads((work / "summary.json").read_text())
+    entry = summary["images"][0]["corrected_rpc"]
+    assert entry["file"] == "S1_corrected_rpc.txt" and "renamed" in entry["note"]
+    assert (work / "S1_corrected_rpc.txt").is_file()

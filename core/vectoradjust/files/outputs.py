@@ -490,7 +490,7 @@ def write_outputs(run: AdjustmentRun, out_dir, fmt: str = "gpkg",
         if any(im.model == "rpc" for im in run.data.images):
             from vectoradjust.files.rpc import write_corrected_rpcs
 
-            names += write_corrected_rpcs(run, tmp)  # also notes them in the summary
+            names += write_corrected_rpcs(run, tmp, out)  # also notes them in the summary
         step("writing summary.json")
         summary = dict(run.summary)
         summary["renamed_input_fields"] = renamed_input_fields(run_input_fields(run))

@@ -223,14 +223,13 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
     if not isinstance(crs, str) or not crs.strip():
         raise _err(where, "crs is missing", 'Add crs = "EPSG:xxxxx" (a projected CRS in metres)')
 
-    images = _parse_images(raw.get("images"), where, base_dir)
     cam = raw.get("camera")
-    if cam is None and images and all(im.model == "rpc" for im in images):
-        cam, camera = {}, None  # satellite images only: no frame camera
-    elif not isinstance(cam, dict):
-        raise _err(where, "[camera] is missing", "Add [camera] with focal_length (mm)")
-    else:
-        camera = _parse_camera(cam, base_dir, where)
+    camera = _parse_camera(cam, base_dir, where) if isinstance(cam, dict) else None
+    images = _parse_images(raw.get("images"), where, base_dir)
+    if camera is None:
+        if cam is not None or not all(im.model == "rpc" for im in images):
+            raise _err(where, "[camera] is missing", "Add [camera] with focal_length (mm)")
+        cam = {}  # satellite images only: no frame camera
 
     corrections = _parse_corrections(raw.get("corrections", {}) or {}, where)
     heights = _parse_heights(raw, images, where)

@@ -589,7 +589,7 @@ def _inverse(t):
     return inverse
 
 
-def write_corrected_rpcs(run, folder: PathLike) -> list:
+def write_corrected_rpcs(run, folder: PathLike, final: Optional[PathLike] = None) -> list:
     """Each RPC image's RPCs with its estimated bias folded in, as GDAL side files.
 
     For an image whose RPCs came from ``img_01.tif`` (or ``img_01_rpc.txt``) this writes
@@ -605,6 +605,11 @@ def write_corrected_rpcs(run, folder: PathLike) -> list:
     ----------
     run : vectoradjust.results.AdjustmentRun
     folder : path
+    final : path, optional
+        The folder the files end up in when ``folder`` is a temporary one. A name that
+        would replace one of the project's own RPC files there (an output folder that
+        holds the inputs) becomes ``<name>_corrected_rpc.txt`` instead, and the summary
+        says so.
 
     Returns
     -------
@@ -615,13 +620,25 @@ def write_corrected_rpcs(run, folder: PathLike) -> list:
     from vectoradjust.sensor.rpc import fold_bias
 
     folder = Path(folder)
+    final = Path(final) if final is not None else folder
     names = corrected_rpc_names(run.data.images)
+    inputs = {Path(im.rpc.path).resolve() for im in run.data.images
+              if im.model == "rpc" and im.rpc.path}
+    entries = {e["id"]: e for e in run.summary.get("images", []) if e.get("model") == "rpc"}
     written = []
     for j, iid in enumerate(run.image_ids):
         im = next((m for m in run.data.images if m.id == iid), None)
         if im is None or im.model != "rpc":
             continue
+        name = names[str(iid)]
+        if (final / name).resolve() in inputs:  # never over the project's own RPCs
+            name = name[: -len("_rpc.txt")] + "_corrected_rpc.txt"
+            if str(iid) in entries and "corrected_rpc" in entries[str(iid)]:
+                entries[str(iid)]["corrected_rpc"]["file"] = name
+                entries[str(iid)]["corrected_rpc"]["note"] = (
+                    "renamed: the output folder holds the project's RPC file of this name; "
+                    "rename it to <image>_rpc.txt next to the image for GDAL to use it")
         folded, _ = fold_bias(im.rpc.rpc, run.result.eo[j])
-        write_rpc(folded, folder / names[str(iid)])
-        written.append(names[str(iid)])
+        write_rpc(folded, folder / name)
+        written.append(name)
     return written
