@@ -372,15 +372,11 @@ def read_rpc_images(data, spec, crs, transform_context=None, warn=None):
     transform_context, warn
         As for :func:`ground_frame`.
     """
-    rpcs = []
-    for im in data.images:
-        if im.model == "rpc":
-            if im.rpc.rpc is None:
-                im.rpc.rpc = read_rpc(im.rpc.path)
-            rpcs.append(im.rpc.rpc)
-    if not rpcs:
+    from vectoradjust.files.assemble import read_image_rpcs
+
+    near = read_image_rpcs(data.images, read_rpc)
+    if near is None:
         return
-    near = (float(np.mean([r.long_off for r in rpcs])), float(np.mean([r.lat_off for r in rpcs])))
     data.ground_frame = ground_frame(
         crs, heights=spec.heights or "ellipsoidal",
         vertical_crs=spec.vertical_crs if spec.heights == "orthometric" else None, near=near,

@@ -26,7 +26,7 @@ from vectoradjust.errors import ProjectError
 from vectoradjust.model import Camera, ControlPoints, Measurements, ProjectData
 from vectoradjust.sensor.interior import FiducialMeasurements, refine_measurements
 
-__all__ = ["project_data", "empty_control"]
+__all__ = ["project_data", "empty_control", "read_image_rpcs"]
 
 
 def empty_control(source: str = "<control>") -> ControlPoints:
@@ -150,3 +150,27 @@ def _split_rpc(spec, measurements: Measurements, unit: str, fiducials, control,
     camera = Camera(spec.camera.focal_length, interior.principal_point,
                     calibration=spec.camera.calibration)
     return out, camera, {**interior.report, "rpc_images": rpc_ids}
+
+
+def read_image_rpcs(images: list, read) -> Optional[tuple[float, float]]:
+    """Fill the RPCs of the RPC images that have none yet, with ``read(path)``.
+
+    The command line reads them with rasterio (:func:`vectoradjust.files.rpc.read_rpc`),
+    QGIS with its own GDAL; both go through here.
+
+    Returns
+    -------
+    (float, float) or None
+        The mean longitude and latitude offset of the RPCs (where the project is, for
+        choosing a transformation); None without RPC images.
+    """
+    rpcs = []
+    for im in images:
+        if im.model == "rpc":
+            if im.rpc.rpc is None:
+                im.rpc.rpc = read(im.rpc.path)
+            rpcs.append(im.rpc.rpc)
+    if not rpcs:
+        return None
+    return (float(np.mean([r.long_off for r in rpcs])),
+            float(np.mean([r.lat_off for r in rpcs])))

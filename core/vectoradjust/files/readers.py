@@ -362,14 +362,9 @@ def transformation_info(source_crs, target_crs, bounds=None):
 
 def _user_crs(value, where: str):
     """``value`` (an EPSG code, WKT ...) as a pyproj CRS; a :class:`CRSError` if unknown."""
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError as _PCRSError
+    from vectoradjust.files.rpc import _parse_crs
 
-    try:
-        return CRS.from_user_input(value)
-    except _PCRSError as exc:
-        raise CRSError(f"{where}: the CRS {str(value)[:80]!r} is not understood ({exc})",
-                       'Give an EPSG code such as "EPSG:4326" or "EPSG:5703"') from exc
+    return _parse_crs(value, f"{where}: the CRS", 'EPSG:4326" or "EPSG:5703')
 
 
 def _parts(crs):
@@ -734,15 +729,10 @@ def read_rpc_images(data: ProjectData, spec: ProjectSpec, crs: str) -> None:
     """Read the RPCs of the project's RPC images into their ``ImageSpec.rpc`` and give
     ``data`` the ground frame (project CRS and heights to WGS84 longitude, latitude and
     ellipsoidal height, :func:`vectoradjust.files.rpc.crs_frame`)."""
+    from vectoradjust.files.assemble import read_image_rpcs
     from vectoradjust.files.rpc import crs_frame, read_rpc
 
-    rpcs = []
-    for im in data.images:
-        if im.model == "rpc":
-            if im.rpc.rpc is None:
-                im.rpc.rpc = read_rpc(im.rpc.path)
-            rpcs.append(im.rpc.rpc)
-    near = (float(np.mean([r.long_off for r in rpcs])), float(np.mean([r.lat_off for r in rpcs])))
+    near = read_image_rpcs(data.images, read_rpc)
     data.ground_frame = crs_frame(crs, heights=spec.heights or "ellipsoidal",
                                   geoid=spec.vertical_crs if spec.heights == "orthometric"
                                   else None, near=near)

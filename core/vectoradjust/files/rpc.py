@@ -357,7 +357,9 @@ def utm_crs(lon: float, lat: float) -> str:
     return f"EPSG:{(32600 if lat >= 0 else 32700) + zone}"
 
 
-def _parse_crs(value, what: str):
+def _parse_crs(value, what: str, example: str = "EPSG:32616"):
+    """``value`` (an EPSG code, WKT ...) as a pyproj CRS; a :class:`CRSError` naming
+    ``what`` if PROJ does not understand it."""
     from pyproj import CRS
     from pyproj.exceptions import CRSError as _PCRSError
 
@@ -365,7 +367,7 @@ def _parse_crs(value, what: str):
         return CRS.from_user_input(value)
     except _PCRSError as exc:
         raise CRSError(f"{what} {str(value)[:80]!r} is not understood ({exc})",
-                       'Give an EPSG code such as "EPSG:32616"') from exc
+                       f'Give an EPSG code such as "{example}"') from exc
 
 
 def _horizontal(crs, near: Optional[tuple]):
