@@ -336,11 +336,17 @@ def test_crs_frame_heights_options_must_agree():
         crs_frame("EPSG:32735+5773", heights="orthometric", geoid="EGM2008")
 
 
+#: the older names under which distributions ship PROJ's grids (Debian's proj-data:
+#: egm96_15.gtx), which PROJ finds for the new ones
+_OLD_GRID_NAMES = {"us_nga_egm96_15.tif": ("egm96_15.gtx",), "us_noaa_conus.tif": ("conus",)}
+
+
 def _grid_available(name: str) -> bool:
     pyproj = _pyproj()
     for folder in (pyproj.datadir.get_data_dir(), pyproj.datadir.get_user_data_dir()):
-        if (Path(folder) / name).is_file():
-            return True
+        for n in (name, *_OLD_GRID_NAMES.get(name, ())):
+            if (Path(folder) / n).is_file():
+                return True
     return pyproj.network.is_network_enabled()
 
 
