@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import csv
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -297,16 +296,14 @@ def test_strip_of_images():
     assert abs(np.mean(w**2) - 1.0) < 5.0 * np.sqrt(2.0 / w.size)
 
 
-def test_dense_mode_size_and_speed():
-    t0 = time.perf_counter()
+def test_dense_mode_size():
+    # its speed (target < 10 s) is measured by benchmarks/bench_unit_speed.py, not here
     sc = make_scenario(1, n_shape_points=100_000)
-    elapsed = time.perf_counter() - t0
     shape_ids = np.concatenate([sc.truth[n][0] for n in sc.truth])
     measured = np.unique(sc.measurements.point_id[np.isin(sc.measurements.point_id,
                                                           shape_ids)])
     assert abs(len(measured) - 100_000) < 5_000
     assert np.all(np.abs(sc.measurements.xy) < 115.0)
-    assert elapsed < 10.0
     for name in sc.layers:
         assert abs(_rmse(sc, name) - PAPER_RMSE[name]) < 0.1 * PAPER_RMSE[name]
 

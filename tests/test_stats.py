@@ -143,18 +143,17 @@ def test_ce90_vectorised_shapes_and_degenerate_inputs():
     assert math.isnan(S.ce90(np.array([[1.0, 2.0], [2.0, 1.0]])))
 
 
-def test_ce90_million_points_fast():
-    import time
-
+def test_ce90_million_points():
+    # the speed of this (target < 2 s) is measured by benchmarks/bench_unit_speed.py,
+    # not here: a unit test asserts no wall-clock time
     rng = np.random.default_rng(0)
     a = rng.standard_normal((1_000_000, 2, 2))
     cov = a @ a.transpose(0, 2, 1)
-    S.ce90(cov[:10])  # build the table outside the timing
-    t = time.perf_counter()
     out = S.ce90(cov)
-    dt = time.perf_counter() - t
     assert out.shape == (1_000_000,) and np.all(np.isfinite(out))
-    assert dt < 2.0  # ~0.25 s measured on the 2-core reference machine
+    # the vectorised million agrees with the matrices taken one by one
+    some = rng.choice(1_000_000, 20, replace=False)
+    np.testing.assert_allclose(out[some], [S.ce90(cov[i]) for i in some], rtol=1e-12)
 
 
 # ---------------------------------------------------------------------------
