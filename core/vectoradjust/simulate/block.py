@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from vectoradjust.adjust.bundle import BundleProblem
-from vectoradjust.sensor.collinearity import project
 from vectoradjust.simulate.geometry import (
     CENTER,
     CONTROL_SIGMA,
@@ -32,6 +31,7 @@ from vectoradjust.simulate.geometry import (
     _rng,
     terrain_height,
 )
+from vectoradjust.simulate.physics import image_of
 
 __all__ = ["SimulatedBlock", "make_block"]
 
@@ -102,7 +102,7 @@ def _seen(xyz: np.ndarray, eo: np.ndarray, plan: np.ndarray, base: float, spacin
     valid = (cc >= 0) & (cc < per_strip) & (rr >= 0) & (rr < n_strips)
     pi, slot = np.nonzero(valid)
     ii = rr[pi, slot] * per_strip + cc[pi, slot]
-    xy = project(eo[ii], xyz[pi], FOCAL_LENGTH)
+    xy = image_of(eo[ii], xyz[pi], FOCAL_LENGTH)  # the independent projection (physics.py)
     inside = np.all(np.abs(xy) < FORMAT_HALF - 1.0, axis=1)
     return pi[inside], ii[inside], xy[inside]
 
