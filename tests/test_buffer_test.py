@@ -103,13 +103,13 @@ def test_degenerate_and_bad_inputs():
     assert buffer_test([], ref, [1.0])[0]["share"] is None
     assert buffer_test(LineString([(0, 0), (10, 0)]), ref, 0.0)[0]["share"] == 0.0
     assert buffer_test(LineString([(0, 0), (10, 0)]), [], 1.0)[0]["share"] == 0.0
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"widths must be finite and >= 0, got \[-1\.0\]"):
         buffer_test(ref, ref, [-1.0])
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"widths must be finite and >= 0, got \[nan\]"):
         buffer_test(ref, ref, [np.nan])
-    with pytest.raises(LayerError):
+    with pytest.raises(LayerError, match=r"tested geometry 0 is a Point, not a line.*LineString"):
         buffer_test(Point(0, 0), ref, 1.0)
-    with pytest.raises(LayerError):
+    with pytest.raises(LayerError, match=r"reference geometry 0 is a Polygon.*LineString"):
         buffer_test(ref, Point(0, 0).buffer(1.0), 1.0)
 
 

@@ -58,7 +58,7 @@ def test_bad_focal_length(bad):
 
 
 def test_unknown_distortion_model_names_value_and_accepted_names():
-    with pytest.raises(CameraError) as exc:
+    with pytest.raises(CameraError, match=r"unknown distortion model 'brown'\. Use one of") as exc:
         CameraCalibration.from_dict(
             {"focal_length": 152.4, "distortion": {"model": "brown", "K1": 1e-8}}
         )

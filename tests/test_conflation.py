@@ -106,7 +106,7 @@ def test_no_signal_means_the_trend_alone():
 
 def test_cancel_stops_the_prediction():
     cov = CovarianceModel("exponential", 1.0, 10.0, 0.0)
-    with pytest.raises(CancelledError):
+    with pytest.raises(CancelledError, match="conflation was cancelled"):
         krige(cov, np.zeros((2, 2)) + [[0, 0], [1, 1]], np.ones((2, 1)), np.zeros(2),
               np.zeros((5, 2)), k=2, is_cancelled=lambda: True)
 

@@ -160,7 +160,8 @@ def test_control_heights_without_a_grid_are_a_clear_error(sample, control, pair)
     _no_grid_here(source, "EPSG:32616+5703")
     _project_in_navd88(sample)
     _set(sample / "project.toml", "control", **control)
-    with pytest.raises(CRSError) as exc:
+    with pytest.raises(CRSError,
+                       match=r"to NAVD88 height: PROJ has no grid-based.*Install the grid") as exc:
         load_project_data(sample / "project.toml")
     msg, mend = str(exc.value), exc.value.mend if hasattr(exc.value, "mend") else str(exc.value)
     assert "[control]" in msg and all(p in msg for p in pair), msg

@@ -365,7 +365,7 @@ def test_segment_bands_from_kept_covariances_once_the_factorisation_is_let_go(ad
         assert adj_run.result.nep_obs is not None
         with pytest.raises(ProjectError, match="release_factorisation"):
             derived.cross_covariance(run2.result, [0], [1])
-        with pytest.raises(ProjectError):
+        with pytest.raises(ProjectError, match=r"holds no factorisation.*release_factorisation"):
             derived.segment_bands(run2, db, 0.9)
         for given in (kept, share):
             got = derived.segment_bands(run2, db, 0.9, part=(1, 2), covariances=given)
@@ -464,9 +464,10 @@ def test_profile_of_a_feature(adj_run, dense):
     d = pr.to_dict()
     assert len(d["vertices"]) == len(v)
     json.dumps(d)
-    with pytest.raises(LayerError):
+    with pytest.raises(LayerError,
+                       match=r"No feature with id 'no-such-feature'.*Give a feature id"):
         derived.profile(adj_run, "no-such-feature")
-    with pytest.raises(ProjectError):
+    with pytest.raises(ProjectError, match=r"no road database named 'NO-SUCH-DB'.*Use one of: "):
         derived.profile(adj_run, fid, "NO-SUCH-DB")
 
 
@@ -527,7 +528,9 @@ def test_equal_error_grid_covers_the_stereo_overlap(adj_run):
     rng = derived.equal_error_range(grid)
     assert rng["nodes"] == inside.sum()
     assert 0 < rng["sigma_x"]["min"] <= rng["sigma_x"]["max"]
-    with pytest.raises(ProjectError):
+    with pytest.raises(ProjectError,
+                       match=r"Image pair \['L', 'nope'\] is not two different images.*"
+                             r"Name two of: "):
         derived.equal_error_grid(adj_run, image_pair=("L", "nope"))
 
 
@@ -694,7 +697,8 @@ def test_uncertainty_bands_report_progress_and_cancel_in_the_union(adj_run):
     assert np.all(np.diff(fractions) >= 0) and 0.99 <= fractions[-1] <= 1.0
     assert any("union" in m for _, m in seen) and any("segments" in m for _, m in seen)
     msgs = []
-    with pytest.raises(CancelledError):  # polled before every progress report
+    # polled before every progress report
+    with pytest.raises(CancelledError, match=r"uncertainty bands was cancelled.*--no-bands"):
         uncertainty_bands_frame(adj_run, progress=lambda f, msg: msgs.append(msg),
                                 is_cancelled=lambda: bool(msgs) and "union" in msgs[-1])
     assert "union" in msgs[-1] and len(msgs) < len(seen)

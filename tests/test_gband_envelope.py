@@ -232,7 +232,7 @@ def test_ring_list_of_segment_bands_is_a_read_only_sequence():
     assert np.array_equal(rings[-1], xy[4:])
     assert [len(r) for r in rings] == [4, 0, 6]
     assert [len(r) for r in rings[1:]] == [0, 6]
-    with pytest.raises(IndexError):
+    with pytest.raises(IndexError, match="ring index out of range"):
         rings[3]
     assert not derived._Rings(np.zeros((0, 2)), np.array([0]))
 

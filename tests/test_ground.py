@@ -179,7 +179,7 @@ def test_enu_frame_input_checks_and_description():
         frame.to_geodetic(np.zeros((4, 2)))
     with pytest.raises(ValueError, match="latitude"):
         EnuFrame(0.0, 90.0)
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match=r"abstract class GroundFrame.*to_geodetic"):
         GroundFrame()  # abstract
 
 

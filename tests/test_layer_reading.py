@@ -89,7 +89,7 @@ def test_without_id_field_a_filtered_feature_keeps_its_index(sample_dir):
 @pytest.mark.parametrize("expr", ["highwy IS NOT NULL", "highway ==== 'x'"])
 def test_a_bad_where_names_the_entry_and_the_expression(sample, expr):
     _osm_entry(sample, f'where = "{expr}"')
-    with pytest.raises(LayerError) as exc:
+    with pytest.raises(LayerError, match=r"is not a valid attribute filter.*OGR SQL WHERE") as exc:
         load_project_data(sample / "project.toml")
     msg = str(exc.value)
     assert "[[vectors]] 'OSM'" in msg and f"where = {expr!r}" in msg
@@ -146,7 +146,8 @@ def test_an_osm_pbf_without_layer_lists_its_line_layers(sample):
 def test_no_id_field_while_the_measurements_use_other_ids(sample):
     _edit(sample / "project.toml", 'id_field = "osm_id"\n', "")
     for vectors in (["OSM"], None):
-        with pytest.raises(NothingAdjustedError) as exc:
+        with pytest.raises(NothingAdjustedError,
+                           match=r"no id_field is given.*set id_field = \"osm_id\"") as exc:
             run(load_project_data(sample / "project.toml"), vectors=vectors)
         msg = str(exc.value)
         assert msg.startswith("OSM (") and "image_points.csv" in msg

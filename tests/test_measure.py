@@ -154,7 +154,7 @@ def test_transfer_reports_progress_and_honours_cancel(pair):
     transfer(pair.approx, readers, meas, pair.scene.height,
              progress=lambda f, m: seen.append(f))
     assert seen and seen[-1] == 1.0
-    with pytest.raises(CancelledError):
+    with pytest.raises(CancelledError, match="measurement was cancelled"):
         transfer(pair.approx, readers, meas, pair.scene.height, is_cancelled=lambda: True)
 
 

@@ -236,7 +236,8 @@ def test_divergence_from_absurd_approximations(scenario):
     data.images[0].attitude = np.array([0.0, 0.0, 180.0])  # photo turned upside down
     data.images[0].sigma_attitude = None
     data.images[1].sigma_attitude = None
-    with pytest.raises(VectorAdjustError):
+    with pytest.raises(VectorAdjustError,
+                       match=r"diverged at iteration \d+.*Check the approximate ext"):
         run(data)
 
 

@@ -71,7 +71,8 @@ def test_a_misspelt_key_is_named_with_its_table_and_the_nearest_key(raw, where, 
     for part in where:
         table = table[part]
     table[key] = 1
-    with pytest.raises(ProjectError) as exc:
+    said = rf"{re.escape(repr(key))} \(did you mean {re.escape(repr(meant))}\?\)"
+    with pytest.raises(ProjectError, match=said) as exc:
         _parse(raw)
     msg = str(exc.value)
     assert named in msg and repr(key) in msg, msg

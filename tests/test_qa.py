@@ -127,9 +127,9 @@ def test_digital_triplet_table_values():
 
 
 def test_triplet_tolerance_rejects_nonsense():
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="focal length, base and pixel size must be positive"):
         triplet_tolerance(150.0, 0.0, 0.012)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"forward overlap must be in \[0, 1\), got 1\.0"):
         stereo_base_mm(230.0, 1.0)
 
 
@@ -142,7 +142,7 @@ def test_orientation_tolerances_in_pixels_and_mm():
     assert ro.mean_mm == pytest.approx(0.0045) and ro.max_mm == pytest.approx(0.009)
     # the published pair (0.5 px mean, 1 px max) is the E_max = 2 E_mean rule
     assert max_from_mean(ro.mean_px) == ro.max_px
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"pixel size must be a positive number of mm, got 0\.0"):
         interior_orientation_tolerance(0.0)
 
 
@@ -256,7 +256,7 @@ def test_dtm_tables_analog_and_digital():
         r = 0.5 * math.hypot(n_al * pix, n_ac * pix)
         dh_d, _ = orthophoto_dtm_tolerance(fd, 2000.0, r)
         assert dh_d == pytest.approx(0.3e-3 * 2000.0 * fd / r)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="focal length, scale and r must be positive"):
         orthophoto_dtm_tolerance(150.0, 2000.0, 0.0)
 
 
@@ -300,7 +300,7 @@ def test_spec_from_dict_and_scale_strings():
     ],
 )
 def test_spec_errors_name_the_key_and_allowed_values(d, key, words):
-    with pytest.raises(ProjectError) as err:
+    with pytest.raises(ProjectError, match=r"^\[qa\] .+\. (set|use only|add|give) ") as err:
         QASpec.from_dict(d)
     msg = str(err.value)
     assert "[qa]" in msg
@@ -387,9 +387,10 @@ def test_check_stage_statistics_and_point_limits():
     # nothing measured
     s = check_stage("x", [np.nan], ["p"], 0.1)
     assert s.passed is None and s.status == "n/a" and s.rows[0]["passed"] is None
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="1 ids for 3 values"):
         check_stage("x", v, ["a"], 0.1)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError,
+                       match=r"statistic must be one of \('mean', 'rms', 'max'\), got 'median'"):
         check_stage("x", v, None, 0.1, "median")
 
 
@@ -445,7 +446,8 @@ def test_vertical_shift_and_roles():
     strict = control_point_qa(["a", "b", "c", "d"], res, ["control", "gcp", "check", "check"],
                               spec, point_rule="mean")
     assert strict.passed.tolist() == [False, False, False, False]
-    with pytest.raises(ControlError) as err:
+    with pytest.raises(ControlError,
+                       match=r"'a' has role 'tie'\. set role to 'control' or 'check'") as err:
         control_point_qa(["a"], np.zeros((1, 3)), ["tie"], spec)
     assert "'a'" in str(err.value)
 

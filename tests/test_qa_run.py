@@ -337,13 +337,16 @@ def test_spec_from_table_and_overrides():
     s = spec_from_table(None, product="topographic-map", scale=5000, contour_interval=2.5,
                         pixel_size=0.014)
     assert (s.map_scale, s.contour_interval, s.pixel_size) == (5000, 2.5, 0.014)
-    with pytest.raises(ProjectError) as err:
+    with pytest.raises(ProjectError,
+                       match=r"no product specification.*give --product and --scale") as err:
         spec_from_table(None, source="p.toml")
     assert "[qa]" in str(err.value) and "--product" in str(err.value)
-    with pytest.raises(ProjectError) as err:
+    with pytest.raises(ProjectError,
+                       match=r"\[qa\] contour_interval is missing.*add map_scale") as err:
         spec_from_table({"product": "topographic map", "map_scale": 2000}, source="p.toml")
     assert "contour_interval" in str(err.value) and "p.toml" in str(err.value)
-    with pytest.raises(ProjectError):
+    with pytest.raises(ProjectError,
+                       match=r"pixel_size = 12\.0 mm is implausibly large.* is 0\.012"):
         spec_from_table({"product": "orthophoto", "orthophoto_scale": 2000, "pixel_size": 12})
 
 

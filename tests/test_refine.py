@@ -312,7 +312,8 @@ def test_sigma_pixels_to_mm():
     cal = np.array(list(CAL_FIDUCIALS.values()))
     fit = fit_fiducial_affine(to_pixels(cal, lin, off), cal)
     np.testing.assert_allclose(sigma_pixels_to_mm(1.0, fit), fit.scale)
-    with pytest.raises(MeasurementError):
+    with pytest.raises(MeasurementError,
+                       match=r"sigma -0\.5 \(pixels\) is negative.*Give a positive"):
         sigma_pixels_to_mm(-0.5, 0.012)
     with pytest.raises(CameraError, match="pixel size"):
         sigma_pixels_to_mm(0.5, -1.0)
@@ -438,7 +439,8 @@ def test_fewer_than_three_fiducials():
 
 def test_fiducial_ids_not_in_calibration():
     meas = {"1": (10, 10), "2": (500, 500), "9": (10, 500), "X": (500, 10)}
-    with pytest.raises(CameraError) as exc:
+    with pytest.raises(CameraError,
+                       match=r"fiducial id\(s\) '9', 'X' are not in the calibration") as exc:
         fit_fiducial_affine(meas, CAL_FIDUCIALS, image_id="R")
     msg = str(exc.value)
     assert "image 'R'" in msg and "'9'" in msg and "'X'" in msg
@@ -453,7 +455,8 @@ def test_camera_without_fiducials():
 
 def test_pixel_measurements_without_fiducials_or_pixel_size():
     cam = CameraCalibration(focal_length=152.4, image_size=(100, 100))
-    with pytest.raises(CameraError) as exc:
+    with pytest.raises(CameraError,
+                       match=r"no fiducial measurements.*give pixel_size \(mm\)") as exc:
         refine([[10.0, 20.0]], cam, unit="pixel", image_id="L")
     msg = str(exc.value)
     assert "image 'L'" in msg and "pixel_size" in msg and "fiducials" in msg

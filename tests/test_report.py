@@ -369,7 +369,8 @@ def test_compare_report(scenario, tmp_path):
 def test_unwritable_path(adj_run, tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    with pytest.raises(InputFileError):
+    with pytest.raises(InputFileError,
+                       match=r"Cannot create the directory of the report.*writable"):
         report.write_report(adj_run, blocker / "report.html")
 
 

@@ -315,7 +315,7 @@ def test_gdal_dict_round_trip():
 def test_malformed_gdal_dicts_raise_input_file_errors(change, key, what):
     d = camera_rpc().to_gdal()
     change(d)
-    with pytest.raises(InputFileError) as err:
+    with pytest.raises(InputFileError, match=rf"^scene\.tif: (?=.*{key})(?=.*{what})") as err:
         RpcModel.from_gdal(d, source="scene.tif")
     msg = str(err.value)
     assert "scene.tif" in msg and key in msg and what in msg

@@ -43,7 +43,7 @@ def test_rpc_image_mistakes_are_named(change, what, mend):
     if change.get("rpc", 1) is None:
         raw["images"][0].pop("rpc")
         what, mend = "has no rpc file", "_rpc.txt"
-    with pytest.raises(ProjectError) as e:
+    with pytest.raises(ProjectError, match=rf"\[\[images\]\] id 'S1': {what}") as e:
         parse_project(raw, SAT)
     assert what in e.value.what and "'S1'" in e.value.what
     assert mend in e.value.mend
@@ -60,7 +60,7 @@ def test_frame_image_with_rpc_keys_is_refused():
 def test_heights_must_be_stated_with_rpc_images():
     raw = base()
     raw.pop("heights")
-    with pytest.raises(ProjectError) as e:
+    with pytest.raises(ProjectError, match=r"heights is missing: RPC images.*EPSG:5773") as e:
         parse_project(raw, SAT)
     assert "heights is missing" in e.value.what and "EPSG:5773" in e.value.mend
     raw["heights"] = "orthometric"
@@ -99,6 +99,6 @@ def test_missing_rpc_file_is_named(tmp_path):
     text = text.replace('"../', f'"{SAT.parent.as_posix()}/').replace(
         'path = "image_points.csv"', f'path = "{(SAT / "image_points.csv").as_posix()}"')
     (tmp_path / "p.toml").write_text(text)  # the S?_rpc.txt are not in tmp_path
-    with pytest.raises(InputFileError) as e:
+    with pytest.raises(InputFileError, match=r"S1_rpc\.txt: does not exist\. Give the image") as e:
         load_project_data(tmp_path / "p.toml")
     assert "S1_rpc.txt" in e.value.message

@@ -31,7 +31,7 @@ def _renamed(data, name: str, prefix: str):
 
 def test_a_selected_database_without_measured_shape_points_is_an_error(scenario):
     data = _renamed(scenario.to_project_data(), "TNM", "X")
-    with pytest.raises(NothingAdjustedError) as exc:
+    with pytest.raises(NothingAdjustedError, match=r"^TNM .*match none of the measured ids") as exc:
         run(data, vectors=["TNM"])
     msg = str(exc.value)
     assert msg.startswith("TNM (")

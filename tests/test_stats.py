@@ -205,7 +205,7 @@ def test_circular_error_probability_broadcast_and_symmetry():
     assert S.circular_error_probability(0.0, 1, 1) == 0.0
     assert S.circular_error_probability(np.inf, 1, 1) == 1.0
     assert math.isnan(S.circular_error_probability(np.nan, 1, 1))
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="standard deviations must be >= 0"):
         S.circular_error_probability(1.0, -1.0, 1.0)
 
 
@@ -450,7 +450,7 @@ def test_absolute_accuracy_small_and_bad_inputs():
     assert r.as_dict()["ce90_exact"] is None
     r0 = S.absolute_accuracy(np.full((2, 3), np.nan))
     assert r0.count == 0 and r0.as_dict()["mean_x"] is None
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"errors must have shape \(n, 2\) or \(n, 3\), got"):
         S.absolute_accuracy(np.zeros((3, 4)))
 
 
@@ -487,7 +487,7 @@ def test_rmse_summary_definition():
         "rmse_z": None,
         "rmse_horizontal": None,
     }
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"dx, dy \(and dz\) must have the same length"):
         S.rmse_summary([1.0], [1.0, 2.0])
 
 
@@ -603,7 +603,7 @@ def test_chi_square_edge_cases():
     assert out["lower"] is None and out["passed"] is None
     out = S.chi_square_test(5.0, 4, alpha=0.01)
     assert out["upper"] == pytest.approx(chi2.ppf(0.995, 4), rel=1e-12)
-    with pytest.raises(ProjectError):
+    with pytest.raises(ProjectError, match=r"alpha = 1.5 is not a significance level"):
         S.chi_square_test(5.0, 4, alpha=1.5)
 
 

@@ -320,7 +320,7 @@ def _copy_of_osm(data):
 def test_reused_measurements_give_the_same_adjusted_points(sample):
     _, data = sample
     data2 = _copy_of_osm(data)
-    with pytest.raises(NothingAdjustedError):
+    with pytest.raises(NothingAdjustedError, match=r"^COPY .*none of its shape points is measured"):
         run(data2, vectors=["COPY"])
     data3 = replace(data2, settings=replace(data2.settings, reuse_tolerance=0.01,
                                             reuse_points="all"))
@@ -342,7 +342,7 @@ def test_reuse_needs_the_other_database_out_of_the_run(sample):
     _, data = sample
     data3 = replace(_copy_of_osm(data), settings=replace(data.settings, reuse_tolerance=0.01,
                                                          reuse_points="all"))
-    with pytest.raises(NothingAdjustedError):
+    with pytest.raises(NothingAdjustedError, match=r"^COPY .*leave the database out"):
         run(data3, vectors=["OSM", "COPY"])
 
 
@@ -443,9 +443,9 @@ def test_study_reports_progress_and_honours_cancel(sample):
         calls.append(1)
         return len(calls) > 3
 
-    with pytest.raises(CancelledError):
+    with pytest.raises(CancelledError, match="The adjustment was cancelled"):
         gcp_study(data, plan, is_cancelled=cancel_after_first_run)
-    with pytest.raises(CancelledError):
+    with pytest.raises(CancelledError, match="The study was cancelled"):
         shift_study(data, 1.0, 1.0, ["OSM"], is_cancelled=lambda: True)
 
 

@@ -57,6 +57,6 @@ def test_drive_truth_buffer_stops_on_cancel_between_chunks():
             step(1)
         return [0.5]
 
-    with pytest.raises(CancelledError):
+    with pytest.raises(CancelledError, match=r"true centrelines was cancelled.*\[truth\]"):
         drive_truth_buffer(_run(), [1.0], shares, "t.shp", is_cancelled=lambda: len(steps) >= 1)
     assert len(steps) == 1

@@ -45,7 +45,7 @@ def test_write_outputs_can_be_cancelled_and_leaves_nothing(small_run, tmp_path):
         n["polls"] += 1
         return n["polls"] > 3  # after three tables
 
-    with pytest.raises(CancelledError):
+    with pytest.raises(CancelledError, match="Writing the outputs was cancelled"):
         write_outputs(small_run, tmp_path / "out", is_cancelled=cancelled, bands=False)
     assert not list((tmp_path / "out").glob("adjusted.gpkg"))
     assert not list((tmp_path / "out").glob("summary.json"))
@@ -58,6 +58,6 @@ def test_write_report_reports_each_section_and_can_be_cancelled(small_run, tmp_p
     sections = [m for _, m in calls if m.startswith("report: ")]
     assert "report: Summary" in sections and "report: Warnings" in sections
     assert len(sections) >= 10 and calls[-1] == (1.0, "report written")
-    with pytest.raises(CancelledError):
+    with pytest.raises(CancelledError, match="Writing the report was cancelled"):
         write_report(small_run, tmp_path / "cancelled.html", is_cancelled=lambda: True)
     assert not (tmp_path / "cancelled.html").exists()

@@ -480,10 +480,11 @@ def test_buffer_test_parallel_line(qgis_app):
 
 
 # --------------------------------------------------------------------------- bad inputs
-def _error(alg, params):
+def _error(alg, params, match):
+    """Run ``alg``; it must fail with a message matching the regular expression ``match``."""
     from qgis.core import QgsProcessingException
 
-    with pytest.raises(QgsProcessingException) as exc:
+    with pytest.raises(QgsProcessingException, match=match) as exc:
         run(alg, params)
     return str(exc.value)
 
@@ -503,7 +504,7 @@ def _memory_points(crs="EPSG:32616"):
 def test_wrong_geometry_type(qgis_app, sample, alg):
     params = adjust_params(sample, INPUT=_memory_points()) if alg == "adjustroadvectors" else {
         "INPUT": _memory_points(), "OUTPUT": "TEMPORARY_OUTPUT"}
-    msg = _error(alg, params)
+    msg = _error(alg, params, r"holds Point geometries, not lines\. Give the road centrelines")
     assert "points" in msg and "not lines" in msg
 
 
@@ -512,7 +513,7 @@ def test_missing_id_field(qgis_app, sample, alg):
     params = adjust_params(sample, ID_FIELD="no_such_field") if alg == "adjustroadvectors" else {
         "INPUT": str(sample / "osm_roads.shp"), "ID_FIELD": "no_such_field",
         "OUTPUT": "TEMPORARY_OUTPUT"}
-    msg = _error(alg, params)
+    msg = _error(alg, params, r"'no_such_field' is not a field.*Choose an existing field")
     assert "'no_such_field' is not a field" in msg and "osm_id" in msg and "osm_roads" in msg
 
 
@@ -526,16 +527,21 @@ def test_layer_without_crs(qgis_app, sample):
         ("bufferaccuracytest", {"INPUT": lines, "REFERENCE": str(sample / "truth_roads.shp"),
                                 "OUTPUT": "TEMPORARY_OUTPUT"}),
     ):
-        msg = _error(alg, params)
+        msg = _error(alg, params, r"'nocrs': the layer has no coordinate reference system\. "
+                                  r"Set the layer's CRS")
         assert "nocrs" in msg and "no coordinate reference system" in msg, (alg, msg)
 
 
+GEOGRAPHIC = r"'EPSG:4326' is geographic \(degrees\).*Choose the local projected CRS"
+
+
 def test_geographic_ground_crs_is_refused(qgis_app, sample):
-    msg = _error("adjustroadvectors", adjust_params(sample, GROUND_CRS="EPSG:4326"))
+    msg = _error("adjustroadvectors", adjust_params(sample, GROUND_CRS="EPSG:4326"), GEOGRAPHIC)
     assert "geographic" in msg
     msg = _error("bufferaccuracytest", {"INPUT": str(sample / "osm_roads.shp"),
                                         "REFERENCE": str(sample / "truth_roads.shp"),
-                                        "GROUND_CRS": "EPSG:4326", "OUTPUT": "TEMPORARY_OUTPUT"})
+                                        "GROUND_CRS": "EPSG:4326", "OUTPUT": "TEMPORARY_OUTPUT"},
+                 GEOGRAPHIC)
     assert "geographic" in msg
 
 
@@ -547,7 +553,8 @@ def test_bad_measurement_table(qgis_app, sample):
     f = QgsFeature(lyr.fields())
     f.setAttributes(["GCP01", "L", 1.0])
     lyr.dataProvider().addFeatures([f])
-    msg = _error("adjustroadvectors", adjust_params(sample, MEASUREMENTS=lyr))
+    msg = _error("adjustroadvectors", adjust_params(sample, MEASUREMENTS=lyr),
+                 r"'badmeas': missing column\(s\) y.*header must be point_id,image_id,x,y")
     assert "badmeas" in msg and "missing column(s) y" in msg
 
 
@@ -557,10 +564,12 @@ def test_missing_camera_and_unknown_image(qgis_app, sample):
               "CONTROL": str(sample / "gcps.csv")}
     for k in SINKS:
         params[k] = "TEMPORARY_OUTPUT"
-    assert "no camera" in _error("adjustroadvectors", params)
+    assert "no camera" in _error("adjustroadvectors", params,
+                                 r"no camera is given\. Give a project file with \[camera\]")
     params.update(FOCAL_LENGTH=152.4, IMAGES=["L", 506303.0, 4475003.0, 799.0, 0, 0, 0, 100, 5,
                                               ""])
-    msg = _error("adjustroadvectors", params)
+    msg = _error("adjustroadvectors", params,
+                 r"image 'R' is not defined in \[\[images\]\]\. Add an \[\[images\]\] entry")
     assert "image 'R' is not defined" in msg and "image_points.csv" in msg
 
 

@@ -30,10 +30,11 @@ def run(alg, params, feedback=None):
     return processing.run(f"vectoradjust:{alg}", params, feedback=feedback)
 
 
-def error(alg, params):
+def error(alg, params, match):
+    """Run ``alg``; it must fail with a message matching the regular expression ``match``."""
     from qgis.core import QgsProcessingException
 
-    with pytest.raises(QgsProcessingException) as exc:
+    with pytest.raises(QgsProcessingException, match=match) as exc:
         run(alg, params)
     return str(exc.value)
 
@@ -121,7 +122,8 @@ def test_compare_a_subset_reads_the_other_databases(qgis_app, sample, headless_c
 def test_database_name_clash(qgis_app, sample):
     msg = error("adjustroadvectors", {"INPUT": str(sample / "osm_roads.shp"), "NAME": "TNM",
                                       "PROJECT": str(sample / "project.toml"),
-                                      "SHAPE_POINTS": "TEMPORARY_OUTPUT"})
+                                      "SHAPE_POINTS": "TEMPORARY_OUTPUT"},
+                r"both called 'TNM'.*Give the road layer another database name")
     assert "both called 'TNM'" in msg and "tnm_roads.shp" in msg
 
 
@@ -143,7 +145,8 @@ def test_missing_project_database_file(qgis_app, sample, tmp_path):
     project.write_text(text, encoding="utf-8")
     msg = error("adjustroadvectors", {"INPUT": str(sample / "osm_roads.shp"),
                                       "PROJECT": str(project),
-                                      "SHAPE_POINTS": "TEMPORARY_OUTPUT"})
+                                      "SHAPE_POINTS": "TEMPORARY_OUTPUT"},
+                r"gone\.shp' does not exist.*Check the path in the \[\[vectors\]\] entry")
     assert "gone.shp" in msg and "does not exist" in msg and "[[vectors]]" in msg
 
 
@@ -192,13 +195,15 @@ def test_table_layer_errors_name_the_row(qgis_app, sample):
                                   "y:double"],
                          [["GCP01", "L", "1.0", 2.0], [None, None, None, None],
                           ["GCP01", "R", "abc", 2.0]])
-    msg = error("adjustroadvectors", dict(base, MEASUREMENTS=meas))
+    msg = error("adjustroadvectors", dict(base, MEASUREMENTS=meas),
+                r"'badx', row 3: column x is 'abc', not a finite number\. Enter a number")
     assert "measurements table 'badx', row 3: column x is 'abc'" in msg  # blank row 2 skipped
     ctrl = _memory_table("dupctrl", ["point_id:string", "X:double", "Y:double", "Z:double",
                                      "sigma_x:double", "sigma_y:double", "sigma_z:double"],
                          [["A", 1.0, 2.0, 3.0, 0.1, 0.1, 0.1], ["A", 1.0, 2.0, 3.0, 0.1, 0.1,
                                                                  0.1]])
-    msg = error("adjustroadvectors", dict(base, CONTROL=ctrl))
+    msg = error("adjustroadvectors", dict(base, CONTROL=ctrl),
+                r"point id 'A' appears more than once.*Give every control and check point")
     assert "control table 'dupctrl': point id 'A' appears more than once (rows 1, 2)" in msg
 
 

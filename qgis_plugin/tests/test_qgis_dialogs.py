@@ -105,7 +105,8 @@ def test_messages_name_the_dialog_parameters(qgis_app, sample, layers):
 
     params = dialog_parameters("equalerrormap", dict(
         user_choices("equalerrormap", sample, layers), SPACING=100000.0))
-    with pytest.raises(QgsProcessingException) as exc:
+    with pytest.raises(QgsProcessingException,
+                       match=r"do not overlap.*Choose a stereo pair with overlap") as exc:
         processing.run("vectoradjust:equalerrormap", params)
     msg = str(exc.value)
     assert "do not overlap" in msg

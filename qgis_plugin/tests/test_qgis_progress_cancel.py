@@ -119,7 +119,7 @@ def test_cancel_while_reading_a_line_layer(qgis_app, sample):
     layer = QgsVectorLayer(str(sample / "osm_roads.shp"), "osm", "ogr")
     fb = QgsProcessingFeedback()
     fb.cancel()
-    with pytest.raises(CancelledError):
+    with pytest.raises(CancelledError, match="The run was cancelled"):
         qgis_io.read_line_source(layer, "OSM", None, layer.crs(), QgsProcessingContext(),
                                  "osm", fb)
 

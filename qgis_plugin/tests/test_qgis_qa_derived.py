@@ -37,10 +37,11 @@ def run(alg, params, context=None, feedback=None):
     return processing.run(f"vectoradjust:{alg}", params, context=context, feedback=feedback)
 
 
-def error(alg, params):
+def error(alg, params, match):
+    """Run ``alg``; it must fail with a message matching the regular expression ``match``."""
     from qgis.core import QgsProcessingException
 
-    with pytest.raises(QgsProcessingException) as exc:
+    with pytest.raises(QgsProcessingException, match=match) as exc:
         run(alg, params)
     return str(exc.value)
 
@@ -173,17 +174,20 @@ def test_accuracy_control_of_a_road_layer(qgis_app, sample):
 
 def test_accuracy_control_bad_inputs(qgis_app, sample, tmp_path):
     base = {"PROJECT": str(sample / "project.toml"), "OUTPUT": "TEMPORARY_OUTPUT"}
-    msg = error("accuracycontrol", base)
+    msg = error("accuracycontrol", base, r"no product specification.*give 'Product' and")
     assert "no product specification" in msg and "[qa]" in msg
     # the dialog's parameters are named, not the command line's flags
     assert "--" not in msg and "'Product'" in msg and "'Scale denominator of the product'" in msg
-    msg = error("accuracycontrol", dict(base, PRODUCT=0))
+    msg = error("accuracycontrol", dict(base, PRODUCT=0),
+                r"\[qa\] map_scale is missing.*add map_scale")
     assert "map_scale is missing" in msg
     assert "--" not in msg and "command line" not in msg and "'Contour interval'" in msg
-    msg = error("accuracycontrol", dict(base, **QA_OPTIONS, PIXEL_SIZE=0.0))
+    msg = error("accuracycontrol", dict(base, **QA_OPTIONS, PIXEL_SIZE=0.0),
+                r"pixel size 0 mm is not a pixel size\. Give the pixel size in millimetres")
     assert "not a pixel size" in msg
     msg = error("accuracycontrol", dict(base, PROJECT=str(tmp_path / "nope.toml"), PRODUCT=1,
-                                        SCALE=2000.0))
+                                        SCALE=2000.0),
+                r"nope\.toml' does not exist\. Give the path of a TOML project file")
     assert "nope.toml" in msg and "does not exist" in msg
 
 
@@ -262,9 +266,12 @@ def test_uncertainty_bands_grow_with_confidence(qgis_app, sample):
 def test_uncertainty_bands_bad_inputs(qgis_app, sample):
     params = {"INPUT": str(sample / "osm_roads.shp"), "PROJECT": str(sample / "project.toml"),
               "OUTPUT": "TEMPORARY_OUTPUT"}
-    assert "not a probability" in error("uncertaintybands", dict(params, CONFIDENCE=1.0))
-    assert "not a probability" in error("uncertaintybands", dict(params, CONFIDENCE=0.0))
-    msg = error("uncertaintybands", dict(params, ID_FIELD="no_such_field"))
+    for c in (1.0, 0.0):
+        msg = error("uncertaintybands", dict(params, CONFIDENCE=c),
+                    r"confidence [01] is not a probability between 0 and 1\. Give e\.g\. 0\.9")
+        assert "not a probability" in msg
+    msg = error("uncertaintybands", dict(params, ID_FIELD="no_such_field"),
+                r"'no_such_field' is not a field of the layer.*Choose an existing field")
     assert "'no_such_field' is not a field" in msg
 
 
@@ -321,10 +328,13 @@ def test_equal_error_map_matches_headless(qgis_app, sample, headless_equal_error
 
 def test_equal_error_map_bad_inputs(qgis_app, sample, tmp_path):
     base = {"PROJECT": str(sample / "project.toml"), "OUTPUT": str(tmp_path / "ee.tif")}
-    assert "give two image ids" in error("equalerrormap", dict(base, IMAGE_PAIR="L"))
-    msg = error("equalerrormap", dict(base, IMAGE_PAIR="L, X"))
+    assert "give two image ids" in error("equalerrormap", dict(base, IMAGE_PAIR="L"),
+                                         r"'L': give two image ids\. Write the two image ids")
+    msg = error("equalerrormap", dict(base, IMAGE_PAIR="L, X"),
+                r"not two different images.*\(unknown: X\)\. Name two of: L, R")
     assert "not two different images" in msg and "unknown: X" in msg
-    assert "not positive" in error("equalerrormap", dict(base, SPACING=0.0))
+    assert "not positive" in error("equalerrormap", dict(base, SPACING=0.0),
+                                   r"spacing 0 m is not positive\. Give a spacing in metres")
 
 
 # --------------------------------------------------------------------------- HTML reports
@@ -363,6 +373,7 @@ def test_report_without_matplotlib_says_so(qgis_app, sample, tmp_path, monkeypat
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
     msg = error("adjustroadvectors", {"INPUT": str(sample / "osm_roads.shp"),
                                       "PROJECT": str(sample / "project.toml"),
-                                      "REPORT": str(tmp_path / "report.html")})
+                                      "REPORT": str(tmp_path / "report.html")},
+                r"report needs matplotlib.*install it")
     assert "needs matplotlib" in msg and "python3-matplotlib" in msg
     assert not (tmp_path / "report.html").exists()

@@ -61,7 +61,8 @@ def test_where_filters_the_entry(qgis_app, sample, where):
 def test_where_with_an_unknown_field(qgis_app, sample):
     from vectoradjust.errors import LayerError
 
-    with pytest.raises(LayerError) as exc:
+    with pytest.raises(LayerError,
+                       match=r"names 'road_class', not a field.*Correct the field") as exc:
         read(sample, entry(sample, "road_class = 'primary'"))
     assert "'road_class'" in str(exc.value) and "osm_id" in str(exc.value)
 
@@ -69,7 +70,8 @@ def test_where_with_an_unknown_field(qgis_app, sample):
 def test_where_that_is_not_an_expression(qgis_app, sample):
     from vectoradjust.errors import LayerError
 
-    with pytest.raises(LayerError) as exc:
+    with pytest.raises(LayerError,
+                       match=r"(?s)not a valid attribute filter.*Write an SQL") as exc:
         read(sample, entry(sample, "highway IN ('primary'"))
     assert "not a valid attribute filter" in str(exc.value)
 
@@ -77,7 +79,7 @@ def test_where_that_is_not_an_expression(qgis_app, sample):
 def test_where_selecting_nothing(qgis_app, sample):
     from vectoradjust.errors import LayerError
 
-    with pytest.raises(LayerError) as exc:
+    with pytest.raises(LayerError, match=r"selects no feature.*Correct the where filter") as exc:
         read(sample, entry(sample, "highway = 'motorway'"))
     assert "selects no feature" in str(exc.value)
 

@@ -1,0 +1,705 @@
+"""Every documented command-line flag, run once through ``vectoradjust.cli.main`` (issue 35).
+
+Each test passes flags through the console script's entry point and asserts what the
+flag does - a file written, a number that follows from it, a value in the output - not
+only the exit status. Flags that other test files already pass through ``main`` are
+mostly not repeated here; :func:`test_every_flag_is_passed_through_main_by_some_test` reads the
+test sources and fails on a flag of the parser that no test passes through ``main``, and
+:func:`test_the_readme_flags_are_the_parser_s` on a flag README names that the parser
+does not have.
+
+Runtime: the sample project (copied) adjusted a handful of times. The commands that
+adjust only to derive something (``propagate``, ``equal-error``, ``two-step``, ``qa``)
+reuse one adjustment per project (module-scoped cache in place of the adjustment they
+would repeat); the figures of ``report.html`` are not rendered to PNG here.
+"""
+
+from __future__ import annotations
+
+import ast
+import csv
+import json
+import math
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vectoradjust.cli import main
+
+pytestmark = pytest.mark.io  # reads and writes geodata and GeoTIFFs
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "resources" / "sample"
+
+
+# --------------------------------------------------------------------------- projects
+def _tables(text: str) -> list:
+    """``[(header, lines)]`` of a TOML text: the preamble (header ``""``), then one entry
+    per table or array-of-tables header."""
+    out = [("", [])]
+    for line in text.splitlines():
+        if re.match(r"\s*\[", line):
+            out.append((line.split("#")[0].strip(), []))
+        out[-1][1].append(line)
+    return out
+
+
+def _project(folder: Path, name: str, vectors, conflation: bool) -> Path:
+    """A copy of the sample's project.toml with only the ``vectors`` entries, without
+    truth (per-vertex and ``[truth]``), conflation on or off."""
+    keep = []
+    for header, lines in _tables((folder / "project.toml").read_text(encoding="utf-8")):
+        if header == "[truth]":
+            continue
+        if header == "[[vectors]]":
+            if not any(re.match(rf'name = "({"|".join(vectors)})"', ln) for ln in lines):
+                continue
+            lines = [ln for ln in lines if not ln.startswith("truth")]
+        keep += lines
+    keep += ["", "[conflation]", f"enabled = {'true' if conflation else 'false'}", ""]
+    path = folder / name
+    path.write_text("\n".join(keep), encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    """The sample copied, with ``fast.toml`` (OSM and TNM, no truth, no conflation) and
+    ``osm.toml`` (OSM alone, no truth, conflation on)."""
+    root = tmp_path_factory.mktemp("cli_flags")
+    shutil.copytree(SAMPLE, root / "sample")
+    d = root / "sample"
+    _project(d, "fast.toml", ["OSM", "TNM"], conflation=False)
+    _project(d, "osm.toml", ["OSM"], conflation=True)
+    return d
+
+
+@pytest.fixture(scope="module")
+def strip(tmp_path_factory):
+    """A simulated strip of three images I01, I02, I03 (80 % overlap: every pair has
+    common points, so "every pair" differs from "consecutive pairs")."""
+    from vectoradjust.simulate import make_scenario, write_project
+
+    out = tmp_path_factory.mktemp("strip")
+    return write_project(make_scenario(3, n_images=3, grid=(2, 2), databases=("OSM",)), out)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _no_report_figures():
+    """The report's figures are not rendered here (the flags do not change them)."""
+    pytest.importorskip("geopandas")  # (here: deselected with -m "not io", not skipped)
+    pytest.importorskip("rasterio")
+    from vectoradjust.files import report
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(report, "_img", lambda fig, alt, caption: "<p>figure</p>")
+        yield
+
+
+@pytest.fixture(scope="module")
+def adjusted():
+    """One adjustment per project for the commands that derive quantities from it:
+    ``propagate``, ``equal-error`` and ``two-step`` call ``cli.propagate._adjust``."""
+    from vectoradjust.cli import propagate
+
+    memo: dict = {}
+    original = propagate._adjust
+
+    def once(project, quiet):
+        key = str(Path(project).resolve())
+        if key not in memo:
+            memo[key] = original(project, True)
+        return memo[key]
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(propagate, "_adjust", once)
+        yield memo
+
+
+def _json(path: Path) -> dict:
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def _rows(path: Path) -> list:
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _ok(argv: list) -> Path:
+    """Run ``vectoradjust`` with ``argv`` (exit status 0); its output directory."""
+    assert main([str(a) for a in argv]) == 0, argv
+    return Path(argv[argv.index("-o") + 1])
+
+
+# ----------------------------------------------------------------------------- adjust
+def test_adjust_conflation_raster_writes_the_field(work, tmp_path):
+    import geopandas as gpd
+    import rasterio
+
+    out = tmp_path / "a"
+    assert main(["adjust", str(work / "osm.toml"), "-o", str(out), "-q", "--no-bands",
+                 "--conflation-raster"]) == 0
+    tif = out / "conflation_OSM.tif"
+    assert tif.is_file() and [p.name for p in out.glob("conflation_*")] == [tif.name]
+    with rasterio.open(tif) as ds:
+        assert ds.count == 5 and ds.crs.to_epsg() == 32616
+        assert ds.descriptions == ("dX (m)", "dY (m)", "dZ (m)", "CE90 (m)", "LE90 (m)")
+        bands = ds.read(masked=True)
+        bounds = ds.bounds
+    ok = ~bands.mask.any(axis=0)
+    assert ok.sum() > 1000
+    osm = gpd.read_file(work / "osm_roads.shp")
+    x0, y0, x1, y1 = osm.total_bounds  # the grid covers the database
+    assert bounds.left <= x0 and bounds.right >= x1 and bounds.bottom <= y0 and bounds.top >= y1
+    # the field is adjusted - database: its trend is minus the database's estimated offset
+    # (database - images), so the grid's median displacement is that offset reversed
+    entry = next(e for e in _json(out / "summary.json")["databases"] if e["name"] == "OSM")
+    off = entry["offset"]["values"]
+    assert math.hypot(*off) > 1.0
+    for band, o in zip((0, 1), off):
+        assert float(np.median(bands.data[band][ok])) == pytest.approx(-o, abs=0.05)
+    assert np.all(bands.data[3][ok] > 0) and np.all(bands.data[4][ok] > 0)  # CE90, LE90
+
+
+# ---------------------------------------------------------------------------- compare
+def test_compare_format_shp_writes_shapefiles(work, tmp_path):
+    assert main(["compare", str(work / "osm.toml"), "-o", str(tmp_path), "-q",
+                 "--format", "shp"]) == 0
+    names = {p.name for p in (tmp_path / "OSM").iterdir()}
+    assert {"shape_points.shp", "features.shp", "control_points.shp"} <= names
+    assert not any(n.endswith(".gpkg") for n in names)
+    assert (tmp_path / "compare.csv").is_file()
+
+
+# ------------------------------------------------------------------------------- demo
+def test_demo_format_shp_quietly(work, tmp_path, monkeypatch, capsys):
+    """``demo --format shp -q`` on the sample cut to OSM (the demo's own project stands
+    in for the packaged one: same command, smaller input)."""
+    from vectoradjust.cli import commands
+
+    demo = work.parent / "demo_sample"
+    if not demo.exists():
+        shutil.copytree(work, demo)
+        shutil.copy(work / "osm.toml", demo / "project.toml")
+    monkeypatch.setattr(commands, "sample_project_dir", lambda: demo)
+    assert main(["demo", "-o", str(tmp_path), "--format", "shp", "-q"]) == 0
+    for part in ("all", "compare/OSM", "satellite"):
+        names = {p.name for p in (tmp_path / part).iterdir()}
+        assert "shape_points.shp" in names and not any(n.endswith(".gpkg") for n in names)
+    out, err = capsys.readouterr()
+    assert "vectoradjust demo:" in out and "satellite triplet" in out
+    # -q: no progress lines (stderr is no terminal: they would be plain lines) and no
+    # adjustment summary
+    assert err == "" and "vectoradjust adjust:" not in out
+
+
+# ------------------------------------------------------------------------------- qa
+_QA_RUNS: dict = {}
+
+
+@pytest.fixture
+def qa_once(monkeypatch):
+    """``qa`` adjusts with ``pipeline.run``: once per project and --vectors here."""
+    import vectoradjust.pipeline as pipeline
+
+    original = pipeline.run
+
+    def once(data, vectors=None, **kw):
+        key = (str(data.source), tuple(vectors or ()))
+        if key not in _QA_RUNS:
+            _QA_RUNS[key] = original(data, vectors=vectors)
+        return _QA_RUNS[key]
+
+    monkeypatch.setattr(pipeline, "run", once)
+
+
+def _qa(argv: list) -> dict:
+    return _json(_ok(argv) / "qa.json")
+
+
+def _stage(doc, name) -> dict:
+    return next(s for s in doc["stages"] if s["name"] == name)
+
+
+def test_qa_topographic_map_flags(work, tmp_path, qa_once):
+    doc = _qa(["qa", work / "fast.toml", "-o", tmp_path, "-q", "--product", "topographic-map",
+               "--scale", "1:5000", "--contour-interval", "2.5", "--pixel-size", "0.015",
+               "--point-rule", "mean", "--vectors", "OSM"])
+    spec = doc["specification"]
+    assert (spec["product"], spec["map_scale"], spec["contour_interval"]) == \
+        ("topographic map", 5000.0, 2.5)
+    block = doc["tolerances"]["block"]
+    # PHOTOMOD: 0.2 mm (control) and 0.3 mm (check) at map scale in XY, 0.15 contour
+    # intervals for control in Z
+    assert block["gcp_xy"] == pytest.approx(0.2e-3 * 5000)
+    assert block["check_xy"] == pytest.approx(0.3e-3 * 5000)
+    assert block["gcp_z"] == pytest.approx(0.15 * 2.5)
+    # --pixel-size 0.015 mm: the parallaxes in pixels of that size
+    assert doc["pixel_size_mm"] == 0.015 and "--pixel-size" in doc["pixel_size_source"]
+    pair = doc["stereo_pairs"][0]
+    assert pair["mean_px"] == pytest.approx(pair["mean_um"] / 15.0)
+    assert doc["tolerances"]["relative_orientation"]["mean_mm"] == pytest.approx(0.5 * 0.015)
+    # --point-rule mean: a point fails over the mean tolerance itself (limit: twice it)
+    gcp = _stage(doc, "block: GCP XY")
+    assert gcp["point_tolerance"] == gcp["tolerance"] == pytest.approx(1.0)
+    # --vectors OSM: TNM's measured shape points are not in the adjustment
+    ro = _stage(doc, "relative orientation L-R: mean |py|")
+    ids = [p["id"] for p in ro["points"]]
+    assert any(i.startswith("4134") for i in ids) and not any(i.startswith("TNM-") for i in ids)
+    measured = {r["point_id"] for r in _rows(work / "image_points.csv")}
+    assert any(i.startswith("TNM-") for i in measured)
+
+
+def test_qa_terrain_sets_the_orthomosaic_tolerances(work, tmp_path, qa_once):
+    # PHOTOMOD: orthomosaic 0.5 mm (flat, hilly) / 0.7 mm (mountainous) at its scale,
+    # seamlines 0.7 / 1.0 mm
+    for terrain, xy_mm, seam_mm in (("flat", 0.5, 0.7), ("mountainous", 0.7, 1.0)):
+        doc = _qa(["qa", work / "fast.toml", "-o", tmp_path / terrain, "-q", "--product",
+                   "orthomosaic", "--scale", "2000", "--terrain", terrain, "--vectors", "OSM"])
+        assert doc["specification"]["terrain"] == terrain
+        assert doc["specification"]["orthophoto_scale"] == 2000.0
+        om = doc["tolerances"]["orthomosaic"]
+        assert om["xy_m"] == pytest.approx(xy_mm * 1e-3 * 2000)
+        assert _stage(doc, "orthomosaic: seamlines")["tolerance"] == \
+            pytest.approx(seam_mm * 1e-3 * 2000)
+        gcp = _stage(doc, "block: GCP XY")
+        assert gcp["point_tolerance"] == pytest.approx(2 * gcp["tolerance"])  # limit rule
+
+
+def test_qa_pairs_all_takes_every_overlapping_pair(strip, tmp_path, qa_once):
+    pairs = {}
+    for which in ("consecutive", "all"):
+        doc = _qa(["qa", strip, "-o", tmp_path / which, "-q", "--product", "topographic map",
+                   "--scale", "2000", "--contour-interval", "1", "--pairs", which])
+        pairs[which] = {(p["left"], p["right"]) for p in doc["stereo_pairs"]}
+    assert pairs["consecutive"] == {("I01", "I02"), ("I02", "I03")}
+    assert pairs["all"] == pairs["consecutive"] | {("I01", "I03")}
+
+
+# -------------------------------------------------------------------------- propagate
+def _propagate(argv: list) -> dict:
+    return _json(_ok(argv) / "propagate.json")
+
+
+@pytest.fixture(scope="module")
+def fast_run(work, adjusted):
+    """The adjustment of fast.toml that ``propagate`` reuses."""
+    from vectoradjust.cli import propagate
+
+    return propagate._adjust(str(work / "fast.toml"), True)
+
+
+def _osm_points(run, k):
+    db = next(d for d in run.databases if d.name == "OSM")
+    return [str(i) for i in db.shape.vertex_ids[db.vertex_point >= 0][:k]]
+
+
+def test_propagate_distance_2d_and_3d(work, tmp_path, fast_run):
+    proj = work / "fast.toml"
+    a, b = _osm_points(fast_run, 1)[0], "GCP05"
+    d2 = _propagate(["propagate", proj, "-o", tmp_path / "2", "-q", "--distance", a, b])
+    d3 = _propagate(["propagate", proj, "-o", tmp_path / "3", "-q", "--distance", a, b, "--3d"])
+    d2, d3 = d2["results"][0], d3["results"][0]
+    xyz = fast_run.result.xyz[d2["points"]]
+    assert d3["points"] == d2["points"] and d2["point_ids"] == [a, b]
+    dx, dy, dz = xyz[1] - xyz[0]
+    assert d2["value"] == pytest.approx(math.hypot(dx, dy), rel=1e-12)
+    assert d3["value"] == pytest.approx(math.sqrt(dx * dx + dy * dy + dz * dz), rel=1e-12)
+    assert abs(dz) > 0.1 and d3["value"] > d2["value"]
+    assert d3["sigma"] != d2["sigma"]
+
+
+def test_propagate_length_and_mean_height(work, tmp_path, fast_run):
+    proj = work / "fast.toml"
+    a, b, c = _osm_points(fast_run, 3)
+    ln = _propagate(["propagate", proj, "-o", tmp_path / "l", "-q", "--length", a, b, c])
+    mh = _propagate(["propagate", proj, "-o", tmp_path / "h", "-q", "--mean-height", a, b, c])
+    ln, mh = ln["results"][0], mh["results"][0]
+    xyz = fast_run.result.xyz[ln["points"]]
+    assert ln["point_ids"] == [a, b, c]
+    assert ln["value"] == pytest.approx(np.hypot(*np.diff(xyz[:, :2], axis=0).T).sum(),
+                                        rel=1e-12)
+    assert mh["quantity"] == "mean height" and mh["points"] == ln["points"]
+    assert mh["value"] == pytest.approx(float(np.mean(xyz[:, 2])), rel=1e-12)
+    # the points are correlated: the full covariance gives another sigma than without
+    assert mh["sigma"] > 0 and mh["sigma"] != pytest.approx(mh["sigma_no_cov"], rel=1e-3)
+
+
+def test_propagate_profile_of_a_database(work, tmp_path, fast_run, capsys):
+    proj = work / "fast.toml"
+    db = next(d for d in fast_run.databases if d.name == "OSM")
+    fid = str(db.shape.layer.feature_ids[0])
+    prof = _propagate(["propagate", proj, "-o", tmp_path, "-q", "--profile", fid,
+                       "--database", "OSM"])["profile"]
+    assert prof["database"] == "OSM" and prof["feature_id"] == fid
+    assert len(prof["vertices"]) == int(np.sum(db.shape.layer.vertex_feature == 0))
+    capsys.readouterr()
+    # the same feature looked for in TNM: not there
+    assert main(["propagate", str(proj), "-o", str(tmp_path / "t"), "-q", "--profile", fid,
+                 "--database", "TNM"]) == 1
+    err = capsys.readouterr().err
+    assert "TNM" in err and repr(fid) in err
+
+
+# ------------------------------------------------------------------ equal-error, two-step
+def test_equal_error_images_flat_and_spacing(strip, tmp_path, adjusted):
+    assert main(["equal-error", str(strip), "-o", str(tmp_path / "a"), "-q", "--images",
+                 "I01", "I03", "--flat", "--spacing", "40"]) == 0
+    assert main(["equal-error", str(strip), "-o", str(tmp_path / "b"), "-q", "--spacing",
+                 "20"]) == 0
+    a, b = _json(tmp_path / "a" / "equal_error.json"), _json(tmp_path / "b" / "equal_error.json")
+    assert a["images"] == ["I01", "I03"] and b["images"] == ["I01", "I02"]  # default: first two
+    assert a["heights"] == "mean" and b["heights"].endswith("dem.tif")
+    assert a["transform"][0] == 40.0 and b["transform"][0] == 20.0
+    assert a["transform"][4] == -40.0 and b["transform"][4] == -20.0
+    # I01-I03 is the longer base (two image spacings): better heights than I01-I02
+    assert a["sigma_z"]["min"] < b["sigma_z"]["min"]
+
+
+def test_two_step_images_and_method(strip, tmp_path, adjusted):
+    assert main(["two-step", str(strip), "-o", str(tmp_path / "a"), "-q", "--images",
+                 "I02", "I03", "--method", "coplanarity"]) == 0
+    assert main(["two-step", str(strip), "-o", str(tmp_path / "b"), "-q"]) == 0
+    a, b = _json(tmp_path / "a" / "two_step.json"), _json(tmp_path / "b" / "two_step.json")
+    assert a["images"] == ["I02", "I03"] and a["method"] == "coplanarity"
+    assert b["images"] == ["I01", "I02"] and b["method"] == "collinearity"
+    assert a["n_points"] > 0 and a["relative_s0"] != b["relative_s0"]
+
+
+# ------------------------------------------------------------------------ buffer-test
+def test_buffer_test_layers_and_exact(tmp_path):
+    """A tested line crossing the reference's round end cap at distance 1 from its end:
+    the exact share inside a buffer of width 2 is 2 sqrt(2^2 - 1^2) / 10."""
+    import geopandas as gpd
+    from shapely.geometry import LineString
+
+    path = tmp_path / "lines.gpkg"
+    for name, geom in (("decoy", LineString([(500, 500), (600, 500)])),
+                       ("tested", LineString([(11, -5), (11, 5)])),
+                       ("reference", LineString([(0, 0), (10, 0)]))):  # decoy is the default
+        gpd.GeoDataFrame({"id": [1]}, geometry=[geom], crs="EPSG:32616").to_file(
+            path, layer=name, driver="GPKG")
+    assert main(["buffer-test", str(path), str(path), "--tested-layer", "tested",
+                 "--reference-layer", "reference", "--widths", "2,1.5", "--exact",
+                 "-o", str(tmp_path / "exact.csv")]) == 0
+    assert main(["buffer-test", str(path), str(path), "--tested-layer", "tested",
+                 "--reference-layer", "reference", "--widths", "2,1.5",
+                 "-o", str(tmp_path / "polygon.csv")]) == 0
+    share = {m: {float(r["width"]): float(r["share"]) for r in _rows(tmp_path / f"{m}.csv")}
+             for m in ("exact", "polygon")}
+
+    def inside(radius):  # share of the tested line within ``radius`` of the end point
+        return 2 * math.sqrt(radius * radius - 1) / 10
+
+    for w in (2.0, 1.5):
+        assert share["exact"][w] == pytest.approx(inside(w), rel=1e-12)
+        # polygons are narrower on round caps, by at most 0.03 % of the width (README)
+        assert inside(w * (1 - 0.0003)) <= share["polygon"][w] < inside(w) - 1e-6
+
+
+# ------------------------------------------------------------------------------ study
+def test_study_gcp_random_repeats_seed_vectors(work, tmp_path):
+    assert main(["study", "gcp", str(work / "fast.toml"), "-o", str(tmp_path), "-q",
+                 "--random", "4", "--repeats", "2", "--seed", "7", "--vectors", "OSM"]) == 0
+    rows = _rows(tmp_path / "gcp_study.csv")
+    assert [(r["label"], r["repeat"]) for r in rows] == [("4 random", "1"), ("4 random", "2")]
+    control = [r["point_id"] for r in _rows(work / "gcps.csv") if r["role"] == "control"]
+
+    def drawn(seed, r):  # the documented draw: default_rng([seed, k, repeat])
+        pick = np.sort(np.random.default_rng([seed, 4, r]).choice(len(control), 4,
+                                                                     replace=False))
+        return " ".join(control[i] for i in pick)
+
+    assert [r["control_ids"] for r in rows] == [drawn(7, 0), drawn(7, 1)]
+    assert [drawn(0, 0), drawn(0, 1)] != [drawn(7, 0), drawn(7, 1)]  # the seed matters
+    assert all(int(r["n_check"]) == 6 + 24 - 4 for r in rows)  # held out become checks
+    assert "OSM_rmse" in rows[0] and "TNM_rmse" not in rows[0]  # --vectors OSM
+    assert all(float(r["OSM_rmse"]) > 0 for r in rows)
+
+
+def test_study_shift_dx_dy_is_recovered(work, tmp_path):
+    assert main(["study", "shift", str(work / "fast.toml"), "-o", str(tmp_path), "-q",
+                 "--dx", "7", "--dy", "-4", "--vectors", "OSM"]) == 0
+    (row,) = _rows(tmp_path / "shift_study.csv")
+    assert row["database"] == "OSM" and (float(row["dx"]), float(row["dy"])) == (7.0, -4.0)
+    # V = adjusted - database: shifting the database by (dx, dy) moves V by -(dx, dy)
+    assert float(row["recovered_dx"]) == pytest.approx(7.0, abs=0.1)
+    assert float(row["recovered_dy"]) == pytest.approx(-4.0, abs=0.1)
+    assert float(row["adjusted_moved_max"]) < 1.0  # the images hold the adjusted points
+
+
+def test_study_identification_seed_repeats_reweight_stated_sigma(tmp_path):
+    from vectoradjust.files.study import identification_study
+
+    assert main(["study", "identification", "-o", str(tmp_path), "-q", "--errors", "1",
+                 "--databases", "TNM", "--seed", "3", "--repeats", "2", "--reweight", "none",
+                 "--no-stated-sigma"]) == 0
+    rows = _rows(tmp_path / "identification_study.csv")
+    assert [(r["seed"], r["database"]) for r in rows] == [("3", "TNM"), ("4", "TNM")]
+
+    def first(**kw):
+        return identification_study([1.0], seed=3, repeats=1, databases=["TNM"], **kw)[0]
+
+    same = first(reweight="none", state_sigma=False)
+    for key in ("rmse", "adj_truth_rmse", "within_ce90", "estimated_identification"):
+        assert float(rows[0][key]) == pytest.approx(same[key], rel=1e-9), key
+    # --reweight none: the two-pass reweighting (the default) adjusts otherwise
+    two_pass = first(reweight="two-pass", state_sigma=False)
+    assert abs(two_pass["adj_truth_rmse"] - same["adj_truth_rmse"]) > 1e-4
+    # --no-stated-sigma: without the identification error in the shape points' sigma
+    # their CE90 is the database's alone, and few adjusted points are within it
+    stated = first(reweight="none", state_sigma=True)
+    assert same["within_ce90"] < 0.2 < 0.8 < stated["within_ce90"]
+
+
+# ------------------------------------------------------------------------ adjust-many
+def test_adjust_many_workers_format_quiet(work, tmp_path, monkeypatch, capsys):
+    dask = pytest.importorskip("dask")
+    seen = []
+    compute = dask.compute
+
+    def spy(*args, **kw):
+        seen.append(kw)
+        return compute(*args, **kw)
+
+    monkeypatch.setattr(dask, "compute", spy)
+    assert main(["adjust-many", str(work / "osm.toml"), "-o", str(tmp_path), "--scheduler",
+                 "threads", "--workers", "1", "--format", "shp", "--no-bands", "--no-report",
+                 "-q"]) == 0
+    assert [kw.get("num_workers") for kw in seen] == [1]  # --workers reaches Dask
+    (row,) = _rows(tmp_path / "many_summary.csv")
+    assert row["status"] == "ok"
+    names = {p.name for p in (tmp_path / row["name"]).iterdir()}
+    assert "shape_points.shp" in names and not any(n.endswith(".gpkg") for n in names)
+    out, err = capsys.readouterr()
+    assert out == "" and err == ""  # -q
+
+
+# ---------------------------------------------------------------------------- measure
+@pytest.fixture(scope="module")
+def pair_project(tmp_path_factory):
+    """A rendered stereo pair (400 px, as test_measure_cli's 1000 px one) as a project,
+    the left image's control points measured (``measured.csv``), ``true.json`` (a
+    summary.json with the true orientation) and ``noR.toml`` (image R's file missing)."""
+    from test_measure_cli import _write_project
+
+    from vectoradjust.simulate.measure_scene import stereo_pair
+
+    tmp = tmp_path_factory.mktemp("pair")
+    pair = stereo_pair(400, seed=1, sigma_position=0.5, sigma_attitude=0.02, supersample=1)
+    proj = _write_project(tmp, pair)
+    images = [{"id": k, "position": [float(v) for v in g.eo[:3]],
+               "attitude": [float(v) for v in np.degrees(g.eo[3:])],
+               "sigma_position": 0.01, "sigma_attitude": 0.0001}
+              for k, g in pair.true.items()]
+    (tmp / "true.json").write_text(json.dumps({"images": images}), encoding="utf-8")
+    text = proj.read_text(encoding="utf-8")
+    assert 'path = "R.tif"' in text
+    (tmp / "noR.toml").write_text(text.replace('path = "R.tif"', 'path = "gone.tif"'),
+                                  encoding="utf-8")
+    return proj
+
+
+def _transfer(argv: list) -> list:
+    return _rows(_ok(argv) / "transfer.csv")
+
+
+def _off(rows) -> float:
+    """Median distance (px) between the matched and the predicted position."""
+    return float(np.median([math.hypot(float(r["col"]) - float(r["pred_col"]),
+                                       float(r["row"]) - float(r["pred_row"])) for r in rows]))
+
+
+def test_measure_transfer_flags(pair_project, tmp_path):
+    p, m = pair_project, pair_project.parent / "measured.csv"
+    base = _transfer(["measure", "transfer", p, "-o", tmp_path / "0", "-q", "--measured", m])
+    assert len(base) == 12 and sum(r["flag_text"] == "" for r in base) >= 10
+    flagged = {
+        "low_correlation": _transfer(["measure", "transfer", p, "-o", tmp_path / "1", "-q",
+                                      "--measured", m, "--min-ncc", "0.9999"]),
+        "poor_precision": _transfer(["measure", "transfer", p, "-o", tmp_path / "2", "-q",
+                                     "--measured", m, "--max-sigma", "0.0001"]),
+        "window_clipped": _transfer(["measure", "transfer", p, "-o", tmp_path / "3", "-q",
+                                     "--measured", m, "--max-radius", "3"]),
+        # the height's uncertainty widens the search window along the base: past the
+        # largest radius (40 px)
+        "window_clipped ": _transfer(["measure", "transfer", p, "-o", tmp_path / "4", "-q",
+                                      "--measured", m, "--sigma-height", "300"]),
+    }
+    for flag, rows in flagged.items():
+        assert [r["point_id"] for r in rows] == [r["point_id"] for r in base]
+        assert all(flag.strip() in r["flag_text"] for r in rows), (flag, rows)
+        assert not any(flag.strip() in r["flag_text"] for r in base)
+    # --orientation: the true orientation predicts the points within a fraction of a pixel
+    true = _transfer(["measure", "transfer", p, "-o", tmp_path / "5", "-q", "--measured", m,
+                      "--orientation", p.parent / "true.json"])
+    assert _off(true) < 0.3 < _off(base)
+
+
+def test_measure_transfer_image_override(pair_project, tmp_path, capsys):
+    no_r, m = pair_project.parent / "noR.toml", pair_project.parent / "measured.csv"
+    assert main(["measure", "transfer", str(no_r), "-o", str(tmp_path), "-q", "--measured",
+                 str(m)]) == 1
+    assert "gone.tif" in capsys.readouterr().err
+    rows = _transfer(["measure", "transfer", no_r, "-o", tmp_path, "-q", "--measured", m,
+                      "--image", f"R={pair_project.parent / 'R.tif'}"])
+    assert sum(r["flag_text"] == "" for r in rows) >= 10 and {r["image_id"] for r in rows} == {"R"}
+
+
+def test_measure_predict_road_width(pair_project, tmp_path):
+    located = {}
+    for width in ("6", "30"):
+        out = tmp_path / width
+        assert main(["measure", "predict", str(pair_project), "-o", str(out), "-q", "--roads",
+                     "--chips", "none", "--road-width", width]) == 0
+        rows = _rows(out / "automatic_points.csv")
+        located[width] = sum(r["accepted"] == "True" for r in rows)
+    # the pair's roads are 6 m wide: a 30 m road is not found at the junctions
+    assert located["6"] >= 10 > located["30"]
+
+
+# ------------------------------------------------------------------ exit status, --version
+def test_interrupt_exits_130(work, tmp_path):
+    """Ctrl-C (SIGINT) during ``adjust``: one line on stderr, exit status 130."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(ROOT / "core"), os.environ.get("PYTHONPATH", "")]), VECTORADJUST_WORKERS="1")
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "vectoradjust", "adjust",
+                             str(work / "fast.toml"), "-o", str(out), "--no-bands"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
+    try:
+        first = proc.stderr.readline()  # the progress bar's first line: the command runs
+        assert first.startswith("adjust ["), first
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert err.rstrip().endswith("vectoradjust: interrupted") and "Traceback" not in err
+    assert not (out / "summary.json").exists()
+
+
+def test_keyboard_interrupt_and_cancel_inside_a_command(work, tmp_path, monkeypatch, capsys):
+    import vectoradjust.pipeline as pipeline
+    from vectoradjust.errors import CancelledError
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pipeline, "run", interrupted)
+    assert main(["qa", str(work / "fast.toml"), "-o", str(tmp_path), "-q", "--product",
+                 "orthophoto", "--scale", "2000"]) == 130
+    assert capsys.readouterr().err.strip() == "vectoradjust: interrupted"
+
+    def cancelled(*a, **k):
+        raise CancelledError("The adjustment was cancelled", "Run it again when ready")
+
+    monkeypatch.setattr(pipeline, "run", cancelled)
+    assert main(["adjust", str(work / "fast.toml"), "-o", str(tmp_path), "-q",
+                 "--no-bands"]) == 130
+    assert "cancelled: The adjustment was cancelled" in capsys.readouterr().err
+    assert not (tmp_path / "summary.json").exists()
+
+
+def test_version(capsys):
+    from vectoradjust import __version__
+
+    with pytest.raises(SystemExit, match="^0$"):
+        main(["--version"])
+    assert capsys.readouterr().out.strip() == f"vectoradjust {__version__}"
+
+
+# ------------------------------------------------------------ every flag has its test
+def _parser_flags() -> dict:
+    """``{"study gcp": {"--random", ...}, ...}`` from the console script's parser."""
+    import argparse
+
+    from vectoradjust.cli.commands import build_parser
+
+    out: dict = {}
+
+    def walk(p, path):
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for name, sp in a.choices.items():
+                    walk(sp, [*path, name])
+            elif a.option_strings and not isinstance(a, argparse._HelpAction):
+                out.setdefault(" ".join(path), set()).update(a.option_strings)
+
+    walk(build_parser(), [])
+    return out
+
+
+def _main_calls() -> dict:
+    """Flags passed to ``main([...])`` per command, in the test files that import ``main``
+    from ``vectoradjust.cli`` or ``vectoradjust.cli.commands``; a call of a function of
+    the file that calls ``main`` with the list it is given counts too (``_ok([...])``)."""
+    commands = sorted(_parser_flags(), key=len, reverse=True)
+    seen: dict = {}
+    for path in sorted((ROOT / "tests").glob("test_*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        if not any(isinstance(n, ast.ImportFrom) and n.module in (
+                "vectoradjust.cli", "vectoradjust.cli.commands")
+                and any(a.name == "main" and a.asname in (None, "main") for a in n.names)
+                for n in ast.walk(tree)):
+            continue
+        callers, grew = {"main"}, True
+        while grew:  # the file's functions that call main, directly or through another
+            found = {f.name for f in ast.walk(tree) if isinstance(f, ast.FunctionDef)
+                     and any(isinstance(c, ast.Call) and isinstance(c.func, ast.Name)
+                             and c.func.id in callers for c in ast.walk(f))}
+            grew = not found <= callers
+            callers |= found
+        for n in ast.walk(tree):
+            if not (isinstance(n, ast.Call) and isinstance(n.func, ast.Name)
+                    and n.func.id in callers and n.args and isinstance(n.args[0], ast.List)):
+                continue
+            words = [e.value for e in n.args[0].elts
+                     if isinstance(e, ast.Constant) and isinstance(e.value, str)]
+            cmd = next((c for c in commands if c and words[:len(c.split())] == c.split()), "")
+            seen.setdefault(cmd, set()).update(w for w in words if w.startswith("-"))
+    return seen
+
+
+def test_every_flag_is_passed_through_main_by_some_test():
+    seen = _main_calls()
+    missing = []
+    for cmd, flags in sorted(_parser_flags().items()):
+        if cmd == "":  # --version (test_version, SystemExit)
+            continue
+        for f in sorted(flags):
+            aliases = {f}
+            if f in ("-o", "--out"):
+                aliases = {"-o", "--out"}
+            if f in ("-q", "--quiet"):
+                aliases = {"-q", "--quiet"}
+            if not aliases & seen.get(cmd, set()):
+                missing.append(f"{cmd} {f}")
+    assert not missing, "flags no test passes through vectoradjust.cli.main: " + ", ".join(
+        missing)
+
+
+def test_the_readme_flags_are_the_parser_s():
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    block = readme.split("## Command line", 1)[1].split("```", 2)[1]
+    flags = _parser_flags()
+    unknown = []
+    lines = [ln for ln in block.splitlines() if ln.startswith("vectoradjust ")]
+    assert len(lines) >= 14
+    for line in lines:
+        words = line.split()[1:]
+        cmd = next(c for c in sorted(flags, key=len, reverse=True)
+                   if c and words[:len(c.split())] == c.split())
+        for f in re.findall(r"(?<![\w-])(--?[a-z0-9][\w-]*)", line):
+            if f not in flags[cmd]:
+                unknown.append(f"{cmd} {f}")
+    assert not unknown, unknown
