@@ -100,6 +100,39 @@ def id_text(v):
     return str(v)
 
 
+#: reals at or beyond this magnitude are not every integer
+_EXACT_REAL_INTEGER = 2 ** 53
+
+
+def _check_exact_id(v, where, id_field):
+    """An id that QGIS gives as a real beyond 2^53 may not be the one in the file (a
+    shapefile integer field wider than 18 digits, read as reals): a clear error."""
+    v = py_value(v)
+    if isinstance(v, float) and abs(v) >= _EXACT_REAL_INTEGER:
+        raise LayerError(
+            f"{where}: the ids of field {id_field!r} are read as real numbers beyond 2^53 "
+            f"(e.g. {v:.17g}), where a real cannot hold every integer: the ids read may not "
+            "be those in the file",
+            "Store the ids as text or as integers in a GeoPackage; a shapefile whose id field "
+            "is wider than 18 digits can be opened with the OGR option ADJUST_TYPE=YES "
+            "(path|option:ADJUST_TYPE=YES), which reads it as 64-bit integers")
+
+
+def shapefile_uri(path, layer=None):
+    """The OGR URI of a vector file: a shapefile with an integer field wider than 18
+    digits (which GDAL reads as reals) opened with ``ADJUST_TYPE=YES``, so that its ids
+    come as exact 64-bit integers, as the command line reads them."""
+    from qgis.core import QgsVectorLayer
+
+    uri = f"{path}|layername={layer}" if layer else str(path)
+    if not str(path).lower().endswith(".shp"):
+        return uri
+    probe = QgsVectorLayer(uri, "probe", "ogr")
+    wide = [f for f in probe.fields() if f.type() == QVariant.Double and f.precision() == 0
+            and f.length() > 18]
+    return f"{uri}|option:ADJUST_TYPE=YES" if wide else uri
+
+
 def cell_text(v):
     """An attribute value as the text a CSV cell would hold (floats round-trip exactly)."""
     v = py_value(v)
@@ -263,6 +296,7 @@ def read_line_source(source, name, id_field, target_crs, context, where, feedbac
                                  f"{id_field!r}",
                                  "Give every feature an id, or leave the id field empty to use "
                                  "the feature index")
+            _check_exact_id(v, where, id_field)
             ids.append(id_text(v))
         else:
             ids.append(str(i))
@@ -540,6 +574,8 @@ def read_truth_source(value, source, where):
 
 # --------------------------------------------------------------------------- output
 _FLOAT, _INT, _TEXT = QVariant.Double, QVariant.LongLong, QVariant.String
+#: width of a 64-bit integer field: GDAL reads a wider shapefile field as real numbers
+SHAPEFILE_INTEGER_WIDTH = 18
 
 
 def fields_for(columns, types):
@@ -547,8 +583,8 @@ def fields_for(columns, types):
     fields = QgsFields()
     for c in columns:
         t = types.get(c, "f")
-        if t == "i":
-            fields.append(QgsField(c, _INT))
+        if t == "i":  # 18 digits: a shapefile reads the field back as 64-bit integers
+            fields.append(QgsField(c, _INT, "int8", SHAPEFILE_INTEGER_WIDTH))
         elif t == "s":
             fields.append(QgsField(c, _TEXT))
         else:

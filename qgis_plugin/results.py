@@ -10,6 +10,7 @@ written as 0, as the headless writer does.
 import json
 import math
 import os
+import re
 
 import numpy as np
 from qgis.core import (
@@ -22,7 +23,7 @@ from qgis.core import (
 )
 from qgis.PyQt.QtCore import QVariant
 
-from .qgis_io import fields_for, line_z, new_feature, point_z
+from .qgis_io import SHAPEFILE_INTEGER_WIDTH, fields_for, is_null, line_z, new_feature, point_z
 
 _SHAPE_TYPES = {"point_id": "s", "feature_id": "s", "Database": "s", "NImages": "i",
                 "Adjusted": "i", "Source": "s"}
@@ -97,6 +98,109 @@ def feature_fields(input_fields):
     return fields
 
 
+#: the :data:`vectoradjust.files.outputs.FIELD_KINDS` name of a QGIS field type
+_QT_KINDS = {QVariant.LongLong: "int64", QVariant.Int: "int32", QVariant.ULongLong: "uint64",
+             QVariant.UInt: "uint32", QVariant.Double: "float64", QVariant.String: "string",
+             QVariant.Bool: "bool", QVariant.Date: "date", QVariant.DateTime: "datetime",
+             QVariant.Time: "time", QVariant.ByteArray: "binary", QVariant.List: "list",
+             QVariant.StringList: "list", QVariant.Map: "struct"}
+#: width of a 32-bit integer field that a shapefile reads back as 32-bit
+_SHAPEFILE_INT32_WIDTH = 9
+
+
+def sink_format(destination):
+    """``"shp"`` for a shapefile destination, ``"gpkg"`` for a GeoPackage, else None
+    (a memory layer or another format: the field types are left to QGIS)."""
+    text = str(destination or "").lower()
+    for fmt in ("shp", "gpkg"):
+        if re.search(rf"\.{fmt}($|[|'\"\s])", text):
+            return fmt
+    return None
+
+
+def plain_value(v):
+    """A QGIS attribute value as plain Python: None for NULL, ``datetime.date``,
+    ``datetime.datetime``, ``datetime.time``, ``bytes``; others as they are."""
+    from qgis.PyQt.QtCore import QByteArray, QDate, QDateTime, QTime
+
+    if is_null(v):
+        return None
+    if isinstance(v, QVariant):
+        v = v.value()
+    if isinstance(v, QDateTime):
+        return v.toPyDateTime()
+    if isinstance(v, QDate):
+        return v.toPyDate()
+    if isinstance(v, QTime):
+        return v.toPyTime()
+    if isinstance(v, QByteArray):
+        return bytes(v)
+    return v
+
+
+def feature_fields_for(input_fields, run, fmt, where):
+    """:func:`feature_fields` for a sink of format ``fmt``, and a warning per field the
+    format cannot hold as it is.
+
+    For a shapefile (``fmt == "shp"``) the input fields go through
+    :func:`vectoradjust.files.outputs.field_change`, as the command line's writer does:
+    a date and time, a time, integers wider than 18 characters, binary and lists become
+    text fields (their values written as :func:`feature_features` converts them); 64-bit
+    integer fields get the width 18 and 32-bit ones 9, so that GDAL reads them back as
+    integers of their size (QGIS's default widths, 20 and 10, read back as real numbers
+    and 64-bit integers); booleans are written as 1 and 0.
+
+    Parameters
+    ----------
+    input_fields : QgsFields
+    run : AdjustmentRun
+    fmt : {"shp", "gpkg"} or None
+        :func:`sink_format` of the destination; None: the fields of
+        :func:`feature_fields`, no warning.
+    where : str
+        How the warnings name the output (``"features (roads.shp)"``).
+
+    Returns
+    -------
+    fields : QgsFields
+    notes : list of str
+    """
+    outputs = _outputs_module()
+    fields = feature_fields(input_fields)
+    if fmt is None:
+        return fields, []
+    out, notes = QgsFields(), []
+    for k in range(fields.count()):
+        g = QgsField(fields.at(k))
+        if k < input_fields.count():
+            f = input_fields.at(k)
+            kind = _QT_KINDS.get(f.type(), "other")
+            values = [plain_value(v) for d in run.databases
+                      for v in d.shape.layer.attributes.get(f.name(), [])]
+            change = outputs.field_change(kind, values, fmt, hint="write a GeoPackage")
+            if change is None and fmt == "shp" and kind == "bool":
+                change = (False, "(boolean) is written as the integers 1 and 0: QGIS writes "
+                                 "no logical field into a shapefile")
+            if change is not None:
+                notes.append(f"{where}: field {g.name()!r} {change[1]}")
+            if change is not None and change[0]:
+                g = QgsField(g.name(), QVariant.String, "string", 254 if fmt == "shp" else 0)
+            elif fmt == "shp":
+                _shapefile_width(g, kind, values)
+        out.append(g)
+    return out, notes
+
+
+def _shapefile_width(field, kind, values):
+    """Integer fields of a shapefile as wide as GDAL reads back as integers of their size."""
+    if kind == "int64" and not 0 < field.length() <= SHAPEFILE_INTEGER_WIDTH:
+        field.setLength(SHAPEFILE_INTEGER_WIDTH)
+    elif kind == "int32" and not 0 < field.length() <= _SHAPEFILE_INT32_WIDTH:
+        wide = max((len(str(int(v))) for v in values if v is not None), default=1)
+        field.setLength(_SHAPEFILE_INT32_WIDTH if wide <= _SHAPEFILE_INT32_WIDTH
+                        else SHAPEFILE_INTEGER_WIDTH)
+
+
 def feature_wkb_type(source_wkb):
     """Output type of the adjusted features: (Multi)LineString Z like the input."""
     if QgsWkbTypes.isMultiType(source_wkb):
@@ -157,9 +261,11 @@ def feature_features(run, fields, multi):
     run.summary["renamed_input_fields"] = outputs.renamed_input_fields(
         outputs.run_input_fields(run))
     out = []
+    text = [fields.at(k).type() == QVariant.String for k in range(fields.count())]
     for d in run.databases:
         layer = d.shape.layer
-        in_cols = list(layer.attributes.values())
+        in_cols = [_fitted(values, text[k]) if k < len(text) else values
+                   for k, values in enumerate(layer.attributes.values())]
         cols = []
         for f in ours:
             if f == "Database":
@@ -171,6 +277,20 @@ def feature_features(run, fields, multi):
             values = [c[i] for c in in_cols] + [c[i] for c in cols]
             geom = line_z(parts.get(i, []), multi)
             out.append(new_feature(fields, values, geom))
+    return out
+
+
+def _fitted(values, as_text):
+    """An input column for its output field: text where the field is text and the value
+    is not (a date and time as ISO 8601, a list as JSON, :func:`field_change`)."""
+    if not as_text:
+        return values
+    text_value = _outputs_module().text_value
+    out = []
+    for v in values:
+        p = plain_value(v)
+        out.append(p if p is None or isinstance(p, str) else text_value(
+            p, "list" if isinstance(p, (list, tuple, dict)) else "other"))
     return out
 
 

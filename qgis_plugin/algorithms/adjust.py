@@ -200,6 +200,8 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
         ]
         for k, (key, fields, wkb, make, kind) in enumerate(specs):
             check_cancelled(feedback)
+            if key == self.FEATURES:  # what the destination's format cannot hold: warned
+                fields = self._feature_fields(parameters, context, feedback, out, in_fields)
             sink, dest = self.parameterAsSink(parameters, key, context, fields, wkb, crs,
                                               QgsFeatureSink.RegeneratePrimaryKey)
             if sink is None:
@@ -223,6 +225,19 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
             results.write_json(summary_path, summary)
             outputs[self.SUMMARY] = summary_path
         return outputs
+
+
+    def _feature_fields(self, parameters, context, feedback, out, in_fields):
+        """The features sink's fields for its destination's format; each field the format
+        cannot hold as it is is a warning (in the log and the summary's warnings)."""
+        dest = self.parameterAsOutputLayer(parameters, self.FEATURES, context)
+        fields, notes = results.feature_fields_for(
+            in_fields, out, results.sink_format(dest),
+            f"features ({os.path.basename(str(dest).split('|')[0])})")
+        for note in notes:
+            feedback.pushWarning(note)
+            out.summary["warnings"] = list(out.summary.get("warnings") or []) + [note]
+        return fields
 
 
 def write_html_report(alg, parameters, context, feedback, key, run=None, runs=None,

@@ -567,10 +567,8 @@ def open_vector_entry(entry, where):
     if not path or not os.path.exists(path):
         raise InputFileError(f"Road layer {path!r} does not exist ({where})",
                              "Check the path in the [[vectors]] entry", path=path)
-    uri = path
     sub = entry.layer or ("lines" if str(path).lower().endswith(".pbf") else None)
-    if sub:
-        uri = f"{path}|layername={sub}"
+    uri = qgis_io.shapefile_uri(path, sub)  # wide shapefile integers: exact, not reals
     layer = QgsVectorLayer(uri, entry.name, "ogr")
     if not layer.isValid():
         raise LayerError(f"{path}: cannot be read as a vector layer ({where})",

@@ -30,11 +30,8 @@ def entry_layer(entry):
     path = entry.path
     if not path or not os.path.exists(path):
         return None
-    uri = path
     sub = entry.layer or ("lines" if str(path).lower().endswith(".pbf") else None)
-    if sub:
-        uri = f"{path}|layername={sub}"
-    layer = QgsVectorLayer(uri, entry.name, "ogr")
+    layer = QgsVectorLayer(qgis_io.shapefile_uri(path, sub), entry.name, "ogr")
     return layer if layer.isValid() else None
 
 

@@ -263,8 +263,10 @@ def _summarised(result, started: list, args, progress=None):
     return bands
 
 
-def _bands_alongside(result, args, preload=None, progress=None, kernels=None):
-    """The uncertainty bands, started in other processes (None: ``--no-bands``)."""
+def _bands_alongside(result, args, preload=None, progress=None, kernels=None,
+                     out_dir=None):
+    """The uncertainty bands, started in other processes (None: ``--no-bands``); their
+    files go into ``out_dir`` (default ``args.out``: the run's staging folder)."""
     if getattr(args, "no_bands", False) or not result.databases:
         if kernels is not None:
             kernels.close()
@@ -279,7 +281,7 @@ def _bands_alongside(result, args, preload=None, progress=None, kernels=None):
     if kernels is not None:  # compiled or found by a child meanwhile: loaded from the cache
         kernels.wait(say)
     warm_ring_kernel(sum(len(d.vertex_point) for d in result.databases) // workers(), say)
-    return _BandsAlongside(result, args.out)
+    return _BandsAlongside(result, args.out if out_dir is None else out_dir)
 
 
 def _compile_kernels(n_segments: int, progress=None) -> bool:
@@ -327,19 +329,24 @@ class _KernelsAlongside:
             self.job = None
 
 
-def _output_folder(path) -> Path:
-    """``--out`` created now, before the work, or a clear error (not a traceback later)."""
-    from vectoradjust.errors import InputFileError
+def _output_folder(path, command: str = "adjust"):
+    """``--out`` as a :class:`~vectoradjust.files.outputs.RunFolder`: entered before the
+    work, it creates the folder and takes its lock (a folder that cannot be written, or
+    that another run is writing into, is a clear error before the work, not after it);
+    the run writes into its staging folder, and its commit moves the files into place."""
+    from vectoradjust.files.outputs import RunFolder
 
-    out = Path(path)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = tempfile.NamedTemporaryFile(dir=out, prefix=".vectoradjust-probe-")
-        probe.close()
-    except OSError as exc:
-        raise InputFileError(f"Cannot write into the output directory {str(out)!r} ({exc})",
-                             "Choose a writable directory with --out") from exc
-    return out
+    return RunFolder(path, command=command)
+
+
+def _say_notes(folder, quiet: bool) -> None:
+    """What the commit of ``folder`` said: the previous run's files removed (unless
+    quiet), files of earlier runs left in place (always, on stderr)."""
+    for kind, text in folder.notes:
+        if kind == "warning":
+            print(f"vectoradjust: warning: {text}", file=sys.stderr)
+        elif not quiet:
+            print(f"  note: {text}")
 
 
 def _qa_verdict(result, data):
@@ -388,13 +395,35 @@ _PLOTTING = ("matplotlib.figure", "matplotlib.backends.backend_agg")
 
 
 def cmd_adjust(args) -> int:
-    from vectoradjust.cli.background import Preload, workers
-    from vectoradjust.files.outputs import write_outputs
+    from vectoradjust.cli.background import workers
+
+    workers()  # a wrong VECTORADJUST_WORKERS is said before the work, not after it
+    from vectoradjust.files.project import load_project
+
+    # a project that cannot be read (missing, a folder, permissions, encoding, a wrong
+    # key) is said as such before --out is touched, not as an output folder's problem
+    load_project(args.project)
+    # the folder made and locked before the work; everything is written into its staging
+    # folder and moved into place at the end: an interrupted or failed run leaves the
+    # previous result as it was
+    with _output_folder(args.out, "adjust") as folder:
+        result, written = _adjust_into(args, folder)
+    if not args.quiet:
+        print(f"vectoradjust adjust: {args.project}")
+        _print_summary(result.summary)
+        for name in written.values():
+            print(f"  wrote {name}")
+    _say_notes(folder, args.quiet)
+    return 0
+
+
+def _adjust_into(args, folder):
+    """Read, adjust and write a project into ``folder`` (a
+    :class:`~vectoradjust.files.outputs.RunFolder`, open); the run and the paths written."""
+    from vectoradjust.cli.background import Preload
     from vectoradjust.files.project import load_project
     from vectoradjust.files.readers import load_project_data
 
-    workers()  # a wrong VECTORADJUST_WORKERS is said before the work, not after it
-    _output_folder(args.out)
     # the adjustment's modules load on the other core while the inputs are read; the
     # report's plotting library once the adjustment is final (an import holds the
     # interpreter: during the adjustment it would hold up the one busy core)
@@ -416,13 +445,25 @@ def cmd_adjust(args) -> int:
     try:
         result = run(data, vectors=args.vectors, progress=bar,
                      on_adjusted=lambda r: started.append(
-                         _bands_alongside(r, args, warm, bar, kernels)))
+                         _bands_alongside(r, args, warm, bar, kernels, folder.stage)))
     except BaseException:
         for b in (b for b in [*started, pre, kernels.job] if b is not None):
             b.close()
         raise
     kernels.close()  # (ended by now, unless no band was started)
     bands = _summarised(result, started, args, bar)
+    written = _write_adjusted(args, folder, result, spec, data, (truth, pre), bands)
+    return result, written
+
+
+def _write_adjusted(args, folder, result, spec, data, truth_pre, bands) -> dict:
+    """The outputs of ``adjust`` written into ``folder``'s staging folder and committed;
+    the paths where they end up, by name."""
+    from vectoradjust.cli.background import Preload
+    from vectoradjust.files.outputs import write_outputs
+
+    truth, pre = truth_pre
+    stage = folder.stage
     warm = Preload(_PLOTTING)  # the bands' processes have started (forked without it)
     report = None
     try:
@@ -433,11 +474,11 @@ def cmd_adjust(args) -> int:
             cli_buffer.truth_buffer(result, *truth, before=before,
                                     progress=lambda f, m="": tbar(0.5 + 0.5 * f, m))
         truth_csv = cli_study.truth_tables(  # per-point truth tables
-            result, spec, args.out, before=before,
+            result, spec, stage, before=before,
             progress=ProgressBar("truth tables", enabled=not args.quiet))
         qa_doc = _qa_verdict(result, data)
         warm.wait()  # no module half imported in the report's process
-        report = _ReportAlongside(result, args.out, qa_doc)  # while the layers are written
+        report = _ReportAlongside(result, stage, qa_doc)  # while the layers are written
         written = write_outputs(result, args.out, fmt=args.format,
                                 bands=bands.result if bands is not None else False,
                                 progress=ProgressBar("write", enabled=not args.quiet))
@@ -450,95 +491,145 @@ def cmd_adjust(args) -> int:
     finally:
         if bands is not None:
             bands.close()
-    written.update(truth_csv)
+    written.update({k: str(folder.final(v)) for k, v in truth_csv.items()})
     if getattr(args, "conflation_raster", False):
         from vectoradjust.files.derived_outputs import write_conflation_rasters
 
-        written.update(write_conflation_rasters(result, args.out))
+        written.update({k: str(folder.final(v))
+                        for k, v in write_conflation_rasters(result, stage).items()})
     if qa_doc is not None:  # [qa] in the project: the accuracy-control verdict goes along
         from vectoradjust.cli.qa import write_qa_json
 
-        written["qa.json"] = str(write_qa_json(qa_doc, args.out,
-                                               extra={"project": str(args.project)}))
-    written["report.html"] = str(report.result(ProgressBar("report", enabled=not args.quiet)))
-    if not args.quiet:
-        print(f"vectoradjust adjust: {args.project}")
-        _print_summary(result.summary)
-        for name in written.values():
-            print(f"  wrote {name}")
-    return 0
+        written["qa.json"] = str(folder.final(write_qa_json(
+            qa_doc, stage, extra={"project": str(args.project)})))
+    written["report.html"] = str(folder.final(
+        report.result(ProgressBar("report", enabled=not args.quiet))))
+    folder.commit()
+    return written
 
 
 def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
     """Adjust every ``[[vectors]]`` entry alone and tabulate the results.
 
+    A database that cannot be adjusted (no measured shape point, a DEM hole at a measured
+    vertex, ...) gets a row with the reason in ``error``; the others are compared. All
+    files are written into a staging folder and moved into ``out_dir`` at the end
+    (:class:`~vectoradjust.files.outputs.RunFolder`).
+
     Returns
     -------
     list of dict
         One row per database (the columns of ``compare.csv``).
+
+    Raises
+    ------
+    VectorAdjustError
+        The project cannot be read, ``out_dir`` cannot be written or is locked by
+        another run, or no database could be adjusted (each one's reason is named).
     """
-    from vectoradjust.files.outputs import write_outputs
+    with _output_folder(out_dir, "compare") as folder:
+        rows, _ = _compare_into(project, folder, fmt, quiet)
+    return rows
+
+
+def _compare_into(project, folder, fmt: str, quiet: bool) -> tuple:
+    """:func:`compare` into an open RunFolder; (rows, names of the databases that failed
+    with an error, not merely for want of measurements)."""
     from vectoradjust.files.project import load_project
     from vectoradjust.files.readers import load_project_data
-    from vectoradjust.pipeline import run
 
     spec = load_project(project)
     if not spec.vectors:
         raise VectorAdjustError(f"{project}: there are no [[vectors]] entries to compare",
                                 "Add [[vectors]] entries (one per road database)")
-    from vectoradjust.files.report import write_compare_report, write_report
+    from vectoradjust.files.report import write_compare_report
 
     data = load_project_data(spec)
-    truth = cli_buffer.project_truth(spec)
-    rows = []
-    runs = []
-    out = Path(out_dir)
-    failed = []
-    for i, v in enumerate(spec.vectors):
-        bar = ProgressBar(f"{v.name:>8s} ({i + 1}/{len(spec.vectors)})", enabled=not quiet)
-        try:
-            result = run(data, vectors=[v.name], progress=bar)
-        except NothingAdjustedError as exc:  # one database without measurements: go on
-            print(f"\nvectoradjust compare: {v.name}: {exc}", file=sys.stderr)
-            failed.append({"database": v.name, "adjusted": 0, "error": str(exc)})
-            continue
-        if truth is not None:
-            cli_buffer.truth_buffer(result, *truth, progress=ProgressBar(
-                f"{v.name:>8s} truth", enabled=not quiet))
-        write_outputs(result, out / v.name, fmt=fmt,
-                      progress=ProgressBar(f"{v.name:>8s} write", enabled=not quiet))
-        write_report(result, out / v.name / "report.html", reliability=result.reliability,
-                     progress=ProgressBar(f"{v.name:>8s} report", enabled=not quiet))
-        rows.append(compare_row(result.summary))
-        runs.append(result)
+    runs, rows, failed = _compare_each(spec, data, folder, fmt, quiet)
+    errors = [r["database"] for r in failed if r.pop("_error", False)]
     if not runs:
+        if errors:
+            raise VectorAdjustError(
+                f"{project}: no road database could be adjusted: "
+                + "; ".join(r["error"] for r in failed),
+                "Mend the inputs named above (the previous result in the output folder is "
+                "left as it was)")
         raise NothingAdjustedError(
             f"{project}: no road database has a measured shape point",
             "See the messages above: set id_field, or measure the shape points")
-    out.mkdir(parents=True, exist_ok=True)
-    cli_study.write_common_points(runs, out)  # points used by several databases
-    write_compare_report(runs, rows, out / "report.html",
+    stage = folder.stage
+    cli_study.write_common_points(runs, stage)  # points used by several databases
+    write_compare_report(runs, rows, stage / "report.html",
                          progress=ProgressBar("  report", enabled=not quiet))
     rows = rows + failed  # the databases that could not be adjusted, with the reason
-    with open(out / "compare.csv", "w", newline="", encoding="utf-8") as fh:
+    with open(stage / "compare.csv", "w", newline="", encoding="utf-8") as fh:
         cols = compare_columns(rows)
         w = csv.DictWriter(fh, fieldnames=[k for k, _ in cols])
         w.writeheader()
         for r in rows:
             w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k, _ in cols})
-    with open(out / "compare.json", "w", encoding="utf-8") as fh:
+    with open(stage / "compare.json", "w", encoding="utf-8") as fh:
         json.dump(rows, fh, indent=2)
-    return rows
+    folder.commit()
+    return rows, errors
+
+
+def _compare_each(spec, data, folder, fmt: str, quiet: bool) -> tuple:
+    """Each database adjusted alone into ``folder``/<name>; (runs, rows, failed rows).
+
+    A database that fails (any :class:`VectorAdjustError` but a cancel or a full disk) is
+    reported and left out; the others go on. A failed row has ``_error`` true unless
+    the database merely had no measured shape point."""
+    from vectoradjust.errors import CancelledError
+    from vectoradjust.files.outputs import is_disk_full, write_outputs
+    from vectoradjust.files.report import write_report
+    from vectoradjust.pipeline import run
+
+    truth = cli_buffer.project_truth(spec)
+    runs, rows, failed = [], [], []
+    for i, v in enumerate(spec.vectors):
+        bar = ProgressBar(f"{v.name:>8s} ({i + 1}/{len(spec.vectors)})", enabled=not quiet)
+        target = folder.path / v.name
+        try:
+            result = run(data, vectors=[v.name], progress=bar)
+            if truth is not None:
+                cli_buffer.truth_buffer(result, *truth, progress=ProgressBar(
+                    f"{v.name:>8s} truth", enabled=not quiet))
+            write_outputs(result, target, fmt=fmt,
+                          progress=ProgressBar(f"{v.name:>8s} write", enabled=not quiet))
+            write_report(result, folder.staged(target) / "report.html",
+                         reliability=result.reliability,
+                         progress=ProgressBar(f"{v.name:>8s} report", enabled=not quiet))
+        except CancelledError:
+            raise
+        except VectorAdjustError as exc:  # this database only: the others go on
+            if is_disk_full(exc):
+                raise
+            shutil.rmtree(folder.staged(target), ignore_errors=True)  # nothing half of it
+            print(f"\nvectoradjust compare: {v.name}: {exc}", file=sys.stderr)
+            failed.append({"database": v.name, "adjusted": 0, "error": str(exc),
+                           "_error": not isinstance(exc, NothingAdjustedError)})
+            continue
+        rows.append(compare_row(result.summary))
+        runs.append(result)
+    return runs, rows, failed
 
 
 def cmd_compare(args) -> int:
-    rows = compare(args.project, args.out, fmt=args.format, quiet=args.quiet)
+    with _output_folder(args.out, "compare") as folder:
+        rows, errors = _compare_into(args.project, folder, args.format, args.quiet)
     print(f"vectoradjust compare: {args.project} (each database adjusted alone)")
     print_table(rows)
     for r in rows:
         if r.get("error"):
             print(f"  {r['database']}: not adjusted (see compare.csv, column error)")
     print(f"  wrote {Path(args.out) / 'compare.csv'} and {Path(args.out) / 'report.html'}")
+    _say_notes(folder, args.quiet)
+    if errors:  # finished what it could; the exit status says that some failed
+        print(f"vectoradjust compare: {len(errors)} of {len(rows)} databases failed: "
+              f"{', '.join(errors)} (the reasons are above and in compare.csv)",
+              file=sys.stderr)
+        return 1
     return 0
 
 

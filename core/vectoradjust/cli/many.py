@@ -4,14 +4,16 @@
 [--workers N]`` adjusts every project as ``adjust`` does, each into ``DIR/<project
 name>/``, on the local multi-process Dask scheduler (or the distributed scheduler at
 ADDRESS), and writes ``DIR/many_summary.csv`` and ``DIR/many_summary.json``. A project
-that fails is listed with its error; the others go on. The exit status is 0 when every
-project was adjusted, 1 when one or more failed. Python API:
+that fails is listed with its error (and again at the end, on stderr, with its
+project file); the others go on. The exit status is 0 when every project was adjusted, 1
+when one or more failed. Python API:
 :func:`vectoradjust.files.many.adjust_many`.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 from vectoradjust.cli.progress import ProgressBar
 
@@ -38,6 +40,11 @@ def cmd_adjust_many(args) -> int:
                     if r.get("status") == "ok" and s0 is not None else r.get("error"))
             print(f"  {r['name']:24s} {r['status']:6s} {what}")
         print(f"  wrote {args.out}/many_summary.csv and many_summary.json")
+    if failed:  # always said, also with --quiet: the exit status alone names nobody
+        print(f"vectoradjust adjust-many: {len(failed)} of {len(rows)} projects failed "
+              f"(many_summary.json, failures):", file=sys.stderr)
+        for r in failed:
+            print(f"  {r['name']} ({r['project']}): {r.get('error')}", file=sys.stderr)
     return 1 if failed else 0
 
 

@@ -6,7 +6,14 @@ is a project of its own. :func:`adjust_many` adjusts every project exactly as
 report) into ``DIR/<project name>/`` and writes one combined summary,
 ``DIR/many_summary.csv`` and ``DIR/many_summary.json``: per project sigma0^2, the
 chi-square test, the check-point RMSE and the shape-point counts, or the error of a
-project that failed (the others go on).
+project that failed (the others go on; ``many_summary.json`` lists the failed ones and
+why under ``failures``).
+
+Each project's folder is written as ``adjust`` writes its own
+(:class:`~vectoradjust.files.outputs.RunFolder`): staged, moved into place when
+complete, ``run_manifest.json`` last; a project that fails leaves its previous result as
+it was. ``DIR`` itself is locked while the projects run, so a second ``adjust-many`` into
+it is refused with a clear error.
 
 The projects run as Dask tasks: by default on the local multi-process scheduler
 (``scheduler=None`` or ``"processes"``; ``"threads"`` and ``"sync"`` also work), or on
@@ -25,6 +32,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import re
 import time
 import traceback
@@ -120,6 +128,7 @@ def adjust_one(project, out_dir, name: Optional[str] = None, fmt: str = "gpkg",
         ``"ok"`` or ``"failed"`` with the message in ``error``.
     """
     from vectoradjust.files.jsonfile import clean_json
+    from vectoradjust.files.outputs import MANIFEST, read_manifest
 
     t0 = time.perf_counter()
     row = _row(name or Path(project).stem, str(project), str(out_dir))
@@ -131,13 +140,17 @@ def adjust_one(project, out_dir, name: Optional[str] = None, fmt: str = "gpkg",
     except Exception as exc:  # noqa: BLE001 - one broken project must not stop the others
         tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
         row.update(status="failed", error=f"unexpected error: {tb}")
+    if row["status"] != "ok" and read_manifest(out_dir) is not None:
+        row["error"] += (f" (the result in {out_dir} is an earlier run's, left as it was; "
+                         f"see its {MANIFEST})")
     row["seconds"] = round(time.perf_counter() - t0, 3)
     return clean_json(row)
 
 
 def _adjust(project, out_dir, fmt: str, bands: bool, report: bool):
-    """The stages of ``vectoradjust adjust`` without a console."""
-    from vectoradjust.files.outputs import write_outputs
+    """The stages of ``vectoradjust adjust`` without a console; the outputs staged and
+    moved into ``out_dir`` when all are written."""
+    from vectoradjust.files.outputs import RunFolder, write_outputs
     from vectoradjust.files.project import load_project
     from vectoradjust.files.readers import load_project_data
     from vectoradjust.files.truth import project_truth, truth_buffer
@@ -149,19 +162,22 @@ def _adjust(project, out_dir, fmt: str, bands: bool, report: bool):
     truth = project_truth(spec)
     if truth is not None:
         truth_buffer(result, *truth)
-    write_outputs(result, out_dir, fmt=fmt, bands=bands)
-    qa_doc = None
-    if data.qa:
-        from vectoradjust.files.jsonfile import write_json
-        from vectoradjust.qa.verdict import accuracy_control, spec_from_table
+    with RunFolder(out_dir, command="adjust-many") as folder:
+        write_outputs(result, out_dir, fmt=fmt, bands=bands)
+        qa_doc = None
+        if data.qa:
+            from vectoradjust.files.jsonfile import write_json
+            from vectoradjust.qa.verdict import accuracy_control, spec_from_table
 
-        qa_doc = accuracy_control(result, spec_from_table(data.qa, source=data.source)).as_dict()
-        write_json(out_dir, "qa.json", {**qa_doc, "project": str(project)})
-    if report:
-        from vectoradjust.files.report import write_report
+            qa_doc = accuracy_control(result, spec_from_table(data.qa,
+                                                              source=data.source)).as_dict()
+            write_json(folder.stage, "qa.json", {**qa_doc, "project": str(project)})
+        if report:
+            from vectoradjust.files.report import write_report
 
-        write_report(result, Path(out_dir) / "report.html", reliability=result.reliability,
-                     qa=qa_doc)
+            write_report(result, folder.stage / "report.html", reliability=result.reliability,
+                         qa=qa_doc)
+        folder.commit()
     return result
 
 
@@ -223,12 +239,30 @@ def adjust_many(projects: Sequence, out_dir, *, scheduler: Any = None,
         Dask is missing, the scheduler cannot be reached, or no project was given. A
         failing project does not raise: its row says ``status = "failed"`` and why.
     """
+    from vectoradjust.files.outputs import DirLock
+
     dask = _dask()
     projects = [str(p) for p in projects]
     if not projects:
         raise VectorAdjustError("adjust-many was given no project", "Name project files")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise VectorAdjustError(f"Cannot create the output directory {str(out)!r} ({exc})",
+                                "Choose a writable directory with --out") from exc
+    with DirLock(out, "adjust-many"):  # a second adjust-many into DIR: a clear error
+        rows = _adjust_all(dask, projects, out, scheduler, workers, fmt, bands, report,
+                           progress)
+        write_many_summary(rows, out)
+    if progress is not None:
+        progress(1.0, "all projects done")
+    return rows
+
+
+def _adjust_all(dask, projects: list, out: Path, scheduler, workers, fmt: str, bands: bool,
+                report: bool, progress) -> list:
+    """Every project adjusted on Dask; their rows in the order given."""
     names = project_names(projects)
     tasks = [dask.delayed(adjust_one, pure=False)(p, str(out / n), n, fmt, bands, report)
              for p, n in zip(projects, names)]
@@ -238,9 +272,6 @@ def adjust_many(projects: Sequence, out_dir, *, scheduler: Any = None,
     else:
         meta = [(n, p, str(out / n)) for p, n in zip(projects, names)]
         rows = _run_distributed(client, tasks, meta, progress, close=client is not scheduler)
-    write_many_summary(rows, out)
-    if progress is not None:
-        progress(1.0, "all projects done")
     return rows
 
 
@@ -290,20 +321,34 @@ def _future_row(future, meta: tuple) -> dict:
 
 
 def write_many_summary(rows: Sequence[dict], out_dir) -> tuple:
-    """Write ``many_summary.csv`` and ``many_summary.json`` (one row per project)."""
+    """Write ``many_summary.csv`` and ``many_summary.json`` (one row per project).
+
+    ``many_summary.json`` holds ``projects`` (how many), ``failed`` (their names),
+    ``failures`` (``name``, ``project``, ``error`` of each failed one) and ``rows``. Each
+    file is written beside its place and moved there when complete.
+    """
     out = Path(out_dir)
     csv_path, json_path = out / "many_summary.csv", out / "many_summary.json"
+    bad = [r for r in rows if r.get("status") != "ok"]
+    doc = {"projects": len(rows), "failed": [r["name"] for r in bad],
+           "failures": [{k: r.get(k) for k in ("name", "project", "error")} for r in bad],
+           "rows": list(rows)}
+    tmp = [out / ".many_summary.csv.part", out / ".many_summary.json.part"]
     try:
-        with open(csv_path, "w", newline="", encoding="utf-8") as fh:
+        with open(tmp[0], "w", newline="", encoding="utf-8") as fh:
             w = csv.DictWriter(fh, fieldnames=MANY_COLUMNS, extrasaction="ignore")
             w.writeheader()
             for r in rows:
                 w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in MANY_COLUMNS})
-        failed = [r["name"] for r in rows if r.get("status") != "ok"]
-        with open(json_path, "w", encoding="utf-8") as fh:
-            json.dump({"projects": len(rows), "failed": failed, "rows": list(rows)}, fh,
-                      indent=2)
+        with open(tmp[1], "w", encoding="utf-8") as fh:
+            json.dump(doc, fh, indent=2)
+        os.replace(tmp[0], csv_path)
+        os.replace(tmp[1], json_path)
     except OSError as exc:
         raise VectorAdjustError(f"Cannot write the combined summary in {str(out)!r} ({exc})",
                                 "Choose a writable directory with --out") from exc
+    finally:
+        for t in tmp:
+            if t.exists():
+                t.unlink()
     return csv_path, json_path

@@ -7,6 +7,7 @@ and DEMs the spec points to.
 
 from __future__ import annotations
 
+import datetime
 import difflib
 import sys
 from collections.abc import Mapping
@@ -26,6 +27,9 @@ from vectoradjust.sensor.camera import (
     _POLY_KEYS,
     _SMAC_KEYS,
     CameraCalibration,
+    _show,
+    read_toml_text,
+    toml_error_hint,
 )
 from vectoradjust.sensor.interior import CORRECTION_KEYS, normalize_unit, parse_corrections
 
@@ -155,23 +159,37 @@ def load_project(path) -> ProjectSpec:
     Raises
     ------
     ProjectError
-        If the file is missing, not valid TOML, or a key is missing or wrong.
+        If the file is missing, a folder, unreadable (permissions), not UTF-8 (the
+        encoding found is named; a UTF-8 byte order mark is accepted), not valid TOML, or
+        a key is missing or of the wrong type (the key and its table are named).
     """
     p = Path(path)
-    if not p.is_file():
-        raise ProjectError(
-            f"Project file {str(p)!r} does not exist",
-            "Give the path of a TOML project file (see README: 'The project file')",
-            path=str(p),
-        )
+    text = read_toml_text(p, f"Project file {str(p)!r}", ProjectError,
+                          missing=lambda: _missing_mend(p))
     try:
-        with open(p, "rb") as fh:
-            raw = tomllib.load(fh)
+        raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ProjectError(
-            f"{p}: not valid TOML ({exc})", "Fix the syntax at the position given", path=str(p)
-        ) from exc
+        mend = ("Fix the syntax at the position given" if p.suffix.lower() == ".toml" else
+                f"This is a {p.suffix or 'file without extension'}, not the project file: "
+                "give the project's .toml file (README: 'The project file')")
+        raise ProjectError(f"{p}: not valid TOML ({exc}){toml_error_hint(exc, text)}", mend,
+                           path=str(p)) from exc
+    except RecursionError:
+        raise ProjectError(f"{p}: not valid TOML (arrays or tables nested too deeply)",
+                           "Check the brackets", path=str(p)) from None
     return parse_project(raw, base_dir=p.parent.resolve(), path=p)
+
+
+def _missing_mend(p: Path) -> str:
+    """What to do about a project file that does not exist: the nearest ``.toml`` file
+    of its folder, if there is one."""
+    mend = "Give the path of a TOML project file (see README: 'The project file')"
+    try:
+        found = [q.name for q in p.parent.iterdir() if q.suffix.lower() == ".toml"]
+    except (OSError, ValueError):
+        return mend
+    close = difflib.get_close_matches(p.name, found, n=1, cutoff=0.6)
+    return f"{mend}; perhaps {p.parent / close[0]}" if close else mend
 
 
 def _err(where: str, what: str, mend: str) -> ProjectError:
@@ -180,11 +198,15 @@ def _err(where: str, what: str, mend: str) -> ProjectError:
 
 def _number(where: str, key: str, value: Any, *, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise _err(where, f"{key} must be a number, not {value!r}", f"Write {key} = <number>")
-    v = float(value)
+        raise _err(where, f"{key} must be a number, not {_show(value)}",
+                   f"Write {key} = <number>")
+    try:
+        v = float(value)
+    except OverflowError:  # an integer beyond any float (not from TOML: int64 there)
+        v = np.inf
     if not np.isfinite(v) or (positive and v <= 0):
         raise _err(where, f"{key} must be a finite{' positive' if positive else ''} number, "
-                   f"not {value!r}", f"Correct {key}")
+                   f"not {_show(value)}", f"Correct {key}")
     return v
 
 
@@ -192,15 +214,13 @@ def _vector3(where: str, key: str, value: Any, *, positive: bool = False) -> np.
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         value = [value] * 3
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise _err(where, f"{key} must be a list of 3 numbers, not {value!r}",
+        raise _err(where, f"{key} must be a list of 3 numbers, not {_show(value)}",
                    f"Write {key} = [a, b, c]")
     return np.array([_number(where, key, v, positive=positive) for v in value])
 
 
 def _resolve(base_dir: Path, value: Any, where: str, key: str) -> str:
-    if not isinstance(value, str) or not value:
-        raise _err(where, f"{key} must be a file path string, not {value!r}",
-                   f'Write {key} = "file.ext" (relative to the project file)')
+    _path_text(where, key, value)
     q = Path(value)
     return str(q if q.is_absolute() else (base_dir / q))
 
@@ -214,12 +234,22 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
     """
     where = str(path) if path else "<project>"
     base_dir = Path(base_dir)
+    if not isinstance(raw, Mapping):
+        raise _err(where, f"the project must be a table of keys, not {_show(raw)}",
+                   "See README: 'The project file'")
     check_keys(raw, PROJECT_SCHEMA["top level"], where, "")
     for name in _TABLES:
         if name in raw and not isinstance(raw[name], Mapping):
-            raise _err(where, f"{name} must be a table ([{name}]), not {raw[name]!r}",
+            raise _err(where, f"{name} must be a table ([{name}]), not {_show(raw[name])}",
                        f"Write [{name}] on a line of its own, followed by its keys")
+    for name in ("name", "description"):
+        if name in raw and not isinstance(raw[name], str):
+            raise _err(where, f"{name} must be a text, not {_show(raw[name])}",
+                       f'Write {name} = "..." (in quotes), or leave it out')
     crs = raw.get("crs")
+    if crs is not None and not isinstance(crs, str):
+        raise _err(where, f"crs must be a text, not {_show(crs)}",
+                   'Write crs = "EPSG:32616" (in quotes; a projected CRS in metres)')
     if not isinstance(crs, str) or not crs.strip():
         raise _err(where, "crs is missing", 'Add crs = "EPSG:xxxxx" (a projected CRS in metres)')
 
@@ -235,7 +265,7 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
     heights = _parse_heights(raw, images, where)
     meas = _parse_measurements(raw.get("measurements"), base_dir, where)
     control = _parse_control(raw.get("control"), base_dir, where)
-    vectors = _parse_vectors(raw.get("vectors", []) or [], base_dir, where)
+    vectors = _parse_vectors(raw.get("vectors", []), base_dir, where)
     settings = _parse_adjustment(raw.get("adjustment", {}) or {}, where)
     for name in ("truth", "qa"):  # read where they are used (files.truth, qa.verdict)
         if name in raw:
@@ -267,8 +297,8 @@ def _parse_heights(raw: dict, images: list, where: str) -> Optional[str]:
                        'or heights = "orthometric" with vertical_crs = "EPSG:5773" (EGM96), '
                        '"EPSG:3855" (EGM2008) or your datum\'s code')
         return None
-    if heights not in ("ellipsoidal", "orthometric"):
-        raise _err(where, f"heights = {heights!r} is unknown",
+    if not isinstance(heights, str) or heights not in ("ellipsoidal", "orthometric"):
+        raise _err(where, f"heights = {_show(heights)} is unknown",
                    'Write heights = "ellipsoidal" or heights = "orthometric"')
     if heights == "orthometric" and not raw.get("vertical_crs"):
         raise _err(where, 'heights = "orthometric" needs the vertical datum to convert them '
@@ -332,9 +362,33 @@ def check_keys(table: Mapping, allowed, where: str, label: str,
 
 
 def _check_truth(truth: Any, where: str) -> None:
-    """``[truth]`` (optional) needs ``path`` (the widths are read by ``files.truth``)."""
-    if truth is not None and (not isinstance(truth.get("path"), str) or not truth["path"]):
+    """``[truth]`` (optional) needs ``path``; ``widths`` (read by ``files.truth``) are
+    numbers >= 0 (a list, or a text ``"1,2,5"``)."""
+    if truth is None:
+        return
+    if "path" in truth and not isinstance(truth["path"], str):
+        raise _err(f"{where} [truth]", f"path must be a file path string, not "
+                   f"{_show(truth['path'])}", 'Write path = "truth_roads.shp"')
+    if not truth.get("path"):
         raise _err(where, "[truth] has no path", 'Add [truth] path = "truth_roads.shp"')
+    _path_text(f"{where} [truth]", "path", truth["path"])
+    widths = truth.get("widths")
+    if widths is None:
+        return
+    items = ([w for w in widths.replace(";", ",").split(",") if w.strip()]
+             if isinstance(widths, str) else widths)
+    ok = isinstance(items, list) and len(items) > 0
+    for w in items if ok else ():
+        if isinstance(w, str):
+            try:
+                w = float(w)
+            except ValueError:
+                w = None
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0 <= w < np.inf:
+            ok = False
+    if not ok:
+        raise _err(f"{where} [truth]", f"widths must be distances >= 0 in metres, not "
+                   f"{_show(widths)}", "Write widths = [1.0, 2.0, 5.0]")
 
 
 def _parse_corrections(corrections: Any, where: str) -> dict:
@@ -351,15 +405,21 @@ def _parse_images(images_raw: Any, where: str, base_dir: Path = Path(".")) -> li
     if isinstance(images_raw, Mapping):
         raise _err(where, "images is a single table", "Write [[images]] (an array of tables, "
                    "one per image) instead of [images]")
-    if not isinstance(images_raw, list) or not images_raw:
+    if images_raw is not None and not isinstance(images_raw, list):
+        raise _err(where, f"images = {_show(images_raw)} must be an array of tables",
+                   "Write one [[images]] table per image, with id = ..., position = ...")
+    if not images_raw:
         raise _err(where, "no [[images]] entries", "Add one [[images]] table per image")
     images = []
     seen: set = set()
     for i, im in enumerate(images_raw, start=1):
         w = f"{where} [[images]] entry {i}"
-        if not isinstance(im, dict) or "id" not in im:
+        if not isinstance(im, Mapping):
+            raise _err(w, f"must be a table, not {_show(im)}",
+                       'Write [[images]] on a line of its own, then id = "L", position = ...')
+        if "id" not in im:
             raise _err(w, "has no id", 'Add id = "L"')
-        iid = str(im["id"])
+        iid = _name_of(w, "id", im["id"], 'id = "L"')
         check_keys(im, PROJECT_SCHEMA["[[images]]"], where, f"[[images]] entry {i} ({iid!r})",
                    "[[images]]")
         w = f"{where} [[images]] id {iid!r}"
@@ -367,10 +427,12 @@ def _parse_images(images_raw: Any, where: str, base_dir: Path = Path(".")) -> li
             raise _err(w, "is defined twice", "Give every image a unique id")
         seen.add(iid)
         model = im.get("model", "frame")
-        if model not in ("frame", "rpc"):
-            raise _err(w, f"model = {model!r} is unknown",
+        if not isinstance(model, str) or model not in ("frame", "rpc"):
+            raise _err(w, f"model = {_show(model)} is unknown",
                        'Write model = "frame" (a camera) or model = "rpc" (a satellite image '
                        "with rational polynomial coefficients)")
+        if im.get("path") is not None:
+            _path_text(w, "path", im["path"])
         if model == "rpc":
             images.append(_parse_rpc_image(im, iid, base_dir, w))
             continue
@@ -386,9 +448,35 @@ def _parse_images(images_raw: Any, where: str, base_dir: Path = Path(".")) -> li
         sa = im.get("sigma_attitude")
         sp = None if sp is None else _number(w, "sigma_position", sp, positive=True)
         sa = None if sa is None else _number(w, "sigma_attitude", sa, positive=True)
-        date = im.get("date")
-        images.append(ImageSpec(iid, pos, att, sp, sa, None if date is None else str(date)))
+        images.append(ImageSpec(iid, pos, att, sp, sa, _date(w, im.get("date"))))
     return images
+
+
+def _name_of(where: str, key: str, value: Any, example: str) -> str:
+    """An id or name: a non-empty text (or a whole number, read as its digits)."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return str(value)
+    if not isinstance(value, str) or not value.strip():
+        raise _err(where, f"{key} must be a text (or a whole number), not {_show(value)}",
+                   f"Write {example}")
+    return value
+
+
+def _date(where: str, value: Any) -> Optional[str]:
+    """``date``: a TOML date (1999-10-05) or a text, as text; None when not given."""
+    if value is None:
+        return None
+    if not isinstance(value, (str, datetime.date)):
+        raise _err(where, f"date must be a date (1999-10-05) or a text, not {_show(value)}",
+                   "Write date = 1999-10-05, or leave it out")
+    return str(value)
+
+
+def _path_text(where: str, key: str, value: Any) -> None:
+    """A file path given in the project: a non-empty text without NUL characters."""
+    if not isinstance(value, str) or not value.strip() or "\x00" in value:
+        raise _err(where, f"{key} must be a file path string, not {_show(value)}",
+                   f'Write {key} = "file.ext" (relative to the project file)')
 
 
 def _parse_rpc_image(im: dict, iid: str, base_dir: Path, w: str) -> ImageSpec:
@@ -405,8 +493,8 @@ def _parse_rpc_image(im: dict, iid: str, base_dir: Path, w: str) -> ImageSpec:
                    'or its _rpc.txt / .RPB file)')
     path = _resolve(base_dir, im["rpc"], w, "rpc")
     bias = im.get("bias", "shift")
-    if bias not in BIAS_MODELS:
-        raise _err(w, f"bias = {bias!r} is unknown",
+    if not isinstance(bias, str) or bias not in BIAS_MODELS:
+        raise _err(w, f"bias = {_show(bias)} is unknown",
                    "Write bias = " + ", ".join(f'"{m}"' for m in BIAS_MODELS))
     sig = im.get("bias_sigma")
     if sig is None:
@@ -414,22 +502,21 @@ def _parse_rpc_image(im: dict, iid: str, base_dir: Path, w: str) -> ImageSpec:
     else:
         vals = sig if isinstance(sig, (list, tuple)) else [sig]
         if len(vals) not in (1, 2, 6):
-            raise _err(w, f"bias_sigma must be 1, 2 or 6 numbers (px), not {sig!r}",
+            raise _err(w, f"bias_sigma must be 1, 2 or 6 numbers (px), not {_show(sig)}",
                        "Write bias_sigma = 5.0 (every bias parameter), [shift, drift/affine] "
                        "or [a0, a1, a2, b0, b1, b2]")
         v = np.array([_number(w, "bias_sigma", x, positive=True) for x in vals])
         sigma = (np.full(6, v[0]) if len(v) == 1 else
                  np.array([v[0], v[1], v[1], v[0], v[1], v[1]]) if len(v) == 2 else v)
-    date = im.get("date")
     return ImageSpec(iid, np.zeros(3), np.zeros(3), None, None,
-                     None if date is None else str(date), model="rpc",
+                     _date(w, im.get("date")), model="rpc",
                      rpc=RpcImage(None, bias, sigma, path))
 
 
 def _parse_control(control: Any, base_dir: Path, where: str) -> Optional[dict]:
     """``[control]`` (optional): its path resolved."""
     if control is not None:
-        if not isinstance(control, dict) or "path" not in control:
+        if not isinstance(control, Mapping) or "path" not in control:
             raise _err(where, "[control] has no path", 'Add [control] path = "gcps.csv"')
         check_keys(control, PROJECT_SCHEMA["[control]"], where, "[control]")
         control = dict(control)
@@ -446,13 +533,20 @@ def _parse_vectors(vectors_raw: Any, base_dir: Path, where: str) -> list:
     if isinstance(vectors_raw, Mapping):
         raise _err(where, "vectors is a single table", "Write [[vectors]] (an array of tables, "
                    "one per road database) instead of [vectors]")
+    if vectors_raw is None:
+        vectors_raw = []
+    if not isinstance(vectors_raw, list):
+        raise _err(where, f"vectors = {_show(vectors_raw)} must be an array of tables",
+                   "Write one [[vectors]] table per road database, with name = ... and "
+                   "path = ... (README: 'The project file')")
     vectors = []
     names: set = set()
     for i, v in enumerate(vectors_raw, start=1):
         w = f"{where} [[vectors]] entry {i}"
-        if not isinstance(v, dict):
-            raise _err(w, "must be a table", "Write [[vectors]] name = ... path = ...")
-        name = str(v.get("name", f"vectors{i}"))
+        if not isinstance(v, Mapping):
+            raise _err(w, f"must be a table, not {_show(v)}",
+                       "Write [[vectors]] name = ... path = ...")
+        name = _name_of(w, "name", v.get("name", f"vectors{i}"), 'name = "OSM"')
         check_keys(v, PROJECT_SCHEMA["[[vectors]]"], where, f"[[vectors]] entry {i} ({name!r})",
                    "[[vectors]]")
         w = f"{where} [[vectors]] entry {i} ({name!r})"
@@ -465,7 +559,7 @@ def _parse_vectors(vectors_raw: Any, base_dir: Path, where: str) -> list:
         vectors.append(VectorSpec(
             name=name,
             path=_resolve(base_dir, v["path"], w, "path"),
-            id_field=None if v.get("id_field") in (None, "") else str(v["id_field"]),
+            id_field=_id_field(w, v.get("id_field")),
             sigma=tuple(float(s) for s in sigma),
             dem=None if v.get("dem") is None else _resolve(base_dir, v["dem"], w, "dem"),
             truth=None if v.get("truth") is None else _resolve(base_dir, v["truth"], w, "truth"),
@@ -477,12 +571,22 @@ def _parse_vectors(vectors_raw: Any, base_dir: Path, where: str) -> list:
     return vectors
 
 
+def _id_field(where: str, value: Any) -> Optional[str]:
+    """``id_field``: a field name (text); None (or "") for the feature index."""
+    if value is None or value == "":
+        return None
+    if not isinstance(value, str):
+        raise _err(where, f"id_field must be the name of a field (a text), not {_show(value)}",
+                   'Write id_field = "osm_id" (in quotes), or leave it out')
+    return value
+
+
 def _text(where: str, key: str, value: Any, example: str) -> Optional[str]:
     """An optional non-empty string (``layer``, ``where``); None when not given."""
     if value is None:
         return None
     if not isinstance(value, str) or not value.strip():
-        raise _err(where, f"{key} must be a non-empty text, not {value!r}",
+        raise _err(where, f"{key} must be a non-empty text, not {_show(value)}",
                    f"Write {example}, or leave {key} out")
     return value.strip()
 
@@ -507,8 +611,8 @@ def _offset_kind(where: str, value: Any) -> str:
     """``offset``: none | shift | shift3d | similarity | affine."""
     from vectoradjust.adjust.offsets import OFFSET_KINDS
 
-    if value not in OFFSET_KINDS:
-        raise _err(where, f"offset must be one of {', '.join(OFFSET_KINDS)}, not {value!r}",
+    if not isinstance(value, str) or value not in OFFSET_KINDS:
+        raise _err(where, f"offset must be one of {', '.join(OFFSET_KINDS)}, not {_show(value)}",
                    'Write offset = "shift" to estimate a horizontal shift of the database')
     return str(value)
 

@@ -179,10 +179,11 @@ def _read_frame(p: Path, layer: Optional[str], where: Optional[str], entry: str)
     import pyogrio
 
     kwargs = {"layer": layer} if layer else {}
+    typed = _typed_reading(p, layer)  # every attribute with its type and exact value
     try:
         if where is None:
-            return pyogrio.read_dataframe(p, **kwargs)
-        return pyogrio.read_dataframe(p, where=where, fid_as_index=True, **kwargs)
+            return _typed_or_plain(p, typed, **kwargs)
+        return _typed_or_plain(p, typed, where=where, fid_as_index=True, **kwargs)
     except Exception as exc:  # pyogrio raises many types
         if where is None:
             raise LayerError(f"{p}: cannot be read as a vector layer ({exc})",
@@ -200,6 +201,23 @@ def _read_frame(p: Path, layer: Optional[str], where: Optional[str], entry: str)
             path=str(p), details={"where": where}) from exc
 
 
+def _typed_or_plain(p: Path, typed: dict, **kwargs):
+    """``read_dataframe`` through Arrow (``typed``), or through NumPy where pyogrio's Arrow
+    path fails on the file (e.g. a GeoJSON field named like its FID column, ``id``, with
+    ``fid_as_index``): the file is read as before the typed reading, not refused."""
+    import pyogrio
+
+    if typed:
+        try:
+            df = pyogrio.read_dataframe(p, **kwargs, **typed)
+        except (ValueError, KeyError, TypeError):
+            df = None
+        # the FID index as integers, not (fid, id) pairs
+        if df is not None and (not kwargs.get("fid_as_index") or df.index.dtype.kind in "iu"):
+            return df
+    return pyogrio.read_dataframe(p, **kwargs)
+
+
 def _filtered_ids(p: Path, layer: Optional[str], gdf, id_field: Optional[str]):
     """Feature ids of a filtered read: ``(kept ids or None, excluded ids, features in layer)``.
 
@@ -209,16 +227,27 @@ def _filtered_ids(p: Path, layer: Optional[str], gdf, id_field: Optional[str]):
     import pyogrio
 
     kwargs = {"layer": layer} if layer else {}
-    full = pyogrio.read_dataframe(p, read_geometry=False, fid_as_index=True,
-                                  columns=[id_field] if id_field else [], **kwargs)
-    kept = np.isin(full.index.to_numpy(), gdf.index.to_numpy())
+    # the FIDs through NumPy (exact integers; pyogrio's Arrow path can mix them up with a
+    # field of the FID column's name), the id values typed, in the same feature order
+    fids = pyogrio.read_dataframe(p, read_geometry=False, fid_as_index=True, columns=[],
+                                  **kwargs).index
+    full = (_typed_or_plain(p, _typed_reading(p, layer), read_geometry=False,
+                            columns=[id_field], **kwargs) if id_field else None)
+    if full is not None:
+        full.index = fids
+    else:
+        import pandas as pd
+
+        full = pd.DataFrame(index=fids)
+    kept = np.isin(full.index.to_numpy(), np.asarray(gdf.index.to_numpy()))
     if id_field is None:
         pos = {fid: i for i, fid in enumerate(full.index.to_numpy())}
         ids = np.array([str(pos[f]) for f in gdf.index.to_numpy()], dtype=object).astype(str)
         excluded = [str(i) for i in np.flatnonzero(~kept)]
     else:
         ids = None
-        excluded = [_id_text(v) for v in full[id_field].to_numpy()[~kept] if v == v]
+        values = _column_values(full[id_field])[0]
+        excluded = [_id_text(v) for v, k in zip(values, kept) if not k and v is not None]
     return ids, excluded, len(full)
 
 
@@ -250,7 +279,11 @@ def read_line_layer(path: str, name: str, id_field: Optional[str], target_crs,
         With an extra attribute ``reading`` (dict): ``source``, ``layer``, ``where``,
         ``features_in_layer``, ``features_kept``, ``features_filtered``,
         ``excluded_feature_ids`` (ids of the filtered features, so that their measurements
-        are left out, not made tie points) and ``crs`` (:func:`transformation_info`).
+        are left out, not made tie points), ``crs`` (:func:`transformation_info`) and
+        ``fields``: ``{field: Arrow type name}`` of the attributes (``"int64"``,
+        ``"date32[day]"`` ...). The attributes are plain Python values with their type and
+        exact value (an int64 beyond 2^53, a date, None for NULL), and so are the ids'
+        texts.
 
     Raises
     ------
@@ -267,6 +300,11 @@ def read_line_layer(path: str, name: str, id_field: Optional[str], target_crs,
                              "Check the path in the [[vectors]] entry", path=str(p))
     chosen = choose_layer(p, layer, entry)
     gdf = _read_frame(p, chosen, where, entry)
+    if not hasattr(type(gdf), "geometry"):  # pyogrio gives a DataFrame: no geometry column
+        raise LayerError(f"{p} ({entry}): the layer has no geometries (a table: "
+                         f"{', '.join(map(str, gdf.columns)) or 'no fields'})",
+                         "Give the road centrelines as a line layer (shapefile, GeoPackage, "
+                         "GeoJSON ...)", path=str(p))
     if gdf.crs is None:
         raise CRSError(f"{p}: the layer has no coordinate reference system",
                        "Add a .prj file (or define the CRS in your GIS and save again)",
@@ -278,12 +316,14 @@ def read_line_layer(path: str, name: str, id_field: Optional[str], target_crs,
             f"{p}: the layer holds {', '.join(sorted(types))} geometries, not lines",
             "Give the road centrelines as a LineString layer", path=str(p))
     attr_cols = [c for c in gdf.columns if c != gdf.geometry.name]
+    if id_field is not None and id_field not in attr_cols:  # said before the filter's ids
+        _feature_ids(p, gdf, id_field, attr_cols)
     index_ids, excluded, n_layer = (None, [], len(gdf)) if where is None else _filtered_ids(
         p, chosen, gdf, id_field)
     ids = _feature_ids(p, gdf, id_field, attr_cols) if id_field is not None else (
         index_ids if index_ids is not None else np.arange(len(gdf)).astype(str))
     geoms, crs_info = _to_project_crs(gdf, target_crs)
-    attributes = {c: gdf[c].tolist() for c in attr_cols}
+    attributes, field_types = _attribute_columns(gdf, attr_cols, _shapefile_types(p, chosen))
     gtype = ",".join(sorted(types)) or "none"
     out = layer_from_geometries(name, geoms, attributes, ids, target_crs.to_wkt(), str(p), gtype)
     out.reading = {
@@ -291,6 +331,7 @@ def read_line_layer(path: str, name: str, id_field: Optional[str], target_crs,
         "features_kept": int(len(gdf)), "features_filtered": int(n_layer - len(gdf)),
         "excluded_feature_ids": excluded, "crs": crs_info,
     }
+    out.reading["fields"] = field_types
     return out
 
 
@@ -306,13 +347,35 @@ def _feature_ids(p: Path, gdf, id_field: str, attr_cols: list) -> np.ndarray:
         raise LayerError(f"{p}: feature {i} has no value in id field {id_field!r}",
                          "Give every feature an id, or omit id_field to use the index",
                          path=str(p))
-    ids = np.array([_id_text(v) for v in vals], dtype=object).astype(str)
+    values = _column_values(vals)[0]
+    _check_exact_ids(p, id_field, values)
+    ids = np.array([_id_text(v) for v in values], dtype=object).astype(str)
     u, c = np.unique(ids, return_counts=True)
     if np.any(c > 1):
-        raise LayerError(f"{p}: the id {u[c > 1][0]!r} of field {id_field!r} is used by "
+        raise LayerError(f"{p}: the id {str(u[c > 1][0])!r} of field {id_field!r} is used by "
                          f"{int(c[c > 1][0])} features",
                          "Use a field with unique values as id_field", path=str(p))
     return ids
+
+
+#: reals at or beyond this magnitude are not every integer: an id read as a real there
+#: may not be the id in the file
+EXACT_REAL_INTEGER = 2 ** 53
+
+
+def _check_exact_ids(p: Path, id_field: str, values: list) -> None:
+    """Ids that GDAL gives as reals beyond 2^53 (a GeoJSON's or an unusual shapefile
+    field read as real numbers) may have changed: a clear error, not wrong ids."""
+    big = [v for v in values if isinstance(v, float) and abs(v) >= EXACT_REAL_INTEGER]
+    if big:
+        raise LayerError(
+            f"{p}: the ids of field {id_field!r} are read as real numbers, and {len(big)} of "
+            f"them lie beyond 2^53 (e.g. {big[0]:.17g}), where a real cannot hold every "
+            "integer: the ids read may not be those in the file",
+            "Store the ids as text (in a GeoJSON \"id\": \"-1152921504648188749\": GDAL "
+            "reads negative integers of 19 digits there as reals) or as integers in a "
+            "GeoPackage; or choose another id_field", path=str(p),
+            details={"id_field": id_field, "example": big[0]})
 
 
 def transformation_info(source_crs, target_crs, bounds=None):
@@ -569,9 +632,117 @@ def _to_project_crs(gdf, target_crs):
 
 
 def _id_text(v) -> str:
+    """A feature id as text: integers exactly (an int64 beyond 2^53 too), ``12.0`` as
+    ``"12"``, dates in ISO 8601."""
     if isinstance(v, float) and float(v).is_integer():
         return str(int(v))
-    return str(v)
+    return v.isoformat() if hasattr(v, "isoformat") else str(v)
+
+
+#: OGR field types whose values pyogrio's Arrow reading gives as 64-bit integers when a
+#: shapefile is opened with ADJUST_TYPE (the type the file states, or wider)
+_WIDE_INTEGER_TYPES = ("OFTInteger64", "OFTReal")
+
+
+def _typed_reading(p: Path, layer: Optional[str]) -> dict:
+    """``read_dataframe`` keywords that keep every attribute's type and exact value.
+
+    Through Arrow with pandas' Arrow types: an integer field with NULLs stays integer
+    (the NumPy path makes it float, changing int64 values beyond 2^53), a date stays a
+    date, a boolean a boolean. A shapefile whose integers are written wider than 18
+    digits (DBF ``N(19+, 0)``, which GDAL reads as real numbers) is opened with
+    ``ADJUST_TYPE=YES``: GDAL scans the values and reads such a field as exact 64-bit
+    integers. Empty (the NumPy path) where pyogrio or GDAL cannot read through Arrow
+    (pyogrio < 0.7, GDAL < 3.6, pandas < 1.5).
+    """
+    import pyogrio
+
+    try:
+        import pandas as pd
+        import pyarrow  # noqa: F401
+    except ImportError:
+        return {}
+    if (_version(pyogrio.__version__) < (0, 7) or not hasattr(pd, "ArrowDtype")
+            or tuple(pyogrio.__gdal_version__[:2]) < (3, 6)):
+        return {}
+    out = {"use_arrow": True, "arrow_to_pandas_kwargs": {"types_mapper": pd.ArrowDtype}}
+    if "OFTReal" in _shapefile_types(p, layer).values():
+        out["ADJUST_TYPE"] = "YES"
+    return out
+
+
+def _shapefile_types(p: Path, layer: Optional[str]) -> dict:
+    """``{field: OGR type}`` as GDAL reads a shapefile by default (from the DBF field
+    widths); empty for another format or an unreadable source."""
+    import pyogrio
+
+    try:
+        info = pyogrio.read_info(p, **({"layer": layer} if layer else {}))
+    except Exception:  # not readable: the read itself reports it
+        return {}
+    if info.get("driver") != "ESRI Shapefile":
+        return {}
+    return dict(zip(map(str, info["fields"]), map(str, info["ogr_types"])))
+
+
+def _version(text: str) -> tuple:
+    """``"0.13.0"`` -> ``(0, 13)`` (non-numeric parts as 0)."""
+    parts = (str(text).split(".") + ["0"])[:2]
+    return tuple(int("".join(ch for ch in x if ch.isdigit()) or 0) for x in parts)
+
+
+def _column_values(series) -> tuple:
+    """A column's values as plain Python and its type.
+
+    Returns
+    -------
+    values : list
+        ``int`` (exact, also beyond 2^53), ``float``, ``str``, ``bool``,
+        ``datetime.date``, ``datetime.datetime`` (with its time zone when it has one),
+        ``datetime.time``, ``bytes``, lists; None for NULL (and NaN, NaT).
+    type : str
+        The Arrow type's name (``"int64"``, ``"int32"``, ``"double"``, ``"string"``,
+        ``"bool"``, ``"date32[day]"``, ``"timestamp[ms]"``, ``"timestamp[ms, tz=UTC]"``
+        ...); ``"null"`` for a column without any value and no declared type.
+    """
+    import pyarrow as pa
+
+    try:
+        arr = pa.array(series.array, from_pandas=True)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError, TypeError):
+        vals = [None if _is_missing(v) else v for v in series.tolist()]
+        return vals, "string" if all(isinstance(v, str) for v in vals if v is not None) else (
+            "mixed")
+    if pa.types.is_timestamp(arr.type) and arr.type.unit == "ns":  # whole microseconds
+        arr = arr.cast(pa.timestamp("us", arr.type.tz), safe=False)
+    return arr.to_pylist(), str(arr.type)
+
+
+def _is_missing(v) -> bool:
+    """None, NaN, NaT or pandas' NA."""
+    if v is None:
+        return True
+    try:
+        return bool(v != v)
+    except (TypeError, ValueError):  # pandas' NA has no truth value: it is missing
+        return True
+
+
+def _attribute_columns(gdf, columns: list, declared: Optional[dict] = None) -> tuple:
+    """``({field: values}, {field: type})`` of the attribute columns (:func:`_column_values`).
+
+    ``declared``: a shapefile's field types as GDAL reads them by default
+    (:func:`_shapefile_types`). Read with ``ADJUST_TYPE`` (:func:`_typed_reading`), a
+    field of 64-bit integers whose values fit 32 bits comes as 32-bit: its type is
+    widened back to the 64-bit one the file states.
+    """
+    values, types = {}, {}
+    for c in columns:
+        values[c], types[c] = _column_values(gdf[c])
+    for c, t in (declared or {}).items():
+        if types.get(c) in ("int8", "int16", "int32") and t in _WIDE_INTEGER_TYPES:
+            types[c] = "int64"
+    return values, types
 
 
 def read_dem(path: str, target_crs=None):

@@ -19,6 +19,7 @@ import numpy as np
 
 from vectoradjust.errors import CSVError, InputFileError
 from vectoradjust.model import ControlPoints, Measurements
+from vectoradjust.sensor.camera import decode_text
 from vectoradjust.sensor.interior import FiducialMeasurements
 
 __all__ = ["read_measurements", "read_control", "read_truth_points", "read_fiducials",
@@ -35,25 +36,49 @@ ROLES = ("control", "check")
 def _read_rows(path: str) -> tuple[list[str], list[list[str]], list[int]]:
     """Header, non-blank data rows and their 1-based line numbers in the file."""
     p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"File {str(p)!r} does not exist",
-                             "Check the path in the project file (relative to the project file)",
-                             path=str(p))
+    text = decode_text(_file_bytes(p), p, str(p), CSVError, kind="CSV tables",
+                       example="the CSV table (comma-separated text)")
+    reader = csv.reader(io.StringIO(text, newline=""))
+    rows, numbers, done = [], [], 0
     try:
-        with open(p, newline="", encoding="utf-8-sig") as fh:
-            reader = csv.reader(fh)
-            rows, numbers = [], []
-            for r in reader:
-                if any(c.strip() for c in r):  # blank lines are skipped, not renumbered
-                    rows.append(r)
-                    numbers.append(reader.line_num)
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise CSVError(f"{p}: cannot be read as a UTF-8 CSV file ({exc})",
-                       "Save it as comma-separated UTF-8 text", path=str(p)) from exc
+        for r in reader:
+            if any(c.strip() for c in r):  # blank lines are skipped, not renumbered
+                rows.append(r)
+                numbers.append(reader.line_num)
+            done = reader.line_num
+    except csv.Error as exc:  # the row that starts after the last one read
+        raise CSVError(f"{p}, line {done + 1}: cannot be read as a CSV table ({exc})",
+                       "Check the quotes on that line: a quote that is not closed makes the "
+                       "rest of the file one value", path=str(p),
+                       details={"line": done + 1}) from exc
     if not rows:
         raise CSVError(f"{p}: the file is empty", "Add a header line and data rows", path=str(p))
     header = [h.strip() for h in rows[0]]
     return header, rows[1:], numbers[1:]
+
+
+def _file_bytes(p: Path) -> bytes:
+    """The bytes of a table, or an error saying what stops it being read."""
+    try:
+        return p.read_bytes()
+    except (FileNotFoundError, NotADirectoryError):
+        raise InputFileError(f"File {str(p)!r} does not exist",
+                             "Check the path in the project file (relative to the project file)",
+                             path=str(p)) from None
+    except IsADirectoryError:
+        raise InputFileError(f"{str(p)!r} is a folder, not a file",
+                             "Give the path of the CSV table itself in the project file",
+                             path=str(p)) from None
+    except PermissionError:
+        raise InputFileError(f"File {str(p)!r} cannot be read: permission denied",
+                             "Give yourself read permission on it (chmod u+r) and on the "
+                             "folders above it", path=str(p)) from None
+    except OSError as exc:
+        raise InputFileError(f"File {str(p)!r} cannot be read ({exc.strerror or exc})",
+                             "Check the path and the disk", path=str(p)) from None
+    except ValueError:  # a NUL character in the path
+        raise InputFileError(f"File {str(p)!r} is not a valid path (it holds a NUL character)",
+                             "Correct the path in the project file", path=str(p)) from None
 
 
 def _fast_columns(path: str, required: Sequence[str], optional: Sequence[str] = (),
@@ -70,11 +95,11 @@ def _fast_columns(path: str, required: Sequence[str], optional: Sequence[str] = 
     """
     try:
         data = Path(path).read_bytes()
-    except OSError:
+    except (OSError, ValueError):  # the careful reader says what is wrong
         return None
     if data.startswith(b"\xef\xbb\xbf"):
         data = data[3:]
-    if b'"' in data or not data or data.isspace():
+    if b'"' in data or b"\x00" in data or not data or data.isspace():
         return None
     raw = np.frombuffer(data, dtype=np.uint8)
     ends = np.flatnonzero(raw == ord("\n"))
@@ -214,6 +239,7 @@ def parse_table(
                        "Keep each column once", path=path)
     missing = [c for c in required if c.lower() not in lookup]
     if missing:
+        _other_separator(path, header)
         raise CSVError(
             f"{path}: missing column(s) {', '.join(missing)} (header is: {', '.join(header)})",
             f"The header must be {','.join(required)}"
@@ -271,6 +297,18 @@ def parse_table(
                                    details={line_word: int(num[i]), "column": col})
             out[col] = np.array(values, dtype=object)
     return out
+
+
+def _other_separator(path: str, header: Sequence[str]) -> None:
+    """A header in one cell that holds ``;``, a tab or ``|``: the table is not
+    comma-separated (a spreadsheet's regional CSV); say so."""
+    sep = next((c for c in (";", "\t", "|") if len(header) == 1 and c in header[0]), None)
+    if sep:
+        raise CSVError(
+            f"{path}: the columns are separated by {sep!r}, not by commas (header is: "
+            f"{header[0][:80]})", "Save the table as comma-separated values (in a spreadsheet: "
+            "CSV UTF-8, comma delimited), with '.' as the decimal separator", path=path,
+            details={"separator": sep})
 
 
 def _blank_dropped(rows, lines, first: int):
@@ -399,12 +437,12 @@ def _measurements(cols: dict, path: str, default_sigma: Optional[float], unit: s
     if not _may_repeat(cols["point_id"], cols["image_id"]):
         return Measurements(pid, iid, np.column_stack([cols["x"], cols["y"]]), sigma,
                             source=str(path), rows=cols["_line"])
-    key = np.char.add(np.char.add(pid.astype(str), "\x1f"), iid.astype(str))
+    key = _pair_key(pid, iid)
     _, first, counts = np.unique(key, return_index=True, return_counts=True)
     if np.any(counts > 1):
-        dup_key = key[first[counts > 1][0]]
-        dup = cols["_line"][key == dup_key].tolist()
-        p, im = str(dup_key).split("\x1f")
+        i = int(first[counts > 1][0])
+        dup = cols["_line"][key == key[i]].tolist()
+        p, im = str(pid[i]), str(iid[i])
         raise CSVError(
             f"{path}: point {p!r} is measured on image {im!r} more than once ({line_word}s "
             f"{', '.join(map(str, dup))})",
@@ -413,6 +451,14 @@ def _measurements(cols: dict, path: str, default_sigma: Optional[float], unit: s
         )
     return Measurements(pid, iid, np.column_stack([cols["x"], cols["y"]]), sigma,
                         source=str(path), rows=cols["_line"])
+
+
+def _pair_key(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """One text per pair ``(a[i], b[i])``, equal only for equal pairs (the length of
+    ``a[i]`` leads, so no character of an id can make two pairs look alike)."""
+    a, b = a.astype(str), b.astype(str)
+    lengths = np.char.str_len(a).astype(str) if len(a) else a
+    return np.char.add(np.char.add(np.char.add(lengths, ":"), a), b)
 
 
 def read_control(path: str) -> ControlPoints:
@@ -558,12 +604,12 @@ def read_fiducials(path: str, unit: str = "pixel") -> FiducialMeasurements:
     cols = parse_table(path, header, rows, FIDUCIAL_COLUMNS, numeric=("x", "y"), lines=lines)
     iid = cols["image_id"].astype(str)
     fid = cols["fiducial_id"].astype(str)
-    key = np.char.add(np.char.add(iid, "\x1f"), fid)
+    key = _pair_key(iid, fid)
     _, first, counts = np.unique(key, return_index=True, return_counts=True)
     if np.any(counts > 1):
-        dup_key = key[first[counts > 1][0]]
-        lines = cols["_line"][key == dup_key].tolist()
-        im, f = str(dup_key).split("\x1f")
+        i = int(first[counts > 1][0])
+        lines = cols["_line"][key == key[i]].tolist()
+        im, f = str(iid[i]), str(fid[i])
         raise CSVError(
             f"{path}: fiducial {f!r} is measured on image {im!r} more than once (lines "
             f"{', '.join(map(str, lines))})",

@@ -65,10 +65,11 @@ displaced outward is positive) needs ``convention = "distortion"``.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Union
+from typing import Any, Callable, Union
 
 import numpy as np
 
@@ -79,6 +80,9 @@ __all__ = [
     "DISTORTION_MODELS",
     "DISTORTION_CONVENTIONS",
     "load_camera_file",
+    "read_toml_text",
+    "decode_text",
+    "toml_error_hint",
 ]
 
 #: Accepted distortion model names.
@@ -166,6 +170,10 @@ class CameraCalibration:
     source: str | None = None
 
     def __post_init__(self) -> None:
+        if self.name is not None and not isinstance(self.name, str):
+            raise CameraError(f"[camera]: name must be a text, not {_show(self.name)}",
+                              'Write name = "RC30 s/n 5042", or leave it out',
+                              path=self.source, details={"key": "name"})
         where = self._where()
         self.focal_length = _positive(self.focal_length, "focal_length", where)
         self.principal_point = _pair(self.principal_point, "principal_point", where)
@@ -328,7 +336,7 @@ class CameraCalibration:
     def _from_plain(
         cls, d: Mapping[str, Any], where: str, source: str | None
     ) -> CameraCalibration:
-        unknown = sorted(set(d) - set(_CAMERA_KEYS))
+        unknown = sorted(str(k) for k in set(d) - set(_CAMERA_KEYS))
         if unknown:
             raise CameraError(
                 f"{where}: unknown key(s) {', '.join(repr(k) for k in unknown)}",
@@ -350,6 +358,25 @@ class CameraCalibration:
                 f"Use one of {', '.join(repr(m) for m in DISTORTION_MODELS)}",
                 path=source,
             )
+        if d.get("name") is not None and not isinstance(d["name"], str):
+            raise CameraError(f"{where}: name must be a text, not {_show(d['name'])}",
+                              'Write name = "RC30 s/n 5042", or leave it out', path=source,
+                              details={"key": "name"})
+        try:
+            return cls._checked(d, model, conv, center, coeffs, source)
+        except CameraError as exc:  # __post_init__ names the camera; say where it is written
+            label = f"camera file {source}" if source else (
+                f"camera {d['name']!r}" if d.get("name") else "[camera]")
+            if where == label or not exc.what.startswith(label):
+                raise
+            raise CameraError(where + exc.what[len(label):], exc.mend, path=exc.path or source,
+                              details=exc.details) from None
+
+    @classmethod
+    def _checked(cls, d: Mapping[str, Any], model: str, conv: Any, center: Any,
+                 coeffs: Any, source: str | None) -> CameraCalibration:
+        """The calibration of a plain table whose keys were checked (its values are
+        checked by ``__post_init__``)."""
         return cls(
             focal_length=d["focal_length"],
             principal_point=d.get("principal_point", (0.0, 0.0)),
@@ -403,26 +430,23 @@ def load_camera_file(path: PathLike) -> dict[str, Any]:
         When the file is missing, unreadable or not valid TOML.
     """
     path = Path(path)
-    if not path.is_file():
-        raise CameraError(
-            f"Camera file {path} does not exist",
-            "Check the path (relative paths are relative to the project file)",
-            path=str(path),
-        )
+    text = read_toml_text(
+        path, f"Camera file {path}", CameraError,
+        missing="Check the path (relative paths are relative to the project file)",
+    )
     try:
-        tomllib = _tomllib()
-        with open(path, "rb") as fh:
-            table = tomllib.load(fh)
-    except OSError as exc:
-        raise CameraError(
-            f"Camera file {path} cannot be read ({exc})", "Check its permissions", path=str(path)
-        ) from exc
+        table = _tomllib().loads(text)
     except ValueError as exc:  # tomllib.TOMLDecodeError derives from ValueError
         raise CameraError(
-            f"Camera file {path} is not valid TOML: {exc}",
+            f"Camera file {path} is not valid TOML: {exc}{toml_error_hint(exc, text)}",
             "Fix the syntax at the line named",
             path=str(path),
         ) from exc
+    except RecursionError:
+        raise CameraError(
+            f"Camera file {path} is not valid TOML: its arrays or tables are nested too deeply",
+            "Check the brackets", path=str(path),
+        ) from None
     if set(table) == {"camera"} and isinstance(table["camera"], Mapping):
         table = dict(table["camera"])
     if "path" in table:
@@ -433,6 +457,223 @@ def load_camera_file(path: PathLike) -> dict[str, Any]:
             path=str(path),
         )
     return table
+
+
+#: larger than any project or camera file: a bigger file was given by mistake (an image)
+_MAX_TOML_BYTES = 32 * 1024 * 1024
+#: byte order marks other than UTF-8's, longest first
+_BOMS = ((b"\xff\xfe\x00\x00", "UTF-32 (little-endian)", "UTF-32"),
+         (b"\x00\x00\xfe\xff", "UTF-32 (big-endian)", "UTF-32"),
+         (b"\xff\xfe", "UTF-16 (little-endian)", "UTF-16"),
+         (b"\xfe\xff", "UTF-16 (big-endian)", "UTF-16"))
+#: the first bytes of files that are given as a project or camera file by mistake
+_MAGIC = ((b"II*\x00", "a TIFF image (GeoTIFF?)"), (b"MM\x00*", "a TIFF image (GeoTIFF?)"),
+          (b"SQLite format 3\x00", "an SQLite database (a GeoPackage?)"),
+          (b"PK\x03\x04", "a ZIP archive (a .zip, .kmz, .xlsx or .docx?)"),
+          (b"%PDF", "a PDF document"), (b"\x89PNG", "a PNG image"),
+          (b"\xff\xd8\xff", "a JPEG image"), (b"\x00\x00\x27\x0a", "a shapefile (.shp)"),
+          (b"\x1f\x8b", "a gzip archive"), (b"\xd0\xcf\x11\xe0", "an old Office document"))
+
+
+def read_toml_text(path: PathLike, name: str, error: type, *,
+                   missing: Union[str, Callable[[], str]]) -> str:
+    """The text of a TOML file (the project or a camera file), or a clear error.
+
+    A UTF-8 byte order mark (as Windows Notepad writes it) is dropped. Anything that
+    stops the file from being read is said as what it is: a missing file, a folder (with
+    the ``.toml`` files in it), a permission, another encoding (named, with the line and
+    the byte), a binary file (an image, a GeoPackage ...).
+
+    Parameters
+    ----------
+    path : str or Path
+    name : str
+        How messages name the file (``"Project file 'p.toml'"``).
+    error : type
+        The :class:`vectoradjust.errors.VectorAdjustError` subclass to raise.
+    missing : str or callable
+        The mend of the message for a missing file (or a function that makes it, called
+        only then).
+
+    Returns
+    -------
+    str
+        The text, without a byte order mark.
+
+    Raises
+    ------
+    VectorAdjustError
+        ``error``, naming the file and what to do.
+    """
+    path = Path(path)
+    return decode_text(_read_bytes(path, name, error, missing), path, name, error)
+
+
+def decode_text(data: bytes, path: PathLike, name: str, error: type, *,
+                kind: str = "TOML files", example: str = "the TOML file (text)") -> str:
+    """``data`` (a text file's bytes) as UTF-8 text, or an error naming the encoding found.
+
+    A UTF-8 byte order mark is dropped. Another encoding (UTF-16 or UTF-32 with or
+    without a byte order mark, Windows-1252, Latin-1) is an ``error`` that names it, the
+    line and the byte, and how to save the file as UTF-8; NUL bytes that are no UTF-16
+    make it a binary file.
+
+    Parameters
+    ----------
+    data : bytes
+    path : str or Path
+        The file, for messages.
+    name : str
+        How messages name the file.
+    error : type
+        The :class:`vectoradjust.errors.VectorAdjustError` subclass to raise.
+    kind : str
+        What must be UTF-8 (``"TOML files"``, ``"CSV tables"``), for messages.
+    example : str
+        What to give instead of a binary file, for messages.
+
+    Returns
+    -------
+    str
+    """
+    path = Path(path)
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        nul = data.find(b"\x00", 0, exc.start)  # the first byte that is no text
+        span = (nul, nul + 1) if nul >= 0 else (exc.start, exc.end)
+        raise _encoding_error(data, span, path, name, error, (kind, example)) from None
+    if "\x00" in text:  # UTF-16 without a byte order mark, or a binary file
+        at = data.index(b"\x00")
+        raise _encoding_error(data, (at, at + 1), path, name, error, (kind, example))
+    return text
+
+
+def _read_bytes(path: Path, name: str, error: type, missing: Any) -> bytes:
+    """The bytes of ``path`` (at most :data:`_MAX_TOML_BYTES`), or ``error``."""
+    p = str(path)
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(_MAX_TOML_BYTES + 1)
+    except (FileNotFoundError, NotADirectoryError):
+        raise error(f"{name} does not exist", missing if isinstance(missing, str) else missing(),
+                    path=p) from None
+    except IsADirectoryError:
+        raise error(f"{name} is a folder, not a file", _folder_mend(path), path=p) from None
+    except PermissionError:
+        raise error(f"{name} cannot be read: permission denied",
+                    "Give yourself read permission on the file and on the folders above it "
+                    f"(chmod u+r {p!r}), or copy the project to a folder of your own",
+                    path=p) from None
+    except OSError as exc:
+        raise error(f"{name} cannot be read ({exc.strerror or exc})", "Check the path and the "
+                    "disk, or copy the file to a local folder", path=p) from None
+    except ValueError:  # a NUL character in the path
+        raise error(f"{name} is not a valid path (it holds a NUL character)",
+                    "Give the path of the file as text", path=p.replace("\x00", "")) from None
+    if len(data) > _MAX_TOML_BYTES:
+        raise error(f"{name} is larger than {_MAX_TOML_BYTES // 2**20} MB: not a TOML file",
+                    "Give the TOML file itself (a few kB of text), not a data file", path=p)
+    for magic, what in _MAGIC:
+        if data.startswith(magic):
+            raise error(f"{name} is not a text file: it looks like {what}",
+                        "Give the TOML file (text), not a data file", path=p)
+    return data
+
+
+def _folder_mend(path: Path) -> str:
+    """What to give instead of the folder ``path``: the ``.toml`` files found in it."""
+    try:
+        found = sorted((q.name for q in path.iterdir() if q.suffix.lower() == ".toml"),
+                       key=lambda n: (n.lower() != "project.toml", n))
+    except OSError:
+        found = []
+    if len(found) == 1:
+        return f"Give the .toml file inside it: {path / found[0]}"
+    if found:
+        shown = ", ".join(found[:10]) + (f" and {len(found) - 10} more" if len(found) > 10
+                                         else "")
+        return f"Give one of the .toml files inside it ({shown}), e.g. {path / found[0]}"
+    return "Give the path of the .toml file itself; this folder holds no .toml file"
+
+
+def _encoding_error(data: bytes, span: tuple, path: Path, name: str, error: type,
+                    said: tuple = ("TOML files", "the TOML file (text)")) -> Exception:
+    """The error for a file that is not UTF-8 (``data[span[0]:span[1]]`` is the first
+    byte that is not), naming the encoding the file seems to be in; ``said``: what must
+    be UTF-8, and what to give instead of a binary file (see :func:`decode_text`)."""
+    (start, end), (kind, example) = span, said
+    convert = "Save it as UTF-8 (in the editor: Save As, encoding UTF-8)"
+
+    def iconv(codec: str) -> str:
+        out = path.with_name(f"{path.stem}-utf8{path.suffix}")
+        return (f"{convert}, or convert it: iconv -f {codec} -t UTF-8 {str(path)!r} > "
+                f"{str(out)!r} and give that file")
+
+    for bom, label, codec in _BOMS:
+        if data.startswith(bom):
+            return error(f"{name} is encoded as {label}, with a byte order mark; {kind} "
+                         "must be UTF-8", iconv(codec), path=str(path),
+                         details={"encoding": codec})
+    line = data.count(b"\n", 0, start) + 1
+    # in characters: the bytes before the first bad one are UTF-8
+    column = len(data[data.rfind(b"\n", 0, start) + 1:start].decode("utf-8", "replace")) + 1
+    head = data[:4096]
+    if b"\x00" in head:
+        even, odd = head[0::2].count(0), head[1::2].count(0)
+        if max(even, odd) > 0.3 * len(head) / 2 and min(even, odd) <= 0.02 * len(head):
+            codec = "UTF-16BE" if even > odd else "UTF-16LE"
+            return error(f"{name} seems encoded as {codec} (UTF-16 without a byte order mark); "
+                         f"{kind} must be UTF-8", iconv(codec), path=str(path),
+                         details={"encoding": codec})
+        return error(f"{name} is not a text file (line {line}, column {column} holds the "
+                     f"byte 0x{data[start]:02X})", f"Give {example}, not a data file",
+                     path=str(path))
+    codec, label, short, iconv_name = (
+        ("cp1252", "Windows-1252 (ANSI)", "Windows-1252", "WINDOWS-1252")
+        if any(0x80 <= b <= 0x9F for b in data)
+        else ("latin-1", "Latin-1 (ISO-8859-1)", "Latin-1", "LATIN1"))
+    try:
+        shown = f", {data[start:end].decode(codec)!r} in {short}"
+    except UnicodeDecodeError:
+        shown = ""
+    lines = data.decode(codec, errors="replace").splitlines()
+    words = lines[line - 1].strip()[:80] if line <= len(lines) else ""
+    return error(f"{name} is not UTF-8 but seems encoded as {label}: line {line}, column "
+                 f"{column} holds the byte 0x{data[start]:02X}{shown} (line {line}: {words!r})",
+                 iconv(iconv_name), path=str(path),
+                 details={"encoding": codec, "line": line, "column": column})
+
+
+#: hints for TOML syntax errors users make (the error text, then what to say)
+_TOML_HINTS = (
+    ("escape", "a Windows path in double quotes: write it in single quotes "
+               "('C:\\data\\roads.shp') or with forward slashes"),
+    ("overwrite", "a key or table is written twice"),
+    ("invalid value", "a text needs quotes (crs = \"EPSG:32616\"), a list brackets"),
+)
+
+
+def toml_error_hint(exc: Exception, text: str) -> str:
+    """`` (line N: '...'; <likely cause>)`` for a TOML syntax error, or ``""``.
+
+    Parameters
+    ----------
+    exc : Exception
+        The :class:`tomllib.TOMLDecodeError` (its text holds ``(at line N, column M)``).
+    text : str
+        The file's text.
+    """
+    m = re.search(r"line (\d+)", str(exc))
+    lines = text.splitlines()
+    parts = []
+    if m and 1 <= int(m.group(1)) <= len(lines):
+        parts.append(f"line {m.group(1)}: {lines[int(m.group(1)) - 1].strip()[:80]!r}")
+    said = str(exc).lower()
+    parts += [f"perhaps {hint}" for key, hint in _TOML_HINTS if key in said]
+    return f" ({'; '.join(parts)})" if parts else ""
 
 
 def _tomllib():
@@ -492,14 +733,15 @@ def _number(value: Any, key: str, where: str) -> float:
         )
     try:
         x = float(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise CameraError(
-            f"{where}: {key} must be a number, not {value!r}",
+            f"{where}: {key} must be a number, not {_show(value)}",
             "Write a plain number (millimetres unless stated otherwise)",
             details={"key": key},
         ) from None
     if not math.isfinite(x):
-        raise CameraError(f"{where}: {key} is not finite ({value!r})", "Give a finite number")
+        raise CameraError(f"{where}: {key} is not finite ({_show(value)})",
+                          "Give a finite number", details={"key": key})
     return x
 
 
@@ -514,10 +756,25 @@ def _positive(value: Any, key: str, where: str) -> float:
     return x
 
 
+def _show(value: Any, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for messages."""
+    try:
+        text = repr(value)
+    except RecursionError:  # pragma: no cover - a structure nested beyond repr's reach
+        text = f"<{type(value).__name__}>"
+    return text if len(text) <= limit else text[:limit - 5] + " ...]"
+
+
+def _is_list(value: Any) -> bool:
+    """A TOML array (a list or tuple; a numpy array from Python callers)."""
+    return isinstance(value, (list, tuple)) or (isinstance(value, np.ndarray)
+                                                and value.ndim == 1)
+
+
 def _pair(value: Any, key: str, where: str) -> tuple[float, float]:
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
+    if not _is_list(value) or len(value) != 2:
         raise CameraError(
-            f"{where}: {key} must be two numbers [x, y], not {value!r}",
+            f"{where}: {key} must be two numbers [x, y], not {_show(value)}",
             f"Write {key} = [x, y] in millimetres",
             details={"key": key},
         )
@@ -533,6 +790,11 @@ def _fiducials(value: Any, where: str) -> dict[str, tuple[float, float]]:
         )
     out = {}
     for fid, xy in value.items():
+        if isinstance(xy, Mapping):  # [fiducials.1] x = ..., or a table one level too deep
+            raise CameraError(
+                f"{where}: fiducial {fid!s} must be [x, y] (mm), not a table {_show(xy)}",
+                "Write one line per fiducial under [camera.fiducials], e.g. "
+                "1 = [-106.0, -106.0]", details={"key": f"fiducials.{fid!s}"})
         out[str(fid)] = _pair(xy, f"fiducial {fid!s}", where)
     if len(out) < 3:
         raise CameraError(
@@ -552,6 +814,7 @@ def _fiducials(value: Any, where: str) -> dict[str, tuple[float, float]]:
 
 
 def _collinear(xy: np.ndarray) -> bool:
+    xy = xy / max(float(np.abs(xy).max()), 1e-300)  # no overflow for any finite input
     d = xy - xy.mean(axis=0)
     s = np.linalg.svd(d, compute_uv=False)
     return bool(s[-1] <= 1e-9 * max(s[0], 1e-300))
@@ -605,17 +868,18 @@ def _pixel_size(value: Any, where: str) -> tuple[float, float]:
 
 
 def _image_size(value: Any, where: str) -> tuple[int, int]:
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
+    if not _is_list(value) or len(value) != 2:
         raise CameraError(
-            f"{where}: image_size must be [columns, rows], not {value!r}",
+            f"{where}: image_size must be [columns, rows], not {_show(value)}",
             "Write image_size = [columns, rows] in pixels",
         )
     out = []
     for v in value:
-        ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-        if not ok or not float(v).is_integer() or int(v) < 1:
+        if isinstance(v, (float, np.floating)) and math.isfinite(v) and float(v).is_integer():
+            v = int(v)
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v < 2**31:
             raise CameraError(
-                f"{where}: image_size must be two positive whole numbers, not {value!r}",
+                f"{where}: image_size must be two positive whole numbers, not {_show(value)}",
                 "Write image_size = [columns, rows] in pixels",
             )
         out.append(int(v))
