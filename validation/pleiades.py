@@ -1,7 +1,10 @@
 """Tie points and relative RPC bias of a real Pleiades pair, checked against s2p's DSM.
 
 Run:  PYTHONPATH=core python validation/pleiades.py [--data ../shared/data/rpc/pleiades_pair]
-      [--spacing 48] [--height-sigma 5] [--obs-sigma 0.1] [--no-dsm]
+      [--spacing 48] [--height-sigma 5] [--obs-sigma 0.1] [--no-dsm] [--fast] [--json FILE]
+
+``--fast`` (the fast tier of tests/test_validation.py): interest points on a 96 px grid
+(100 candidates instead of 400). Exit status 2 when the data are missing.
 
 Data: ``img_01.tif``, ``img_02.tif`` (Pleiades-1B panchromatic crops with RPCs) and
 ``dsm_s2p.tif`` (the surface model s2p computes from the pair, EPSG:32740, ellipsoidal
@@ -29,6 +32,27 @@ only by the tiny variation of the parallax per metre across the scene (its sigma
 printed). With the DSM prior the median height difference is zero by construction; the
 ``raw`` and ``across`` rows use no DSM information: they show how well the vendor RPCs,
 without and with the relative correction, agree with the DSM.
+
+Acceptance criteria (README "Real data"; exit status 1 when one is missed;
+validation/acceptance.py). The data and the computation are fixed (no random draw), so
+the bounds are the README's figures with a margin for other GDAL/PROJ versions and for
+the 96 px grid of ``--fast``:
+
+1. tie points: at least 55 % of the candidates accepted (README: 261 of 400);
+2. back-matching error of the accepted: median at most 0.05 px, 95th percentile at
+   most 0.15 px (README: 0.028, 0.106);
+3. relative bias across the epipolar direction (``shift+dsm``): -0.707 +- 0.03 px with
+   a sigma at most ``0.1 / sqrt(n)`` px (``n`` tie points in the adjustment; measured
+   0.004 px at 261 points); the ``shift`` run without a height prior agrees within
+   0.03 px;
+4. along the epipolar direction ties alone do not determine the shift: its sigma in
+   ``shift`` at least 10 px (README: 144 px), with the DSM prior at most ``3 / sqrt(n)``
+   px (measured 0.113 px at 261 points);
+5. the tie residuals' RMS: ``raw`` at least 0.2 px (the y-parallax; README 0.253), with
+   the shift at most 0.05 px (README 0.037);
+6. heights against the s2p DSM without DSM information (``raw`` and ``across``):
+   |median| at most 0.1 m, NMAD at most 0.5 m, RMSE at most 0.6 m, at least 20 points
+   (README: -0.01, 0.36, 0.43 m, 121 points).
 """
 
 from __future__ import annotations
@@ -44,6 +68,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "core"))
+
+from acceptance import Criteria  # noqa: E402
 
 from vectoradjust.adjust.bundle import adjust  # noqa: E402
 from vectoradjust.files.rpc import crs_frame, read_rpc  # noqa: E402
@@ -143,17 +169,52 @@ def print_table(rows: list) -> None:
               f"{dh['median']:+7.2f} {dh['nmad']:6.2f} {dh['rmse']:6.2f} {dh['count']:4d}")
 
 
+def criteria(ties, rows: list) -> Criteria:
+    """The acceptance criteria of the module docstring."""
+    acc = ties.accepted
+    back = ties.back_error[acc]
+    r = {row["name"]: row for row in rows}
+    crit = Criteria(f"Pleiades pair, {len(acc)} candidate tie points")
+    crit.add("tie points accepted (share of the candidates)", acc.mean(), 0.55, 1.0, "README")
+    crit.add("back-matching error, median (px)", np.median(back), 0.0, 0.05, "README")
+    crit.add("back-matching error, 95 % (px)", np.percentile(back, 95), 0.0, 0.15, "README")
+    crit.add("shift+dsm: bias across the epipolar direction (px)", r["shift+dsm"]["epi"][1],
+             -0.737, -0.677, "README")
+    n = r["shift+dsm"]["n_points"]
+    crit.add(f"shift+dsm: its sigma (px; {n} points)", r["shift+dsm"]["epi_sigma"][1], 0.0,
+             0.1 / np.sqrt(n))
+    crit.add("shift without a height prior: across-epipolar bias minus shift+dsm's (px)",
+             r["shift"]["epi"][1] - r["shift+dsm"]["epi"][1], -0.03, 0.03)
+    crit.add("shift: sigma along the epipolar direction (px)", r["shift"]["epi_sigma"][0],
+             10.0, None, "README")
+    crit.add("shift+dsm: sigma along the epipolar direction (px)",
+             r["shift+dsm"]["epi_sigma"][0], 0.0, 3.0 / np.sqrt(n))
+    crit.add("raw: tie residual RMS (px)", r["raw"]["rms_all"], 0.2, None, "README")
+    crit.add("shift: tie residual RMS (px)", r["shift"]["rms_all"], 0.0, 0.05, "README")
+    for name in ("raw", "across"):
+        dh = r[name]["dh"]
+        crit.add(f"{name}: heights minus DSM, median (m)", dh["median"], -0.1, 0.1, "README")
+        crit.add(f"{name}: heights minus DSM, NMAD (m)", dh["nmad"], 0.0, 0.5, "README")
+        crit.add(f"{name}: heights minus DSM, RMSE (m)", dh["rmse"], 0.0, 0.6, "README")
+        crit.add(f"{name}: heights compared (count)", dh["count"], 20, None)
+    return crit
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=DATA, help="the pleiades_pair folder")
-    ap.add_argument("--spacing", type=int, default=48, help="interest point grid (px)")
+    ap.add_argument("--spacing", type=int, default=None,
+                    help="interest point grid (px; default 48, --fast 96)")
     ap.add_argument("--height-sigma", type=float, default=5.0,
                     help="sigma (m) of the DSM height prior of shift+dsm")
     ap.add_argument("--obs-sigma", type=float, default=0.1,
                     help="a-priori sigma (px) of an image coordinate")
     ap.add_argument("--no-dsm", action="store_true",
                     help="predict at the RPC height offset (seed points), not the DSM")
+    ap.add_argument("--fast", action="store_true", help="the fast tier: a 96 px grid")
+    ap.add_argument("--json", help="write the criteria to this file")
     args = ap.parse_args(argv)
+    args.spacing = args.spacing or (96 if args.fast else 48)
     if not (args.data / "img_01.tif").is_file():
         print(f"Pleiades pair not found: {args.data}", file=sys.stderr)
         return 2
@@ -179,7 +240,7 @@ def main(argv=None) -> int:
     print("\nheights: triangulated minus the s2p DSM at the point (m); RMS: image "
           f"residuals (px); a-priori sigma {args.obs_sigma} px per coordinate; "
           f"bundle times: {times} s")
-    return 0
+    return criteria(ties, rows).report(args.json, {"rows": rows, "tie_seconds": seconds})
 
 
 if __name__ == "__main__":
