@@ -4,7 +4,9 @@
 :mod:`vectoradjust.files`, made by the simulator or by the QGIS plugin) and calls
 
 1. classify - :func:`vectoradjust.adjust.classify.classify_measurements`: control, check,
-   shape and tie points, and the checks that make an adjustment possible;
+   shape and tie points, and the checks that make an adjustment possible; around it the
+   plausibility checks of :mod:`vectoradjust.adjust.plausibility` name a gross mistake
+   (units, axes, CRS, approximate orientation, DEM) before it becomes a symptom;
 2. set up - :func:`vectoradjust.adjust.classify.build_problem`: the bundle problem;
 3. adjust - :func:`vectoradjust.adjust.passes.solve`: the bundle adjustment, with
    two-pass reweighting, variance components or data snooping as the project asks;
@@ -39,6 +41,7 @@ from vectoradjust.accuracy.summary import (
 from vectoradjust.accuracy.tables import LE90_FACTOR, tabulate_control, tabulate_database
 from vectoradjust.adjust.classify import build_problem, classify_measurements, reading_info
 from vectoradjust.adjust.passes import solve
+from vectoradjust.adjust.plausibility import check_classified, check_inputs
 from vectoradjust.errors import ProjectError
 from vectoradjust.model import ProjectData
 from vectoradjust.results import AdjustmentRun, DatabaseResult
@@ -288,7 +291,9 @@ def run(
     warnings: list = []
     selected = _selected_databases(data, vectors)
     report(0.02, "classifying measurements")
+    check_inputs(data, selected, warnings)  # the gross mistakes, named before their symptoms
     cls = classify_measurements(data, selected, warnings)
+    check_classified(data, cls, selected, warnings)
     report(0.06, "assembling the bundle problem")
     setup = build_problem(data, cls, selected, warnings)
     image_ids = cls.image_ids[setup.img_used]
