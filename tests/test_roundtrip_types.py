@@ -358,3 +358,12 @@ def test_where_filter_on_a_geojson_with_an_id_field(tmp_path):
     by_name = read_line_layer(str(path), "X", "name", CRS("EPSG:4326"), where="id > 0")
     assert by_name.feature_ids.tolist() == ["a", "c"]
     assert by_name.reading["excluded_feature_ids"] == ["b"]
+    # an "id" field with another field "Id" beside it: the id values are still read
+    path2 = tmp_path / "ids.geojson"
+    path2.write_text(json.dumps({"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {"id": k, "Id": None},
+         "geometry": {"type": "LineString", "coordinates": [[0, k], [1, k + 1]]}}
+        for k in (0, 3)]}))
+    by_id = read_line_layer(str(path2), "X", "id", CRS("EPSG:4326"), where="id > 0")
+    assert by_id.feature_ids.tolist() == ["3"]
+    assert by_id.reading["excluded_feature_ids"] == ["0"]

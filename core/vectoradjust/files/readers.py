@@ -212,8 +212,9 @@ def _typed_or_plain(p: Path, typed: dict, **kwargs):
             df = pyogrio.read_dataframe(p, **kwargs, **typed)
         except (ValueError, KeyError, TypeError):
             df = None
-        # the FID index as integers, not (fid, id) pairs
-        if df is not None and (not kwargs.get("fid_as_index") or df.index.dtype.kind in "iu"):
+        # the FID index as integers, not (fid, id) pairs; every column asked for
+        if (df is not None and (not kwargs.get("fid_as_index") or df.index.dtype.kind in "iu")
+                and all(c in df.columns for c in kwargs.get("columns") or [])):
             return df
     return pyogrio.read_dataframe(p, **kwargs)
 
@@ -246,6 +247,11 @@ def _filtered_ids(p: Path, layer: Optional[str], gdf, id_field: Optional[str]):
         excluded = [str(i) for i in np.flatnonzero(~kept)]
     else:
         ids = None
+        if id_field not in full.columns:  # a field GDAL reads as the FID (GeoJSON "id")
+            raise LayerError(f"{p}: id_field {id_field!r} cannot be read with the where "
+                             "filter (GDAL takes it for the feature id)",
+                             f"Use another id field, or no where filter, for {p.name}",
+                             path=str(p))
         values = _column_values(full[id_field])[0]
         excluded = [_id_text(v) for v, k in zip(values, kept) if not k and v is not None]
     return ids, excluded, len(full)
