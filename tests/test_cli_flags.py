@@ -139,6 +139,15 @@ def _ok(argv: list) -> Path:
 
 
 # ----------------------------------------------------------------------------- adjust
+def test_adjust_datum_free_runs_a_free_network(work, tmp_path):
+    out = tmp_path / "free"
+    assert main(["adjust", str(work / "osm.toml"), "-o", str(out), "-q", "--no-bands",
+                 "--datum", "free"]) == 0
+    summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    assert summary["datum"]["kind"] == "free network"
+    assert "relative" in summary["datum"]["note"]
+
+
 def test_adjust_conflation_raster_writes_the_field(work, tmp_path):
     import geopandas as gpd
     import rasterio
@@ -703,3 +712,64 @@ def test_the_readme_flags_are_the_parser_s():
             if f not in flags[cmd]:
                 unknown.append(f"{cmd} {f}")
     assert not unknown, unknown
+
+
+# ------------------------------------------------------------------ import-images (drone)
+def _drone_folder(folder: Path) -> Path:
+    """Three JPEGs with EXIF GPS (written by GDAL) flown north in UTM 33N."""
+    import warnings
+
+    import rasterio
+    import rasterio.shutil
+    from pyproj import Transformer
+    from rasterio.io import MemoryFile
+
+    folder.mkdir()
+    lon, lat = Transformer.from_crs("EPSG:32633", "EPSG:4326", always_xy=True).transform(
+        [500000.0] * 3, [5300000.0, 5300050.0, 5300100.0])
+    for k in range(3):
+        tags = {"EXIF_Make": "DJI", "EXIF_Model": "FC6310R", "EXIF_FocalLength": "(8.8)",
+                "EXIF_FocalLengthIn35mmFilm": "24", "EXIF_GPSLatitudeRef": "N",
+                "EXIF_GPSLongitudeRef": "E", "EXIF_GPSAltitude": "(150)",
+                "EXIF_GPSLatitude": f"({lat[k]:.9f})", "EXIF_GPSLongitude": f"({lon[k]:.9f})",
+                "EXIF_DateTimeOriginal": f"2020:06:01 10:00:0{k}"}
+        with warnings.catch_warnings(), MemoryFile() as mf:
+            warnings.simplefilter("ignore")
+            with mf.open(driver="GTiff", width=60, height=40, count=1, dtype="uint8") as m:
+                m.write(np.zeros((1, 40, 60), "uint8"))
+                m.update_tags(**tags)
+            with mf.open() as m:
+                rasterio.shutil.copy(m, str(folder / f"IMG_{k}.jpg"), driver="JPEG")
+    return folder
+
+
+def test_import_images_flags(tmp_path, capsys):
+    from vectoradjust.files.project import load_project
+
+    folder = _drone_folder(tmp_path / "images")
+    cams = tmp_path / "reconstruction.json"
+    cams.write_text(json.dumps([{"cameras": {"c": {
+        "projection_type": "brown", "width": 60, "height": 40, "focal_x": 0.66,
+        "focal_y": 0.66, "c_x": 0.0, "c_y": 0.0, "k1": -0.26, "k2": 0.1, "k3": 0.0,
+        "p1": 0.001, "p2": 0.0}}}]))
+    plain = tmp_path / "plain" / "p.toml"
+    assert main(["import-images", str(folder), "-o", str(plain)]) == 0
+    assert "3 images" in capsys.readouterr().out
+    tuned = tmp_path / "tuned" / "p.toml"
+    assert main(["import-images", str(folder), "--out", str(tuned), "--crs", "EPSG:32634",
+                 "--height", "ellipsoidal", "--gnss-sigma", "2", "4", "--camera-json",
+                 str(cams), "--quiet"]) == 0
+    assert capsys.readouterr().out == ""  # --quiet
+    for p in (plain, tuned):
+        (p.parent / "image_points.csv").write_text("point_id,image_id,x,y\n")
+    a, b = load_project(plain), load_project(tuned)
+    assert a.crs == "EPSG:32633" and b.crs == "EPSG:32634"  # --crs
+    assert abs(a.images[0].position[0] - 500000.0) < 0.01
+    assert abs(b.images[0].position[0] - 500000.0) > 1000  # another zone's eastings
+    assert a.heights is None and "NOT known" in plain.read_text()
+    assert b.heights == "ellipsoidal"  # --height
+    assert a.images[0].sigma_position == 5.0 and b.images[0].sigma_position == 4.0
+    assert a.camera.calibration.distortion_model == "none"
+    assert b.camera.calibration.distortion_model == "brown"  # --camera-json
+    assert b.camera.calibration.brown_coefficients[0] == -0.26
+    assert a.images[1].attitude[2] == 0.0  # flown north: kappa 0

@@ -199,12 +199,17 @@ def test_unknown_image_id_in_file(copy):
     _fails(copy, MeasurementError, r"image_points.csv, line 5: image 'Q' is not defined")
 
 
-def test_too_few_control_points_from_file(copy):
+def test_no_control_and_no_camera_priors_from_file(copy):
+    """No control point and no camera prior: the shifts of the roads are estimated, so
+    nothing fixes X and Y (a DatumError that names the fixes), before any output."""
     lines = (copy / "gcps.csv").read_text().splitlines()
-    keep = [lines[0]] + [r for r in lines[1:] if r.endswith("check")] + \
-        [r for r in lines[1:] if r.endswith("control")][:2]
+    keep = [lines[0]] + [r for r in lines[1:] if r.endswith("check")]
     (copy / "gcps.csv").write_text("\n".join(keep) + "\n")
-    _fails(copy, ControlError, "Only 2 control point")
+    text = (copy / "project.toml").read_text()
+    text = "\n".join(t for t in text.splitlines() if not t.startswith(("sigma_position",
+                                                                         "sigma_attitude")))
+    (copy / "project.toml").write_text(text + "\n")
+    _fails(copy, ControlError, r"datum is not fixed: the block can move freely in X and Y")
 
 
 def test_geographic_project_crs(copy):

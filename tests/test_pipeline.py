@@ -182,24 +182,36 @@ def test_unknown_image_id_names_the_line(scenario):
         run(data)
 
 
-def test_fewer_than_three_control_points(scenario):
+def test_two_control_points_and_the_roads_fix_the_datum(scenario):
+    """Two control points fix the shifts, scale and turn; the roads' DEM heights the
+    tilts: the run goes on and summary.json says what fixed the datum."""
     data = scenario.to_project_data()
     c = data.control
     keep = (c.role == "check") | np.isin(np.arange(len(c.role)),
                                          np.flatnonzero(c.role == "control")[:2])
     data.control = ControlPoints(c.point_id[keep], c.xyz[keep], c.sigma[keep], c.role[keep])
-    with pytest.raises(ControlError, match="Only 2 control point"):
-        run(data)
+    out = run(data)
+    rec = out.summary["datum"]
+    assert rec["sources"][0].startswith("2 measured control point(s)")
+    assert all(p["determined"] for p in rec["parameters"].values())
 
 
-def test_collinear_control_points(scenario):
+def test_two_control_points_without_roads_leave_a_rotation(scenario):
+    """Two control points, the roads' coordinates not used (huge sigma, no offsets) and
+    no camera priors: the rotation about the line through the two points is free -
+    named before the solve, not a singular matrix."""
     data = scenario.to_project_data()
     c = data.control
-    xyz = c.xyz.copy()
-    ctrl = c.role == "control"
-    xyz[ctrl, 1] = xyz[ctrl, 1].mean()  # all on one east-west line
-    data.control = replace(c, xyz=xyz)
-    with pytest.raises(ControlError, match="lie on one line"):
+    keep = (c.role == "check") | np.isin(np.arange(len(c.role)),
+                                         np.flatnonzero(c.role == "control")[:2])
+    data.control = ControlPoints(c.point_id[keep], c.xyz[keep], c.sigma[keep], c.role[keep])
+    for im in data.images:
+        im.sigma_position = None
+        im.sigma_attitude = None
+    data.vectors = [(replace(spec, sigma=(1e9, 1e9, 1e9), offset="none"), lay)
+                    for spec, lay in data.vectors]
+    with pytest.raises(ControlError, match=r"datum is not fixed: the block can "
+                       r"(tilt|move in a combination)"):
         run(data)
 
 

@@ -19,6 +19,7 @@ __all__ = [
     "CRSError",
     "DEMError",
     "ControlError",
+    "DatumError",
     "MeasurementError",
     "NothingAdjustedError",
     "CameraError",
@@ -96,6 +97,11 @@ class DEMError(InputFileError):
 
 class ControlError(VectorAdjustError):
     """Ground control is insufficient (too few points, collinear)."""
+
+
+class DatumError(ControlError):
+    """Nothing, or not enough, fixes the block in space (a datum defect): names what can
+    move freely and what would fix it."""
 
 
 class MeasurementError(VectorAdjustError):

@@ -286,6 +286,21 @@ class VectorSpec:
     #: attribute filter applied when the layer is read (an OGR SQL WHERE clause, e.g.
     #: ``highway IS NOT NULL``); None: every feature
     where: Optional[str] = None
+    #: ``"adjust"`` (default) or ``"control"``: a control database's coordinates fix the
+    #: datum with their stated sigma; its offset is never estimated freely (a database
+    #: cannot be offset against itself), only its stated systematic part is carried
+    role: str = "adjust"
+    #: (horizontal, vertical) systematic part of ``sigma`` (m): an error common to all the
+    #: database's vertices (a datum or digitising bias); None: not stated (zero)
+    systematic_sigma: Optional[tuple[float, float]] = None
+
+    @property
+    def systematic_variance(self) -> np.ndarray:
+        """Per-axis variance (3,) of the systematic part (zeros when not given)."""
+        if self.systematic_sigma is None:
+            return np.zeros(3)
+        h, v = (float(s) for s in self.systematic_sigma)
+        return np.array([h * h, h * h, v * v])
 
     @property
     def identification_variance(self) -> np.ndarray:
@@ -317,6 +332,10 @@ class AdjustmentSettings:
     #: which vertices reuse: "intersections" (object points where features meet, in both
     #: databases) or "all"
     reuse_points: str = "intersections"
+    #: ``"auto"``: the datum from the control, camera priors and control databases given
+    #: (checked before the solve); ``"free"``: a free network (no priors, inner
+    #: constraints), relative precision only
+    datum: str = "auto"
 
 
 @dataclass

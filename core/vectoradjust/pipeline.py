@@ -40,7 +40,7 @@ from vectoradjust.accuracy.summary import (
 )
 from vectoradjust.accuracy.tables import LE90_FACTOR, tabulate_control, tabulate_database
 from vectoradjust.adjust.classify import build_problem, classify_measurements, reading_info
-from vectoradjust.adjust.passes import solve
+from vectoradjust.adjust.passes import free_network, solve
 from vectoradjust.adjust.plausibility import check_classified, check_inputs
 from vectoradjust.errors import ProjectError
 from vectoradjust.model import ProjectData
@@ -121,6 +121,8 @@ def _summarise(out: AdjustmentRun, solution, report=None) -> None:
                 + out.summary["variance_factors"]["explanation"])
         out.warnings.append(note)
         out.summary["warnings"].append(note)
+    if solution.datum is not None:
+        out.summary["datum"] = solution.datum
     if solution.vce is not None:
         out.summary["variance_components"] = solution.vce
     if solution.snooping is not None:
@@ -230,6 +232,11 @@ def distinct_warnings(warnings: list, databases=()) -> list:
 
 def _roads_and_control(out: AdjustmentRun, cls, setup) -> None:
     """Do the databases agree with the control? (the same run without shape points)."""
+    if not (setup.point_kind == "control").any():  # no control points: nothing to compare
+        out.summary["roads_and_control"] = {
+            "harm": False, "text": "not done: no control points are measured (the datum "
+            "comes from camera priors or a control road database)"}
+        return
     rows = np.flatnonzero(cls.is_check & (setup.imap[cls.img_of_obs] >= 0))
     check_obs = ((rows, cls.ctrl_of_obs[rows], setup.imap[cls.img_of_obs[rows]])
                  if rows.size else None)
@@ -296,6 +303,8 @@ def run(
     check_classified(data, cls, selected, warnings)
     report(0.06, "assembling the bundle problem")
     setup = build_problem(data, cls, selected, warnings)
+    if data.settings.datum == "free":
+        free_network(setup, warnings)
     image_ids = cls.image_ids[setup.img_used]
     solution = solve(setup, data.settings, image_ids=image_ids, meas=data.measurements,
                      warnings=warnings, progress=report, is_cancelled=is_cancelled)
@@ -316,9 +325,13 @@ def run(
     report(0.81, "statistics, reliability and accuracy statements")
     _summarise(out, solution, report)
     _inputs(out)
-    report(0.9, "roads against the control")
-    _roads_and_control(out, cls, setup)
-    _conflation(out, solution, report, is_cancelled)
+    if setup.problem.free_datum:  # nothing to compare with, nothing to move
+        warnings.append("free network: the roads are not compared with the control and their "
+                        "unmeasured vertices are not conflated (no datum to move them into)")
+    else:
+        report(0.9, "roads against the control")
+        _roads_and_control(out, cls, setup)
+        _conflation(out, solution, report, is_cancelled)
     names = [spec.name for spec, _ in data.vectors]
     out.warnings = distinct_warnings(out.warnings, names)
     out.summary["warnings"] = list(out.warnings)

@@ -1519,8 +1519,11 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
     kappa_o[u_obj] = kappa
     near_o[u_obj] = fh.nearest
     cov_m = fh.cov
-    maxd = s.max_distance or (cov_m.practical_range if cov_m.sill > 0 else
-                              (max(cov_m.fit.get("lags") or [np.inf])))
+    if cov_m is None:  # no field fitted (too few finite residuals)
+        maxd = s.max_distance or np.inf
+    else:
+        maxd = s.max_distance or (cov_m.practical_range if cov_m.sill > 0 else
+                                  (max(cov_m.fit.get("lags") or [np.inf])))
     vo = d.shape.vertex_object
     u = ~meas_v
     # interpolated: among the measured points (inside their convex hull) and within

@@ -35,6 +35,7 @@ from typing import Callable, Optional
 import numpy as np
 import scipy.linalg
 
+from vectoradjust.adjust.datum import free_network_correction
 from vectoradjust.adjust.intersection import (  # noqa: F401 (inv3x3, ray_intersection: API)
     _block_sum,
     approximate_points,
@@ -162,6 +163,10 @@ class BundleProblem:
     #: every image is a frame camera. For an RPC image the six parameters are its
     #: image-space bias (px) and its observations are pixels (column, row)
     sensors: Optional[SensorSet] = None
+    #: a free network: no prior fixes the datum, the reduced system is solved with inner
+    #: constraints over the cameras (:mod:`vectoradjust.adjust.datum`; frame cameras and
+    #: no priors only)
+    free_datum: bool = False
 
     def __post_init__(self) -> None:
         self.principal_point = np.asarray(self.principal_point, float).reshape(2)
@@ -219,6 +224,8 @@ class BundleProblem:
         fixed = self.eo_fixed
         n += int(((self.eo_weight > 0) & ~fixed).sum())
         u = 6 * self.n_images - int(fixed.sum()) + 3 * self.n_points
+        if self.free_datum:  # the seven datum parameters are not estimable
+            u -= 7
         return n, u
 
 
@@ -685,6 +692,8 @@ class _Step:
     factor: tuple
     eo: np.ndarray  # the linearisation point
     xyz: np.ndarray
+    #: free network: what to subtract from the inverse of the regularised system
+    free_corr: Optional[np.ndarray] = None
 
 
 def _eliminate_points(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np.ndarray,
@@ -773,6 +782,10 @@ def _gauss_newton_step(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: n
                        check_points: bool) -> _Step:
     """Corrections of one iteration: reduced camera system, then point back-substitution."""
     s, rhs, parts, tps, lonely_inv, vtpv = _eliminate_points(prob, lay, eo, xyz, check_points)
+    free_corr = None
+    if prob.free_datum:  # inner constraints over the cameras (the minimum-norm step)
+        g2, a, free_corr = free_network_correction(eo, s)
+        s += a * (g2 @ g2.T)
     factor, dx_e = _solve_reduced(s, rhs)
     dx_p = np.zeros((prob.n_points, 3))
     flat = dx_e.ravel()
@@ -786,7 +799,7 @@ def _gauss_newton_step(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: n
         tp = np.einsum("mij,mj->mi", prob.prior_weight[lo], d)
         dx_p[lo] = np.einsum("mij,mj->mi", lonely_inv, tp)
     return _Step(dx_e=dx_e, dx_p=dx_p, vtpv_image=vtpv, parts=parts, lonely_inv=lonely_inv,
-                 factor=factor, eo=eo.copy(), xyz=xyz.copy())
+                 factor=factor, eo=eo.copy(), xyz=xyz.copy(), free_corr=free_corr)
 
 
 def _check_diverged(it: int, max_pos: float, max_ang: float, history: list) -> None:
@@ -906,6 +919,8 @@ def _converged_result(prob: BundleProblem, lay: _Layout, eo: np.ndarray, xyz: np
     s0sq = vtpv / dof if dof > 0 else float("nan")
     n = prob.n_images
     s_inv = scipy.linalg.cho_solve(step.factor, np.eye(6 * n))
+    if step.free_corr is not None:  # the pseudo-inverse: inner constraints over the cameras
+        s_inv = s_inv - step.free_corr
     s_inv = 0.5 * (s_inv + s_inv.T)
     fixed = prob.eo_fixed
     if fixed.any():  # held parameters have no variance

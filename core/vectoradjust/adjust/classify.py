@@ -5,7 +5,8 @@ The first stages of :func:`vectoradjust.pipeline.run`:
 1. :func:`classify_measurements` - every measurement's image and point: a control or
    check point of the control file, a shape point (vertex) of a road database, or else a
    tie point; the checks that make an adjustment possible (known images, unambiguous ids,
-   tie points on two images, at least three non-collinear control points).
+   tie points on two images; whether the datum is fixed is decided later, by
+   :mod:`vectoradjust.adjust.datum`).
 2. :func:`build_problem` - the object points (control, the selected databases' shape
    points, tie points) with their priors, the images with their approximate exterior
    orientation, and the :class:`~vectoradjust.adjust.bundle.BundleProblem`.
@@ -29,7 +30,6 @@ from vectoradjust.adjust.intersection import (
 )
 from vectoradjust.adjust.shapepoints import ShapePoints, extract_shape_points, lookup, string_codes
 from vectoradjust.errors import (
-    ControlError,
     DEMError,
     LayerError,
     MeasurementError,
@@ -175,14 +175,6 @@ def _excluded_by_filter(meas_ids: np.ndarray, name: str, layer) -> np.ndarray:
         & ~other
 
 
-def _collinear(xyz: np.ndarray) -> bool:
-    """Whether points lie (nearly) on one line in plan."""
-    xy = xyz[:, :2] - xyz[:, :2].mean(axis=0)
-    s = np.linalg.svd(xy, compute_uv=False)
-    extent = max(float(s[0]), 1e-9)
-    return len(xyz) < 3 or float(s[1]) / extent < 1e-3
-
-
 # --------------------------------------------------------------------------- classify
 def _image_of_measurements(data: ProjectData):
     """Ids of the images and the image index of every measurement (unknown image: error)."""
@@ -318,27 +310,17 @@ def _tie_points(meas, is_tie: np.ndarray):
 
 
 def _control_used(ctrl, ctrl_of_obs: np.ndarray, is_ctrl: np.ndarray, warnings: list):
-    """Control points measured on an image; fewer than 3 or collinear ones: error."""
+    """Control points measured on an image (a warning for each one measured on none).
+
+    How many are needed depends on what else fixes the datum (camera priors, control
+    databases, DEM heights): :func:`vectoradjust.adjust.datum.analyse_datum` decides
+    before the solve, in :func:`vectoradjust.adjust.passes.solve`.
+    """
     ctrl_used = np.zeros(len(ctrl.point_id), bool)
     ctrl_used[ctrl_of_obs[is_ctrl]] = True
     for j in np.flatnonzero((ctrl.role == "control") & ~ctrl_used):
         warnings.append(f"control point {str(ctrl.point_id[j])!r} ({ctrl.source}, line "
                         f"{int(ctrl.rows[j])}) is measured on no image and was not used")
-    n_ctrl = int(ctrl_used.sum())
-    if n_ctrl < 3:
-        raise ControlError(
-            f"Only {n_ctrl} control point(s) are measured on the images ({ctrl.source}); at least "
-            "3 are needed to fix the datum",
-            "Measure at least 3 well-spread control points (role = control) on the images",
-            path=ctrl.source,
-        )
-    if _collinear(ctrl.xyz[ctrl_used]):
-        raise ControlError(
-            f"The {n_ctrl} measured control points of {ctrl.source} lie on one line; the rotation "
-            "about that line is not determined",
-            "Add control points away from that line (spread them over the stereo model)",
-            path=ctrl.source,
-        )
     return ctrl_used
 
 
@@ -437,8 +419,8 @@ def classify_measurements(data: ProjectData, selected: set, warnings: list) -> C
     NothingAdjustedError
         A selected database has no measured shape point (the message names the likely
         cause: no or another ``id_field``, ids that match no measurement, a ``where`` filter).
-    MeasurementError, ControlError
-        Unknown image, ambiguous id, tie point on one image, too few or collinear control.
+    MeasurementError
+        Unknown image, ambiguous id, tie point on one image.
     """
     meas, ctrl = data.measurements, data.control
     image_ids, img_of_obs = _image_of_measurements(data)
@@ -548,13 +530,22 @@ def _add_shape_points(pts: _Points, cls: Classification, selected: set) -> list:
         vertex_point = omap[sp.vertex_object]
         xyz = sp.object_xyz[used_obj]
         _check_heights(spec, sp, used_obj, xyz)
-        # the prior X_db = X_id + (e_db - e_id): database and identification error
-        var = np.asarray(spec.sigma, float) ** 2 + spec.identification_variance
+        # the prior X_db = X_id + (e_db - e_id): database and identification error; the
+        # systematic part of a control database is carried by its offset's prior instead
+        var = (np.asarray(spec.sigma, float) ** 2 - _systematic(spec)
+               + spec.identification_variance)
         w = np.zeros((len(used_obj), 3, 3))
         w[:, [0, 1, 2], [0, 1, 2]] = 1.0 / var
         pts.add(sp.object_ids[used_obj].tolist(), "shape", spec.name, xyz, w)
         db_results.append(DatabaseResult(spec, sp, vertex_point, sigma_used=tuple(spec.sigma)))
     return db_results
+
+
+def _systematic(spec) -> np.ndarray:
+    """Per-axis variance of a control database's systematic part (0 for the others)."""
+    if getattr(spec, "role", "adjust") != "control":
+        return np.zeros(3)
+    return spec.systematic_variance
 
 
 def _add_tie_points(pts: _Points, cls: Classification) -> int:

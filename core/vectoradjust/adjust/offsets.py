@@ -25,6 +25,7 @@ Numpy and scipy only.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -67,6 +68,16 @@ def _kind_design(kind: str, xyz: np.ndarray, center: np.ndarray) -> np.ndarray:
     return g
 
 
+def _columns(kinds) -> list:
+    """Parameter indices of each database of the given offset kinds."""
+    cols, k = [], 0
+    for kind in kinds:
+        n = len(OFFSET_KINDS[kind])
+        cols.append(list(range(k, k + n)))
+        k += n
+    return cols
+
+
 @dataclass
 class OffsetModel:
     """Which bundle points belong to which database's offset, and how.
@@ -96,10 +107,15 @@ class OffsetModel:
     centers: list
     g: np.ndarray
     dems: list = field(default_factory=list)
+    #: (q,) prior weight of each parameter (1/sigma^2; 0: estimated freely): a control
+    #: database's stated systematic part, carried with the datum, not estimated
+    prior_weight: Optional[np.ndarray] = None
 
     @classmethod
-    def build(cls, names, kinds, points, db_xyz: np.ndarray, dems=None) -> OffsetModel:
-        """The model of the given databases from the points' database coordinates."""
+    def build(cls, names, kinds, points, db_xyz: np.ndarray, dems=None,
+              prior_sigma=None) -> OffsetModel:
+        """The model of the given databases from the points' database coordinates;
+        ``prior_sigma``: per database None (free) or the sigma of each parameter."""
         q = sum(len(OFFSET_KINDS[k]) for k in kinds)
         g = np.zeros((len(db_xyz), 3, q))
         centers, c0 = [], 0
@@ -109,8 +125,13 @@ class OffsetModel:
             g[pts, :, c0:c0 + qk] = _kind_design(kind, db_xyz[pts], center)
             centers.append(center)
             c0 += qk
+        pw = np.zeros(q)
+        for cols, sig in zip(_columns(kinds), prior_sigma or [None] * len(kinds)):
+            if sig is not None:
+                sig = np.broadcast_to(np.asarray(sig, float), (len(cols),))
+                pw[cols] = np.where(sig > 0, 1.0 / np.where(sig > 0, sig, 1.0) ** 2, 0.0)
         return cls(list(names), list(kinds), list(points), centers, g,
-                   list(dems) if dems is not None else [None] * len(names))
+                   list(dems) if dems is not None else [None] * len(names), pw)
 
     @property
     def n_params(self) -> int:
@@ -119,12 +140,14 @@ class OffsetModel:
 
     def columns(self) -> list:
         """Parameter indices of each database."""
-        cols, k = [], 0
-        for kind in self.kinds:
-            n = len(OFFSET_KINDS[kind])
-            cols.append(list(range(k, k + n)))
-            k += n
-        return cols
+        return _columns(self.kinds)
+
+    @property
+    def weights(self) -> np.ndarray:
+        """(q,) prior weights of the parameters (zeros: all free)."""
+        if self.prior_weight is None:
+            return np.zeros(self.n_params)
+        return np.asarray(self.prior_weight, float)
 
     def displacement(self, values: np.ndarray) -> np.ndarray:
         """The offset ``G T`` of every bundle point (m, 3)."""
@@ -225,17 +248,24 @@ def offset_normals(result: BundleResult, model: OffsetModel, offsets: np.ndarray
     w = model.g.reshape(-1, q).T @ b.reshape(-1, q)
     g = b.reshape(-1, q).T @ d.reshape(-1)
     btqb = b.reshape(-1, q).T @ qb.reshape(-1, q)
-    n_red = w - btqb
+    pw = model.weights  # a prior on an offset (a control database's systematic part)
+    n_red = w - btqb + np.diag(pw)
+    g = g - pw * np.asarray(offsets, float)
     return 0.5 * (n_red + n_red.T), g, qb, s_ztb
 
 
-def misclosure(result: BundleResult, model: OffsetModel) -> np.ndarray:
+def misclosure(result: BundleResult, model: OffsetModel,
+               offsets: Optional[np.ndarray] = None) -> np.ndarray:
     """``g`` of :func:`offset_normals` alone (no ``Q_xx B``): the offsets' gradient at a
-    bundle solution, zero at the joint solution."""
+    bundle solution, zero at the joint solution (``offsets``: the values the problem was
+    built with, needed where offsets have priors)."""
     prob = result.problem
     b = _b_blocks(prob, model)
     d = np.where(prob.has_prior[:, None], prob.prior_xyz - result.xyz, 0.0)
-    return b.reshape(-1, b.shape[2]).T @ d.reshape(-1)
+    g = b.reshape(-1, b.shape[2]).T @ d.reshape(-1)
+    if offsets is not None:
+        g = g - model.weights * np.asarray(offsets, float)
+    return g
 
 
 def newton_step(result: BundleResult, model: OffsetModel, offsets: np.ndarray):
@@ -282,7 +312,7 @@ def shifted_problem(base: BundleProblem, db_xyz: np.ndarray, model: OffsetModel,
                          base.eo0, base.eo_sigma,
                          base.xyz0 if xyz0 is None else xyz0, prior, base.prior_weight,
                          base.obs_point, base.obs_image, base.obs_xy, base.obs_sigma,
-                         eo_start=eo_start, sensors=base.sensors)
+                         eo_start=eo_start, sensors=base.sensors, free_datum=base.free_datum)
 
 
 def apply_offsets(result: BundleResult, model: OffsetModel, estimate: OffsetEstimate,
@@ -297,8 +327,12 @@ def apply_offsets(result: BundleResult, model: OffsetModel, estimate: OffsetEsti
     q = model.n_params
     cof = estimate.cofactor
     old_vf = result.variance_factor
+    pw = model.weights  # offsets with a prior are observed too (their prior mean is 0)
+    n_prior = int((pw > 0).sum())
+    result.vtpv = float(result.vtpv + (pw * np.asarray(estimate.values, float) ** 2).sum())
+    result.n_obs += n_prior
     result.n_unknowns += q
-    result.dof -= q
+    result.dof -= q - n_prior
     result.sigma0_squared = (float(result.vtpv / result.dof) if result.dof > 0
                              else float("nan"))
     new_vf = result.variance_factor

@@ -9,17 +9,18 @@ estimation (``"vce"``, DESIGN section 3), followed by data snooping where
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Optional
 
 import numpy as np
 
+from vectoradjust.adjust import datum
 from vectoradjust.adjust import offsets as off
 from vectoradjust.adjust.bundle import BundleProblem, BundleResult, adjust
 from vectoradjust.adjust.classify import BundleSetup
 from vectoradjust.formatting import float_or_none
 
-__all__ = ["Solution", "solve"]
+__all__ = ["Solution", "solve", "datum_record", "free_network"]
 
 Progress = Callable[[float, str], None]
 
@@ -62,6 +63,8 @@ class Solution:
     snooping: Optional[dict] = None
     offsets: Optional[dict] = None
     kept_groups: list = field(default_factory=list)
+    #: what fixes the datum (:func:`datum_record`), for summary.json
+    datum: Optional[dict] = None
 
 
 def _pass_record(label, result: BundleResult, iterations: int, dbs: list) -> dict:
@@ -155,7 +158,7 @@ def _reweight_two_pass(setup: BundleSetup, result: BundleResult, warnings: list)
     p = setup.problem
     setup.problem = BundleProblem(p.focal_length, p.principal_point, p.eo0, p.eo_sigma, p.xyz0,
                                   p.prior_xyz, weight, p.obs_point, p.obs_image, p.obs_xy,
-                                  p.obs_sigma, sensors=p.sensors)
+                                  p.obs_sigma, sensors=p.sensors, free_datum=p.free_datum)
     return kept
 
 
@@ -320,16 +323,29 @@ def _scale_covariances(sol: Solution, setup: BundleSetup, settings, kept: list) 
 
 # --------------------------------------------------------------------------- offsets
 def _offset_model(setup: BundleSetup, warnings: list) -> Optional[off.OffsetModel]:
-    """The databases whose systematic offset is estimated (None: none is)."""
-    names, kinds, points, dems = [], [], [], []
+    """The databases whose systematic offset is estimated (None: none is).
+
+    A control database (``role = "control"``) is never offset freely: with a stated
+    ``systematic_sigma`` it gets a 3D shift whose prior is that systematic part (an
+    error common to its vertices, carried into the covariances, not estimated from
+    the data); without one, no offset.
+    """
+    names, kinds, points, dems, priors = [], [], [], [], []
     for d in setup.databases:
         kind = getattr(d.spec, "offset", "none") or "none"
+        prior = None
+        if getattr(d.spec, "role", "adjust") == "control":
+            sys_ = np.sqrt(d.spec.systematic_variance)
+            kind = "shift3d" if (sys_ > 0).any() else "none"
+            prior = np.where(sys_ > 0, sys_, 1e-6)  # a zero part: held (1 um)
         pts = np.flatnonzero((setup.point_kind == "shape") & (setup.point_database == d.name))
-        if off.OFFSET_KINDS[kind] and len(pts) >= _MIN_OFFSET_POINTS[kind]:
+        if off.OFFSET_KINDS[kind] and (prior is not None or
+                                       len(pts) >= _MIN_OFFSET_POINTS[kind]):
             names.append(d.name)
             kinds.append(kind)
             points.append(pts)
             dems.append(getattr(d.shape.layer, "dem", None))
+            priors.append(prior)
         elif off.OFFSET_KINDS[kind]:
             warnings.append(
                 f"{d.name}: offset = {kind!r} needs at least {_MIN_OFFSET_POINTS[kind]} "
@@ -337,7 +353,7 @@ def _offset_model(setup: BundleSetup, warnings: list) -> Optional[off.OffsetMode
                 "for it (measure more points, or choose offset = \"shift\")")
     if not names:
         return None
-    return off.OffsetModel.build(names, kinds, points, setup.db_prior, dems)
+    return off.OffsetModel.build(names, kinds, points, setup.db_prior, dems, priors)
 
 
 def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dict):
@@ -382,7 +398,7 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
         result = None  # the previous solution's arrays go before the next are made
         result = adjust(setup.problem, progress=progress, **tight)
         exact = False
-        g = off.misclosure(result, model)
+        g = off.misclosure(result, model, values)
         new, gmax = values + cof @ g, float(np.abs(g).max(initial=0.0))
     if not exact:
         progress(0.7, "database offsets: their cofactor at the solution")
@@ -442,7 +458,8 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
                      "tolerance_angle": settings.tolerance_angle,
                      "is_cancelled": is_cancelled}
     dbs = setup.databases
-    model = _offset_model(setup, warnings)
+    model = None if setup.problem.free_datum else _offset_model(setup, warnings)
+    datum_rec = datum_record(setup, model, warnings)  # a datum defect stops here, named, before the solve
     state: dict = {}
     n_pass = 2 if settings.reweight == "two-pass" and dbs else 1
     sol: Optional[Solution] = None
@@ -477,5 +494,124 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
     _scale_covariances(sol, setup, settings, kept)
     if model is not None:
         sol.offsets = _offset_record(model, state, sol.result)
+        _relative_to_control(sol.offsets, setup)
     sol.problem = setup.problem
+    sol.datum = datum_rec
     return sol
+
+
+# --------------------------------------------------------------------------- datum
+def _datum_sources(setup: BundleSetup) -> list:
+    """What carries datum information, in words (for messages and summary.json)."""
+    prob = setup.problem
+    out = []
+    ctrl = setup.point_kind == "control"
+    w = prob.prior_weight
+    n_xy = int((ctrl & (w[:, 0, 0] > 0) & (w[:, 1, 1] > 0)).sum())
+    n_z = int((ctrl & (w[:, 2, 2] > 0)).sum())
+    if ctrl.any():
+        out.append(f"{int(ctrl.sum())} measured control point(s) ({n_xy} with X, Y; "
+                   f"{n_z} with Z)")
+    we = np.where(prob.eo_fixed, 0.0, prob.eo_weight)
+    n_pos = int((we[:, :3] > 0).any(axis=1).sum())
+    n_att = int((we[:, 3:] > 0).any(axis=1).sum())
+    if n_pos:
+        out.append(f"camera position priors on {n_pos} of {prob.n_images} image(s)")
+    if n_att:
+        out.append(f"attitude priors on {n_att} image(s)")
+    for d in setup.databases:
+        role = getattr(d.spec, "role", "adjust")
+        heights = "DEM heights" if d.spec.dem else "heights from the layer"
+        if role == "control":
+            sys_ = d.spec.systematic_sigma
+            out.append(f"road database {d.name} as control (sigma {list(d.spec.sigma)} m, "
+                       + (f"systematic part {list(sys_)} m" if sys_ else
+                          "no systematic part stated") + f", {heights})")
+        else:
+            kind = getattr(d.spec, "offset", "none") or "none"
+            out.append(f"road database {d.name} (sigma {list(d.spec.sigma)} m, {heights}"
+                       + (f"; its {kind} is estimated, so it fixes no shift)"
+                          if kind != "none" else ")"))
+    return out
+
+
+def datum_record(setup: BundleSetup, model, warnings: Optional[list] = None) -> dict:
+    """Check that the datum is fixed (frame cameras) and describe what fixes it.
+
+    Raises
+    ------
+    DatumError
+        A datum parameter is not determined: the message says which and how to fix it.
+    """
+    prob = setup.problem
+    if prob.free_datum:
+        return {"kind": "free network", "note": datum.FREE_NETWORK_NOTE}
+    if prob.sensors is not None and prob.is_rpc.any():
+        return {"kind": "sensor model", "note": "the RPCs place the images on the ground; "
+                "their bias parameters are adjusted"}
+    g = None if model is None else model.g
+    pw = None if model is None else model.weights
+    a = datum.analyse_datum(prob.eo0, prob.xyz0, prob.prior_weight,
+                            np.where(prob.eo_fixed, 0.0, prob.eo_weight), g, pw,
+                            sources=_datum_sources(setup))
+    datum.check_datum(a)
+    rec = a.to_dict()
+    if a.weak and warnings is not None:
+        sig = {p: s for p, s in zip(datum.DATUM_PARAMETERS, a.sigma)}
+        warnings.append("the datum is only weakly fixed: " + ", ".join(
+            f"{p} to {sig[p]:.3g} m" for p in a.weak) + " (by " + "; ".join(a.sources) +
+            "); positions carry that uncertainty: add control points, tighter camera "
+            "priors or a control road database")
+    rec["kind"] = "prior information"
+    return rec
+
+
+def free_network(setup: BundleSetup, warnings: list) -> None:
+    """Turn ``setup`` into a free network (in place): no point or camera prior, inner
+    constraints over the cameras. A point seen on one image only cannot be intersected
+    without its prior: its ray is left out and it keeps its database position (a
+    warning says how many).
+
+    Raises
+    ------
+    DatumError
+        RPC images (their sensor model fixes the datum; nothing is free).
+    """
+    from vectoradjust.adjust.reliability import subset_problem
+    from vectoradjust.errors import DatumError
+
+    prob = setup.problem
+    if prob.sensors is not None and prob.is_rpc.any():
+        raise DatumError("A free network was asked for, but the block has RPC images: their "
+                         "sensor model places them on the ground, so nothing is free",
+                         'Leave datum = "free" out for blocks with RPC images')
+    rays = np.bincount(prob.obs_point, minlength=prob.n_points)
+    weight = np.where((rays >= 2)[:, None, None], 0.0, prob.prior_weight)
+    free = replace(prob, prior_weight=weight, eo_sigma=np.full(prob.eo_sigma.shape, np.inf),
+                   free_datum=True)
+    sub, obs_index, _ = subset_problem(free, rays[prob.obs_point] >= 2)
+    setup.problem = sub
+    setup.obs_rows = setup.obs_rows[obs_index]
+    n_single = int((rays == 1).sum())
+    if n_single:
+        warnings.append(f"free network: {n_single} point(s) measured on one image only cannot "
+                        "be intersected without a prior; they keep their database position")
+    ctrl = int(((setup.point_kind == "control") & (rays >= 2)).sum())
+    if ctrl:
+        warnings.append(f"free network: the {ctrl} control point(s) are used as tie points "
+                        "(their coordinates are not used; compare them afterwards)")
+
+
+def _relative_to_control(offsets: dict, setup: BundleSetup) -> None:
+    """Say that the other databases' offsets are relative to a control database."""
+    control = [d.name for d in setup.databases if getattr(d.spec, "role", "") == "control"]
+    if not control:
+        return
+    for name, rec in offsets.items():
+        if name in control:
+            rec["note"] = ("systematic part of a control database: carried with its stated "
+                           "prior (systematic_sigma), not estimated freely")
+        elif not (setup.point_kind == "control").any():
+            rec["relative_to"] = control
+            rec["note"] = ("relative to the control database(s) " + ", ".join(control) +
+                           " (no control points): an offset the control shares is not seen")

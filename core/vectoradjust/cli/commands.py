@@ -20,6 +20,7 @@ from typing import Optional
 
 from vectoradjust import __version__
 from vectoradjust.cli import buffer as cli_buffer
+from vectoradjust.cli import drone as cli_drone
 from vectoradjust.cli import many as cli_many
 from vectoradjust.cli import measure as cli_measure
 from vectoradjust.cli import propagate as cli_propagate
@@ -434,6 +435,8 @@ def _adjust_into(args, folder):
     # --vectors are recognised as their shape points and left out (as in compare),
     # not turned into tie points
     spec = load_project(args.project)
+    if getattr(args, "datum", None):  # the command line overrides [adjustment] datum
+        spec.settings.datum = args.datum
     data = load_project_data(spec, progress=lambda f, m: bar(0.02 * f, m))
     truth = cli_buffer.project_truth(spec)
     # true centrelines: their tests' half on the database lines runs beside the adjustment
@@ -704,6 +707,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="adjust only this [[vectors]] entry (repeatable)")
     a.add_argument("--no-bands", action="store_true",
                    help="do not write the uncertainty_bands layer (saves time on large runs)")
+    a.add_argument("--datum", choices=("auto", "free"), default=None,
+                   help="auto: the datum from control points, camera priors and control "
+                        "databases (checked before the solve); free: a free network (no "
+                        "priors, inner constraints), relative precision only (default: the "
+                        "project's [adjustment] datum, else auto)")
     a.add_argument("--conflation-raster", action="store_true",
                    help="also write each database's conflation field as a GeoTIFF "
                         "(conflation_<name>.tif: dX, dY, dZ, CE90, LE90)")
@@ -722,6 +730,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_study.add_parser(sub)
     cli_many.add_parser(sub)
     cli_measure.add_parser(sub)
+    cli_drone.add_parser(sub)
     return p
 
 

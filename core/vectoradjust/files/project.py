@@ -56,11 +56,12 @@ PROJECT_SCHEMA: dict = {
     "[measurements]": ("path", "unit", "sigma", "fiducials"),
     "[control]": ("path", "crs", "vertical_crs"),
     "[[vectors]]": ("name", "path", "layer", "where", "id_field", "sigma",
-                    "identification_sigma", "offset", "dem", "truth"),
+                    "identification_sigma", "offset", "dem", "truth", "role",
+                    "systematic_sigma"),
     "[adjustment]": ("max_iterations", "reweight", "alpha", "snooping", "alpha0", "beta0",
                      "max_removals", "covariance_scale", "tolerance_position",
                      "tolerance_angle", "merge_tolerance", "reuse_tolerance",
-                     "reuse_points"),
+                     "reuse_points", "datum"),
     "[truth]": ("path", "widths"),
     "[qa]": tuple(_QA_KEYS),
     "[conflation]": CONFLATION_KEYS,
@@ -567,8 +568,37 @@ def _parse_vectors(vectors_raw: Any, base_dir: Path, where: str) -> list:
             identification_sigma=_identification(w, v.get("identification_sigma")),
             offset=_offset_kind(w, v.get("offset", "shift")),
             where=_text(w, "where", v.get("where"), "where = \"highway IS NOT NULL\""),
+            **_control_role(w, v, sigma),
         ))
     return vectors
+
+
+def _control_role(where: str, v: Mapping, sigma) -> dict:
+    """``role`` (adjust | control) and ``systematic_sigma`` of a [[vectors]] entry."""
+    role = v.get("role", "adjust")
+    if role not in ("adjust", "control"):
+        raise _err(where, f"role must be \"adjust\" or \"control\", not {_show(role)}",
+                   'Write role = "control" for a database that fixes the datum (no GCPs), '
+                   "or leave role out")
+    sys_ = _identification(where, v.get("systematic_sigma"), "systematic_sigma")
+    if sys_ is not None:
+        h, z = sys_
+        if h >= min(sigma[0], sigma[1]) or (z > 0 and z >= sigma[2]):
+            raise _err(where, f"systematic_sigma {list(sys_)} must be smaller than sigma "
+                       f"{[float(x) for x in sigma]} (it is the part of sigma common to all "
+                       "vertices)", "State sigma as the whole error and systematic_sigma as "
+                       "its systematic part, e.g. sigma = [1.5, 1.5, 3] with "
+                       "systematic_sigma = [1.0, 2.0]")
+    if sys_ is not None and role != "control" and v.get("offset", "shift") != "none":
+        raise _err(where, "systematic_sigma is given but the database's offset is estimated "
+                   "freely (offset = " + repr(v.get("offset", "shift")) + ")",
+                   'Use role = "control" (the systematic part is then carried, not '
+                   'estimated), or offset = "none", or leave systematic_sigma out')
+    if role == "control" and v.get("offset", "shift") not in ("shift", "none"):
+        raise _err(where, f"a control database cannot have offset = {v.get('offset')!r}: "
+                   "a database cannot be offset against itself",
+                   "Leave offset out (the systematic part comes from systematic_sigma)")
+    return {"role": role, "systematic_sigma": sys_}
 
 
 def _id_field(where: str, value: Any) -> Optional[str]:
@@ -591,19 +621,20 @@ def _text(where: str, key: str, value: Any, example: str) -> Optional[str]:
     return value.strip()
 
 
-def _identification(where: str, value: Any):
-    """``identification_sigma``: a number (horizontal; vertical 0) or [horizontal, vertical]."""
+def _identification(where: str, value: Any, key: str = "identification_sigma"):
+    """``identification_sigma`` (or ``systematic_sigma``): a number (horizontal; vertical 0)
+    or [horizontal, vertical]."""
     if value is None:
         return None
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         value = [value, 0.0]
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise _err(where, f"identification_sigma must be a number or [horizontal, vertical], "
-                   f"not {value!r}", "Write identification_sigma = 0.5 or [0.5, 0.1] (metres)")
-    h, v = (_number(where, "identification_sigma", x) for x in value)
+        raise _err(where, f"{key} must be a number or [horizontal, vertical], "
+                   f"not {value!r}", f"Write {key} = 0.5 or [0.5, 0.1] (metres)")
+    h, v = (_number(where, key, x) for x in value)
     if h < 0 or v < 0:
-        raise _err(where, f"identification_sigma must not be negative, not {value!r}",
-                   "Write identification_sigma = 0.5 or [0.5, 0.1] (metres)")
+        raise _err(where, f"{key} must not be negative, not {value!r}",
+                   f"Write {key} = 0.5 or [0.5, 0.1] (metres)")
     return (h, v)
 
 
@@ -663,6 +694,12 @@ def _parse_adjustment(adj: Any, where: str) -> AdjustmentSettings:
             raise _err(where, f"[adjustment] covariance_scale = {cs!r} is not known",
                        'Use "auto" (default), "a-posteriori" (times sigma0^2) or "a-priori"')
         settings.covariance_scale = cs
+    if "datum" in adj:
+        if adj["datum"] not in ("auto", "free"):
+            raise _err(where, f"[adjustment] datum = {_show(adj['datum'])} is not known",
+                       'Use "auto" (control, camera priors, control databases) or "free" '
+                       "(a free network, relative precision only)")
+        settings.datum = adj["datum"]
     if "reuse_points" in adj:
         if adj["reuse_points"] not in ("intersections", "all"):
             raise _err(where, f"[adjustment] reuse_points = {adj['reuse_points']!r} is not known",
