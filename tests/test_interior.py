@@ -431,8 +431,8 @@ def test_pixels_without_fiducials_or_pixel_size(broken):
 
 @pytest.mark.io
 def test_unknown_distortion_model(broken):
-    _edit(broken / "lens.toml", 'model = "smac"', 'model = "brown"')
-    with pytest.raises(CameraError, match="lens.toml.*unknown distortion model 'brown'.*'smac'"):
+    _edit(broken / "lens.toml", 'model = "smac"', 'model = "kannala"')
+    with pytest.raises(CameraError, match="lens.toml.*unknown distortion model 'kannala'.*'smac'"):
         _load(broken)
 
 

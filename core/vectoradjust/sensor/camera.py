@@ -24,7 +24,7 @@ Camera table / file (all lengths in millimetres)::
     4 = [106.002, -105.999]
 
     [distortion]
-    model = "smac"                    # none | smac | polynomial
+    model = "smac"                    # none | smac | polynomial | brown
     convention = "correction"         # correction | distortion (see below)
     center = [0.003, -0.001]          # optional point of symmetry (mm); default principal point
     K0 = -0.2165e-3                   # smac: K0..K4, P1..P4 (missing ones are 0)
@@ -46,6 +46,19 @@ symmetry, ``r^2 = xb^2 + yb^2``):
 ``polynomial``
     radial only in odd powers of ``r``: ``dr = k1 r^3 + k2 r^5 + k3 r^7 + k4 r^9``,
     ``dxr = xb dr / r``; the decentering terms ``P1..P4`` above may be added.
+``brown`` (OpenCV / OpenSfM / OpenDroneMap Brown-Conrady)
+    coefficients ``k1 k2 k3`` (radial) and ``p1 p2`` (tangential), unitless, of the
+    *normalised* coordinates ``x_n = x / f``, ``y_n = y / f`` about the principal point
+    (or ``center``). Unlike the two models above the formula maps the **ideal**
+    position to the **distorted** (recorded) one, in OpenCV's axes (``y`` down, as
+    pixel rows):
+    ``x_d = x_n (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x_n y_n + p2 (r^2 + 2 x_n^2)``,
+    ``y_d = y_n (1 + ...) + p1 (r^2 + 2 y_n^2) + 2 p2 x_n y_n``. The coefficients are
+    written as OpenCV and OpenSfM give them; photo coordinates have ``y`` up, so with
+    ``y = -y_n f`` the same formula in photo axes has ``p1`` with the opposite sign
+    (:func:`brown_distort` does that). A measurement is corrected by inverting the
+    formula exactly (:func:`brown_undistort`, Newton's method); ``convention`` does not
+    apply (it may only be ``"distortion"``).
 ``none``
     no lens distortion correction.
 
@@ -83,10 +96,12 @@ __all__ = [
     "read_toml_text",
     "decode_text",
     "toml_error_hint",
+    "brown_distort",
+    "brown_undistort",
 ]
 
 #: Accepted distortion model names.
-DISTORTION_MODELS = ("none", "smac", "polynomial")
+DISTORTION_MODELS = ("none", "smac", "polynomial", "brown")
 #: Accepted sign conventions of the distortion coefficients.
 DISTORTION_CONVENTIONS = ("correction", "distortion")
 #: Accepted pixel origin conventions.
@@ -94,6 +109,7 @@ PIXEL_ORIGINS = ("center", "corner")
 
 _SMAC_KEYS = ("K0", "K1", "K2", "K3", "K4", "P1", "P2", "P3", "P4")
 _POLY_KEYS = ("k1", "k2", "k3", "k4", "P1", "P2", "P3", "P4")
+_BROWN_KEYS = ("k1", "k2", "k3", "p1", "p2")
 _CAMERA_KEYS = (
     "path",
     "name",
@@ -115,6 +131,8 @@ def _coefficient_keys(model: str) -> tuple[str, ...]:
         return _SMAC_KEYS
     if model == "polynomial":
         return _POLY_KEYS
+    if model == "brown":
+        return _BROWN_KEYS
     return ()
 
 
@@ -132,10 +150,10 @@ class CameraCalibration:
         Calibrated fiducial coordinates, ``{id: (x, y)}`` in mm (ids are strings);
         at least 3 when given.
     distortion_model : str
-        ``"none"``, ``"smac"`` or ``"polynomial"`` (see the module docstring).
+        ``"none"``, ``"smac"``, ``"polynomial"`` or ``"brown"`` (see the module docstring).
     distortion_coefficients : dict
-        ``smac``: ``K0..K4``, ``P1..P4``; ``polynomial``: ``k1..k4``, ``P1..P4``.
-        Missing coefficients are zero.
+        ``smac``: ``K0..K4``, ``P1..P4``; ``polynomial``: ``k1..k4``, ``P1..P4``;
+        ``brown``: ``k1 k2 k3 p1 p2`` (normalised, OpenCV). Missing coefficients are zero.
     distortion_convention : str
         ``"correction"`` (default, USGS: ``corrected = measured + F``) or
         ``"distortion"`` (``corrected = measured - F``).
@@ -197,6 +215,8 @@ class CameraCalibration:
                 path=self.source,
                 details={"key": "distortion.convention", "value": self.distortion_convention},
             )
+        if model == "brown":  # the formula is the distortion (ideal -> recorded)
+            conv = "distortion"
         self.distortion_convention = conv
         self.distortion_coefficients = _coefficients(
             self.distortion_coefficients, model, where, self.source
@@ -229,7 +249,7 @@ class CameraCalibration:
         """Radial coefficients in SMAC form ``[K0, K1, K2, K3, K4]``.
 
         For the ``polynomial`` model ``K0 = 0`` and ``K1..K4 = k1..k4``; for ``none``
-        all zero.
+        and ``brown`` (normalised coordinates, see :attr:`brown_coefficients`) all zero.
         """
         c = self.distortion_coefficients
         if self.distortion_model == "smac":
@@ -240,11 +260,19 @@ class CameraCalibration:
 
     @property
     def decentering_coefficients(self) -> np.ndarray:
-        """Decentering coefficients ``[P1, P2, P3, P4]`` (zero for ``none``)."""
+        """Decentering coefficients ``[P1, P2, P3, P4]`` (zero for ``none`` and ``brown``)."""
         c = self.distortion_coefficients
-        if self.distortion_model == "none":
+        if self.distortion_model in ("none", "brown"):
             return np.zeros(4)
         return np.array([c.get(k, 0.0) for k in ("P1", "P2", "P3", "P4")], float)
+
+    @property
+    def brown_coefficients(self) -> np.ndarray:
+        """``[k1, k2, k3, p1, p2]`` of the ``brown`` model (zero for the others)."""
+        if self.distortion_model != "brown":
+            return np.zeros(5)
+        c = self.distortion_coefficients
+        return np.array([c.get(k, 0.0) for k in _BROWN_KEYS], float)
 
     @property
     def distortion_sign(self) -> float:
@@ -254,6 +282,8 @@ class CameraCalibration:
     @property
     def has_distortion(self) -> bool:
         """True when the model is not ``none`` and some coefficient is non-zero."""
+        if self.distortion_model == "brown":
+            return bool(np.any(self.brown_coefficients))
         return self.distortion_model != "none" and (
             bool(np.any(self.radial_coefficients)) or bool(np.any(self.decentering_coefficients))
         )
@@ -415,6 +445,131 @@ class CameraCalibration:
         dist.update(self.distortion_coefficients)
         out["distortion"] = dist
         return out
+
+
+# ---------------------------------------------------------------------- Brown lens
+def _brown_parts(xy: Any, focal_length: float, coefficients: Any,
+                 center: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Photo coordinates as normalised OpenCV coordinates (``y`` down) and the checked
+    coefficients ``[k1, k2, k3, p1, p2]`` and centre."""
+    xy = np.asarray(xy, dtype=float)
+    if xy.ndim == 0 or xy.shape[-1] != 2:
+        raise CameraError(f"photo coordinates must have two columns (x, y), got shape "
+                          f"{xy.shape}", "Pass an (n, 2) array")
+    c = np.zeros(5)
+    given = np.asarray(coefficients, dtype=float).ravel()
+    if given.size > 5:
+        raise CameraError(f"the brown model has 5 coefficients (k1 k2 k3 p1 p2), not "
+                          f"{given.size}", "Give k1, k2, k3, p1, p2")
+    c[:given.size] = given
+    f = _positive(focal_length, "focal_length", "brown distortion")
+    centre = np.asarray(center, dtype=float).reshape(2)
+    u = (xy - centre) / f
+    u[..., 1] = -u[..., 1]  # photo y up -> OpenCV y down
+    return u, c, centre, np.asarray(f)
+
+
+def _brown_formula(u: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's formula ``d(u)`` at normalised ``u`` (``y`` down) and its Jacobian."""
+    k1, k2, k3, p1, p2 = c
+    x, y = u[..., 0], u[..., 1]
+    s = x * x + y * y
+    radial = 1.0 + s * (k1 + s * (k2 + s * k3))
+    dradial = k1 + s * (2.0 * k2 + 3.0 * k3 * s)  # d radial / d s
+    d = np.stack([x * radial + 2.0 * p1 * x * y + p2 * (s + 2.0 * x * x),
+                  y * radial + p1 * (s + 2.0 * y * y) + 2.0 * p2 * x * y], axis=-1)
+    jac = np.empty(u.shape[:-1] + (2, 2))
+    cross = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+    jac[..., 0, 0] = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+    jac[..., 0, 1] = cross
+    jac[..., 1, 0] = cross
+    jac[..., 1, 1] = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+    return d, jac
+
+
+def brown_distort(xy: Any, focal_length: float, coefficients: Any,
+                  center: Any = (0.0, 0.0)) -> np.ndarray:
+    """Where the lens records an ideal position: the Brown (OpenCV) model, forward.
+
+    Parameters
+    ----------
+    xy : array_like, shape (..., 2)
+        Ideal photo coordinates (mm, ``x`` right, ``y`` up).
+    focal_length : float
+        ``f`` (mm): the coordinates are normalised as ``x / f``.
+    coefficients : sequence of up to 5 floats
+        ``k1, k2, k3, p1, p2`` as OpenCV and OpenSfM give them (``y`` down); missing
+        trailing ones are zero.
+    center : (float, float)
+        The principal point (mm) in the frame of ``xy``.
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 2)
+        Distorted photo coordinates (mm, same frame).
+    """
+    u, c, centre, f = _brown_parts(xy, focal_length, coefficients, center)
+    d, _ = _brown_formula(u, c)
+    d[..., 1] = -d[..., 1]
+    return d * f + centre
+
+
+def brown_undistort(xy: Any, focal_length: float, coefficients: Any,
+                    center: Any = (0.0, 0.0), *, tol: float = 1e-12,
+                    max_iter: int = 50) -> np.ndarray:
+    """The ideal position of recorded photo coordinates: :func:`brown_distort` inverted.
+
+    Newton's method in the plane, vectorised over the points, started at the recorded
+    position, until every point's residual ``|distort(ideal) - recorded|`` is below
+    ``tol`` (mm).
+
+    Parameters
+    ----------
+    xy : array_like, shape (..., 2)
+        Recorded (distorted) photo coordinates (mm, ``y`` up).
+    focal_length, coefficients, center
+        As for :func:`brown_distort`.
+    tol : float
+        Convergence tolerance (mm).
+    max_iter : int
+        Iteration limit.
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 2)
+        Ideal photo coordinates (mm).
+
+    Raises
+    ------
+    CameraError
+        When some point does not converge (beyond the radius where the model folds
+        back: coefficients of another convention or unit).
+    """
+    target, c, centre, f = _brown_parts(xy, focal_length, coefficients, center)
+    m = target.copy()
+    res = np.zeros_like(m)
+    with np.errstate(all="ignore"):
+        for _ in range(max_iter):
+            d, jac = _brown_formula(m, c)
+            res = target - d
+            if m.size == 0 or float(np.max(np.abs(res))) * f <= tol:
+                break
+            det = jac[..., 0, 0] * jac[..., 1, 1] - jac[..., 0, 1] * jac[..., 1, 0]
+            m = m + np.stack([jac[..., 1, 1] * res[..., 0] - jac[..., 0, 1] * res[..., 1],
+                              jac[..., 0, 0] * res[..., 1] - jac[..., 1, 0] * res[..., 0]],
+                             axis=-1) / det[..., None]
+    bad = ~(np.abs(res).max(axis=-1) * f <= tol) if m.size else np.zeros(0, bool)
+    if np.any(bad):
+        r = np.hypot(target[..., 0], target[..., 1])[bad] * f
+        raise CameraError(
+            f"the brown lens distortion could not be inverted to {tol:g} mm at "
+            f"{int(np.sum(bad))} point(s), up to {float(np.max(r)):.4g} mm from the "
+            "principal point (the model folds back there)",
+            "Check k1 k2 k3 p1 p2: they are unitless, of coordinates normalised by the "
+            "focal length (OpenCV/OpenSfM), and the points lie inside the frame",
+            details={"points": int(np.sum(bad))})
+    m[..., 1] = -m[..., 1]
+    return m * f + centre
 
 
 # ---------------------------------------------------------------------- file I/O
@@ -695,6 +850,14 @@ def _distortion_table(
         elif isinstance(dist, Mapping):
             model = dist.get("model", "none")
             conv = dist.get("convention", "correction")
+            if str(model).strip().lower() == "brown" and "convention" in dist and str(
+                    conv).strip().lower() != "distortion":
+                raise CameraError(
+                    f"{where}: the brown model maps ideal to distorted coordinates; "
+                    f"convention = {conv!r} does not apply to it",
+                    "Remove convention (or write convention = \"distortion\"); give k1 k2 k3 "
+                    "p1 p2 as OpenCV/OpenSfM write them",
+                    path=source, details={"key": "distortion.convention"})
             center = dist.get("center")
             coeffs = {k: v for k, v in dist.items() if k not in _DISTORTION_META}
             if "model" not in dist and coeffs:
@@ -834,7 +997,7 @@ def _coefficients(
         canon = lookup.get(str(key).lower())
         if canon is None:
             if model == "none":
-                mend = "Remove the coefficients or set model = 'smac' or 'polynomial'"
+                mend = "Remove the coefficients or set model = 'smac', 'polynomial' or 'brown'"
             else:
                 mend = f"The {model} model accepts {', '.join(accepted)}"
             raise CameraError(

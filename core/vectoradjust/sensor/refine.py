@@ -8,7 +8,8 @@ turned into refined photo coordinates (mm) by, in this order:
    ``pixel_to_photo`` with the pixel size instead;
 2. ``principal_point`` - reduction to the principal point ``(x0, y0)``;
 3. ``distortion`` - lens distortion (SMAC/USGS or the odd radial polynomial, with
-   decentering; :mod:`vectoradjust.sensor.camera` states the sign convention);
+   decentering; :mod:`vectoradjust.sensor.camera` states the sign convention; or the
+   Brown/OpenCV model, inverted exactly);
 4. ``refraction`` - atmospheric refraction, ARDC 1959 model (:func:`ardc_k`);
 5. ``earth_curvature`` - only for a map-projection ground frame.
 
@@ -34,7 +35,7 @@ from typing import Any, Callable, NamedTuple, Union
 import numpy as np
 
 from vectoradjust.errors import CameraError, MeasurementError
-from vectoradjust.sensor.camera import CameraCalibration
+from vectoradjust.sensor.camera import CameraCalibration, brown_distort, brown_undistort
 
 __all__ = [
     "AffineFit",
@@ -827,6 +828,13 @@ class _Chain:
         return xy
 
     def lens(self, xy: np.ndarray) -> np.ndarray:
+        if self.cam.distortion_model == "brown":  # its formula is the distortion: inverted
+            try:
+                return brown_undistort(xy, self.f, self.cam.brown_coefficients, self.center)
+            except CameraError as exc:
+                raise CameraError(f"{self.img}: {exc.what}", exc.mend,
+                                  details={**(exc.details or {}), "image_id": self.image_id}
+                                  ) from None
         dx, dy = smac_correction(
             xy,
             self.center[0],
@@ -1010,7 +1018,9 @@ def distort(
         out = _invert(ch.curvature, out, tol, max_iter, "earth curvature", ch.img)
     if ch.refr_applied:
         out = _invert(ch.refraction, out, tol, max_iter, "refraction", ch.img)
-    if ch.dist_applied:
+    if ch.dist_applied and ch.cam.distortion_model == "brown":  # the forward model itself
+        out = brown_distort(out, ch.f, ch.cam.brown_coefficients, ch.center)
+    elif ch.dist_applied:
         out = _invert(ch.lens, out, tol, max_iter, "lens distortion", ch.img)
     if ch.pp_applied:
         out = out + ch.pp
