@@ -768,7 +768,8 @@ def test_import_images_flags(tmp_path, capsys):
     assert abs(b.images[0].position[0] - 500000.0) > 1000  # another zone's eastings
     assert a.heights is None and "NOT known" in plain.read_text()
     assert b.heights == "ellipsoidal"  # --height
-    assert a.images[0].sigma_position == 5.0 and b.images[0].sigma_position == 4.0
+    assert a.images[0].sigma_position == (3.0, 3.0, 5.0)  # --gnss-sigma: [h, h, v]
+    assert b.images[0].sigma_position == (2.0, 2.0, 4.0)
     assert a.camera.calibration.distortion_model == "none"
     assert b.camera.calibration.distortion_model == "brown"  # --camera-json
     assert b.camera.calibration.brown_coefficients[0] == -0.26

@@ -272,3 +272,52 @@ def test_run_free_network(scenario):
     assert "relative" in out.summary["datum"]["note"]
     assert out.problem.free_datum
     assert any("free network" in w for w in out.warnings)
+
+
+def test_single_image_resection_from_a_control_database():
+    """One image, no control points: the road vertices of a control database (an OSM
+    whose errors are what its entry states: a common 1 m shift, 1.1 m per vertex) and an
+    EXIF-like GPS position (3 m horizontal, 5 m vertical) resect it; the position is
+    within its sigmas of the truth and carries the database's systematic part."""
+    from vectoradjust.simulate import DatabaseModel
+
+    osm = DatabaseModel("OSM", "osm_id", "osm", 20.0, 0.4, (0.8, -0.6), 0.0, 0.0, 1.118)
+    scenario = make_scenario(4, databases=[osm])
+    data = scenario.to_project_data()
+    c = data.control
+    m = data.measurements
+    on_l = (m.image_id == "L") & ~np.isin(m.point_id, c.point_id)
+    on_l &= ~np.char.startswith(m.point_id.astype(str), "T")  # tie points need two images
+    data.control = ControlPoints(c.point_id[:0], c.xyz[:0], c.sigma[:0], c.role[:0])
+    data.measurements = replace(m, point_id=m.point_id[on_l], image_id=m.image_id[on_l],
+                                xy=m.xy[on_l], sigma=m.sigma[on_l], rows=m.rows[on_l])
+    data.images = [im for im in data.images if im.id == "L"]
+    data.images[0].sigma_position = (3.0, 3.0, 5.0)
+    data.images[0].sigma_attitude = None
+    data.vectors = [(replace(spec, role="control", systematic_sigma=(1.0, 1.0),
+                             sigma=(1.5, 1.5, 3.0)) if spec.name == "OSM" else spec, lay)
+                    for spec, lay in data.vectors]
+    out = run(data)
+    assert out.image_ids == ["L"]
+    rec = out.summary["datum"]
+    assert rec["sources"][0] == "camera position priors on 1 of 1 image(s)"
+    sig = np.sqrt(np.diag(out.result.eo_cov[0]) / out.result.variance_factor)
+    err = out.result.eo[0] - scenario.true_eo[0]
+    assert (np.abs(err[:3]) < 3.0 * sig[:3]).all(), (err, sig)
+    assert (sig[:2] > 1.0).all()  # at least the control database's systematic 1 m
+
+
+def test_sigma_position_per_axis_in_the_project():
+    from vectoradjust.errors import ProjectError
+    from vectoradjust.files.project import parse_project
+
+    raw = {"crs": "EPSG:32616", "camera": {"focal_length": 152.4},
+           "images": [{"id": "L", "position": [0, 0, 800], "sigma_position": [3, 3, 5],
+                       "sigma_attitude": 0.5}],
+           "measurements": {"path": "m.csv"}}
+    spec = parse_project(raw, base_dir=".")
+    assert spec.images[0].sigma_position == (3.0, 3.0, 5.0)
+    assert spec.images[0].sigma_attitude == 0.5
+    raw["images"][0]["sigma_position"] = [3, 5]
+    with pytest.raises(ProjectError, match=r"sigma_position must be a list of 3 numbers"):
+        parse_project(raw, base_dir=".")

@@ -156,7 +156,7 @@ def test_import_positions_crs_and_flight_direction(strip):
     assert np.abs(xyz[:, 0] - east).max() < 0.002  # EXIF keeps about 3 mm (1e-6 ")
     assert np.abs(xyz[:, 1] - 5300000.0).max() < 0.002
     assert np.array_equal(xyz[:, 2], 150.0 + np.arange(4))
-    assert all(im["sigma_position"] == 5.0 for im in res.images)
+    assert all(im["sigma_position"] == [3.0, 3.0, 5.0] for im in res.images)
     att = np.array([im["attitude"] for im in res.images])
     assert np.allclose(att[:, :2], 0) and np.allclose(att[:, 2], -90.0, atol=0.01)
     assert set(res.attitude_source.values()) == {"nadir, kappa from the flight direction"}
@@ -280,7 +280,8 @@ def test_written_project_loads(strip, tmp_path):
     assert spec.crs == "EPSG:32633" and spec.heights == "ellipsoidal"
     assert [im.id for im in spec.images] == [f"DJI_{k:04d}" for k in range(4)]
     assert np.allclose([im.position[0] for im in spec.images], east, atol=0.002)
-    assert all(im.sigma_position == 4.0 and im.sigma_attitude is None for im in spec.images)
+    assert all(im.sigma_position == (2.0, 2.0, 4.0) and im.sigma_attitude is None
+               for im in spec.images)
     cal = spec.camera.calibration
     assert cal.distortion_model == "brown" and cal.brown_coefficients[0] == -0.26
     assert cal.pixel_size[0] == pytest.approx(13.2 / 120, abs=1e-4)  # EXIF pixel size

@@ -56,10 +56,11 @@ class ImageSpec:
         Approximate (or prior) exposure station XL, YL, ZL (m).
     attitude : numpy.ndarray, shape (3,)
         Approximate omega, phi, kappa in **degrees**.
-    sigma_position : float or None
-        Prior sigma of the position (m); ``None`` = free parameter.
-    sigma_attitude : float or None
-        Prior sigma of the angles (degrees); ``None`` = free parameter.
+    sigma_position : float, tuple of 3 floats or None
+        Prior sigma of the position (m; one for X, Y, Z or per axis, e.g. GNSS 3 m
+        horizontal, 5 m vertical); ``None`` = free parameter.
+    sigma_attitude : float, tuple of 3 floats or None
+        Prior sigma of the angles (degrees; one or per angle); ``None`` = free parameter.
     date : str or None
         Acquisition date (ISO 8601) for provenance.
     model : str
@@ -73,8 +74,8 @@ class ImageSpec:
     id: str
     position: np.ndarray
     attitude: np.ndarray
-    sigma_position: Optional[float] = None
-    sigma_attitude: Optional[float] = None
+    sigma_position: Optional[float | tuple] = None
+    sigma_attitude: Optional[float | tuple] = None
     date: Optional[str] = None
     model: str = "frame"
     rpc: Any = None
@@ -336,6 +337,9 @@ class AdjustmentSettings:
     #: (checked before the solve); ``"free"``: a free network (no priors, inner
     #: constraints), relative precision only
     datum: str = "auto"
+    #: interior parameters estimated with the bundle (self-calibration): a subset of
+    #: ``("f", "x0", "y0", "k1", "k2")``; empty: the camera's calibration is fixed
+    self_calibration: tuple = ()
 
 
 @dataclass

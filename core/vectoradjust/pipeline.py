@@ -123,6 +123,8 @@ def _summarise(out: AdjustmentRun, solution, report=None) -> None:
         out.summary["warnings"].append(note)
     if solution.datum is not None:
         out.summary["datum"] = solution.datum
+    if solution.self_calibration is not None:
+        out.summary["self_calibration"] = solution.self_calibration
     if solution.vce is not None:
         out.summary["variance_components"] = solution.vce
     if solution.snooping is not None:

@@ -1311,7 +1311,9 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     t, covered = tr.t, tr.covered
     # the field models the deviations from the mean; a mean not applied (above) must
     # not come back through a long-range field
-    resid = dm - t[m_obj] - np.where(covered, 0.0, np.nanmean(dm - t[m_obj], axis=0))
+    dev = dm - t[m_obj]  # (a point seen on one image has no image-only position: NaN)
+    mean = np.array([np.nanmean(c) if np.isfinite(c).any() else 0.0 for c in dev.T])
+    resid = dev - np.where(covered, 0.0, mean)
     xy_m, xy_u = db[m_obj, :2], db[u_obj, :2]
     g_m = tr.g[m_obj]
     corr_v = _orientation_basis(out.result, out.problem, obj_pt[m_obj], _image_scale(out))

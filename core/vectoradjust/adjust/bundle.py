@@ -345,9 +345,12 @@ class BundleResult:
     offset_qb: Optional[np.ndarray] = None
     offset_u: Optional[np.ndarray] = None
     offset_g: Optional[np.ndarray] = None
+    # with self-calibration: the image rows' partials by the nuisance parameters (k, 2, q)
+    # (zero for the offsets' columns)
+    offset_a: Optional[np.ndarray] = None
 
     #: the kept blocks that :meth:`release_factorisation` lets go
-    RELEASABLE = ("npp_inv", "nep_obs", "a_eo", "a_pt", "offset_qb", "offset_g")
+    RELEASABLE = ("npp_inv", "nep_obs", "a_eo", "a_pt", "offset_qb", "offset_g", "offset_a")
 
     def release_factorisation(self) -> None:
         """Let go of the per-point and per-observation blocks kept for covariances.

@@ -65,6 +65,8 @@ class Solution:
     kept_groups: list = field(default_factory=list)
     #: what fixes the datum (:func:`datum_record`), for summary.json
     datum: Optional[dict] = None
+    #: the self-calibrated interior parameters (values, sigmas, correlations)
+    self_calibration: Optional[dict] = None
 
 
 def _pass_record(label, result: BundleResult, iterations: int, dbs: list) -> dict:
@@ -357,11 +359,14 @@ def _offset_model(setup: BundleSetup, warnings: list) -> Optional[off.OffsetMode
 
 
 def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dict):
-    """One adjustment; with offsets, Newton steps on them until they settle.
+    """One adjustment; with offsets, Newton steps on them until they settle (with
+    self-calibration: :func:`_adjust_joint`).
 
     ``state["values"]`` carries the offsets between calls (two-pass, VCE); the final
     cofactor and the covariance update are applied to the returned result.
     """
+    if state.get("interior") is not None:
+        return _adjust_joint(setup, model, adjust_kwargs, progress, state)
     if model is None:
         return adjust(setup.problem, progress=progress, **adjust_kwargs)
     values = state.get("values", np.zeros(model.n_params))
@@ -407,6 +412,118 @@ def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dic
     state["cofactor"] = cof
     state["converged"] = step < tol
     off.apply_offsets(result, model, off.OffsetEstimate(values, cof), qb, s_ztb)
+    return result
+
+
+# --------------------------------------------------------------------------- self-calibration
+def _joint_normals(result: BundleResult, model, interior, values, theta):
+    """Reduced normals of the offsets and the interior parameters together."""
+    from vectoradjust.adjust import selfcal
+
+    n_i, g_i, qbp_i, qbe_i, a = selfcal.interior_normals(result, interior, theta)
+    if model is None:
+        return n_i, g_i, qbp_i, -qbe_i, a, None
+    n_t, g_t, qb_t, s_ztb = off.offset_normals(result, model, values)
+    b_t = off._b_blocks(result.problem, model)
+    cross = -np.einsum("miq,mic->qc", b_t, qbp_i)
+    n = np.block([[n_t, cross], [cross.T, n_i]])
+    q, k = model.n_params, a.shape[0]
+    a_all = np.concatenate([np.zeros((k, 2, q)), a], axis=2)
+    return (n, np.r_[g_t, g_i], np.concatenate([qb_t, qbp_i], axis=2),
+            np.concatenate([s_ztb, -qbe_i], axis=1), a_all, q)
+
+
+class _Joint:
+    """The offsets and the interior parameters as one set of nuisance parameters (for
+    :func:`vectoradjust.adjust.offsets.apply_offsets`)."""
+
+    def __init__(self, model, c: int, m: int) -> None:
+        q = 0 if model is None else model.n_params
+        self.n_params = q + c
+        self.weights = np.r_[np.zeros(0) if model is None else model.weights, np.zeros(c)]
+        g = np.zeros((m, 3, c))
+        self.g = g if model is None else np.concatenate([model.g, g], axis=2)
+
+
+def _interior_model(setup: BundleSetup, settings):
+    """The interior parameters to self-calibrate (None: none)."""
+    from vectoradjust.adjust import selfcal
+    from vectoradjust.errors import ProjectError
+
+    names = tuple(getattr(settings, "self_calibration", ()) or ())
+    if not names:
+        return None
+    prob = setup.problem
+    if prob.sensors is not None and prob.is_rpc.any():
+        raise ProjectError("[adjustment] self_calibration is for frame cameras, but the block "
+                           "has RPC images", "Leave self_calibration out for RPC blocks")
+    return selfcal.InteriorModel.build(names, prob)
+
+
+def _self_calibration_record(state: dict, model, result: BundleResult, warnings: list):
+    """summary.json's self_calibration; a warning for parameters not determined."""
+    from vectoradjust.adjust import selfcal
+
+    interior = state["interior"]
+    q = 0 if model is None else model.n_params
+    active = state["active"]
+    dropped = [n for n, a in zip(interior.names, active) if not a]
+    if dropped:
+        warnings.append("self-calibration: the block does not determine " + ", ".join(dropped)
+                        + " (left at the camera's values): add height control, camera height "
+                        "priors, convergent or cross strips, or points near the image corners")
+    cof = state["cofactor"][q:, q:]
+    return selfcal.summary_record(interior, state["theta"], cof, result.variance_factor,
+                                  dropped)
+
+
+def _adjust_joint(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dict):
+    """Self-calibration (and offsets): Newton steps on the interior parameters (and
+    the offsets) at the bundle's solution until they settle; parameters the block does
+    not determine are left at the camera's values (:mod:`vectoradjust.adjust.selfcal`)."""
+    from vectoradjust.adjust import selfcal
+
+    interior = state["interior"]
+    q = 0 if model is None else model.n_params
+    values = state.get("values", np.zeros(q))
+    theta = state.get("theta", np.zeros(interior.n_params))
+    active = state.setdefault("active", np.ones(interior.n_params, bool))
+    base = setup.problem
+    xyz0 = eo0 = None
+    result = None
+    for it in range(25):
+        prob = base if model is None else off.shifted_problem(base, setup.db_prior, model,
+                                                              values)
+        setup.problem = interior.problem(prob, theta, **(
+            {} if xyz0 is None else {"xyz0": xyz0, "eo_start": eo0}))
+        result = None
+        result = adjust(setup.problem, progress=progress, **adjust_kwargs)
+        n, g, qb, u, a, _ = _joint_normals(result, model, interior, values, theta)
+        if it == 0:  # which interior parameters the block determines
+            sub = n[q:, q:]
+            active &= selfcal.determined_parameters(sub)
+        keep = np.r_[np.ones(q, bool), active]
+        cof = np.zeros_like(n)
+        cof[np.ix_(keep, keep)] = np.linalg.inv(n[np.ix_(keep, keep)])
+        step = cof @ g
+        values = values + step[:q]
+        theta = theta + step[q:]
+        xyz0, eo0 = result.xyz, result.eo
+        moved = float(np.abs(step).max(initial=0.0))
+        progress(0.7, f"self-calibration: step {it + 1}, largest change {moved:.2g}")
+        if moved < 1e-7:
+            break
+    state["values"], state["theta"], state["cofactor"] = values, theta, cof
+    state["converged"] = moved < 1e-7
+    keep = np.r_[np.ones(q, bool), active]
+    joint = _Joint(model, interior.n_params, result.problem.n_points)
+    off.apply_offsets(result, joint, off.OffsetEstimate(np.r_[values, theta], cof), qb, u)
+    result.offset_a = a
+    result.n_unknowns -= int((~keep).sum())  # left out: not unknowns
+    result.dof += int((~keep).sum())
+    result.sigma0_squared = (float(result.vtpv / result.dof) if result.dof > 0
+                             else float("nan"))
+    setup.problem = result.problem
     return result
 
 
@@ -459,8 +576,9 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
                      "is_cancelled": is_cancelled}
     dbs = setup.databases
     model = None if setup.problem.free_datum else _offset_model(setup, warnings)
-    datum_rec = datum_record(setup, model, warnings)  # a datum defect stops here, named, before the solve
-    state: dict = {}
+    # a datum defect stops here, named, before the solve
+    datum_rec = datum_record(setup, model, warnings)
+    state: dict = {"interior": _interior_model(setup, settings)}
     n_pass = 2 if settings.reweight == "two-pass" and dbs else 1
     sol: Optional[Solution] = None
     kept: list = []
@@ -495,6 +613,8 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
     if model is not None:
         sol.offsets = _offset_record(model, state, sol.result)
         _relative_to_control(sol.offsets, setup)
+    if state["interior"] is not None:
+        sol.self_calibration = _self_calibration_record(state, model, sol.result, warnings)
     sol.problem = setup.problem
     sol.datum = datum_rec
     return sol

@@ -282,6 +282,8 @@ def _offset_cofactors(result: BundleResult, aqa: np.ndarray, q_point: np.ndarray
     u_img = u.reshape(n, 6, -1)[prob.obs_image]  # (k, 6, q)
     # matmul on the stacks of small blocks (several times faster than einsum)
     c = np.matmul(result.a_pt, qb[prob.obs_point]) - np.matmul(result.a_eo, u_img)
+    if getattr(result, "offset_a", None) is not None:  # self-calibration: rows' own partials
+        c = c - result.offset_a
     aqa = aqa + (np.matmul(c, cof) * c).sum(axis=2)
     d = qb - g
     return aqa, q_point + np.matmul(np.matmul(d, cof), np.swapaxes(d, 1, 2))

@@ -18,9 +18,8 @@ them into ``[[images]]`` entries:
   (roll taken as 0; the yaw turned from true to grid north by the meridian convergence);
   else nadir (omega = phi = 0) with kappa from the flight direction between consecutive
   images (in time), or 0 for a single image. The source is stated per image.
-* **sigma_position**: the project takes one number per image (the same for X, Y and Z);
-  of the GNSS sigma given as horizontal and vertical the larger is written, and both
-  are stated in a comment.
+* **sigma_position**: per axis, ``[h, h, v]`` from the GNSS sigma given as horizontal
+  and vertical.
 * **camera**: focal length from EXIF; sensor width from the 35 mm equivalent focal
   length (sensor diagonal = 43.27 mm * f / f35 with the image's aspect ratio), else from
   :data:`SENSOR_WIDTHS` by model, else ``sensor_width``; pixel size = sensor width /
@@ -558,12 +557,13 @@ def import_images(folder: PathLike, crs: Optional[str] = None, height: str = "un
     images = [{"id": Path(i["path"]).stem, "path": i["path"],
                "position": [round(float(v), 3) for v in xyz[k]],
                "attitude": [round(float(v), 4) for v in att[k]],
-               "sigma_position": max(sig), "date": i["datetime"]}
+               "sigma_position": [float(sig[0]), float(sig[0]), float(sig[1])],
+               "date": i["datetime"]}
               for k, i in enumerate(infos)]
     notes = [f"positions from EXIF GPS in {crs_name}; heights: EXIF GPSAltitude, "
              f"{_HEIGHT_SAID[height]}",
-             f"GNSS sigma {sig[0]:g} m horizontal, {sig[1]:g} m vertical: sigma_position "
-             f"(one number for X, Y, Z) is the larger, {max(sig):g} m",
+             f"GNSS sigma {sig[0]:g} m horizontal, {sig[1]:g} m vertical (sigma_position "
+             "per axis)",
              "attitudes approximate, sigma_attitude left free: " + "; ".join(
                  f"{s} ({source.count(s)})" for s in dict.fromkeys(source)),
              f"camera: {cam.get('name', 'given')}"]

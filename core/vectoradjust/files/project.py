@@ -61,7 +61,7 @@ PROJECT_SCHEMA: dict = {
     "[adjustment]": ("max_iterations", "reweight", "alpha", "snooping", "alpha0", "beta0",
                      "max_removals", "covariance_scale", "tolerance_position",
                      "tolerance_angle", "merge_tolerance", "reuse_tolerance",
-                     "reuse_points", "datum"),
+                     "reuse_points", "datum", "self_calibration"),
     "[truth]": ("path", "widths"),
     "[qa]": tuple(_QA_KEYS),
     "[conflation]": CONFLATION_KEYS,
@@ -447,10 +447,20 @@ def _parse_images(images_raw: Any, where: str, base_dir: Path = Path(".")) -> li
         att = _vector3(w, "attitude", im.get("attitude", [0.0, 0.0, 0.0]))
         sp = im.get("sigma_position")
         sa = im.get("sigma_attitude")
-        sp = None if sp is None else _number(w, "sigma_position", sp, positive=True)
-        sa = None if sa is None else _number(w, "sigma_attitude", sa, positive=True)
+        sp = _sigma_or_three(w, "sigma_position", sp)
+        sa = _sigma_or_three(w, "sigma_attitude", sa)
         images.append(ImageSpec(iid, pos, att, sp, sa, _date(w, im.get("date"))))
     return images
+
+
+def _sigma_or_three(where: str, key: str, value: Any):
+    """A prior sigma: one number for all three axes, or ``[x, y, z]`` (e.g. GNSS: 3 m
+    horizontal, 5 m vertical); None when not given."""
+    if value is None:
+        return None
+    if isinstance(value, (list, tuple)):
+        return tuple(float(v) for v in _vector3(where, key, value, positive=True))
+    return _number(where, key, value, positive=True)
 
 
 def _name_of(where: str, key: str, value: Any, example: str) -> str:
@@ -571,6 +581,19 @@ def _parse_vectors(vectors_raw: Any, base_dir: Path, where: str) -> list:
             **_control_role(w, v, sigma),
         ))
     return vectors
+
+
+def _self_calibration(where: str, value: Any) -> tuple:
+    """``[adjustment] self_calibration``: a list of f, x0, y0, k1, k2."""
+    known = ("f", "x0", "y0", "k1", "k2")
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value) \
+            or any(v not in known for v in value):
+        raise _err(where, f"[adjustment] self_calibration must be a list of "
+                   f"{', '.join(known)}, not {_show(value)}",
+                   'Write self_calibration = ["f", "x0", "y0", "k1", "k2"] (or a subset)')
+    return tuple(dict.fromkeys(value))
 
 
 def _control_role(where: str, v: Mapping, sigma) -> dict:
@@ -694,6 +717,8 @@ def _parse_adjustment(adj: Any, where: str) -> AdjustmentSettings:
             raise _err(where, f"[adjustment] covariance_scale = {cs!r} is not known",
                        'Use "auto" (default), "a-posteriori" (times sigma0^2) or "a-priori"')
         settings.covariance_scale = cs
+    if "self_calibration" in adj:
+        settings.self_calibration = _self_calibration(where, adj["self_calibration"])
     if "datum" in adj:
         if adj["datum"] not in ("auto", "free"):
             raise _err(where, f"[adjustment] datum = {_show(adj['datum'])} is not known",
