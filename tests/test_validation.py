@@ -44,12 +44,12 @@ ROOT = Path(__file__).resolve().parents[1]
 VALIDATION = ROOT / "validation"
 PLEIADES = ROOT.parent / "shared" / "data" / "rpc" / "pleiades_pair"
 SCRIPTS = ("blunder_detection", "ce90_coverage", "conflation", "conflation_noise", "measure",
-           "monte_carlo_coverage", "pleiades", "real_roads", "satellite")
+           "monte_carlo_coverage", "pleiades", "real_roads", "satellite", "drone_roads")
 #: at least this many criteria in a fast run (so that a script cannot pass by checking
 #: nothing)
 MIN_CRITERIA = {"blunder_detection": 13, "ce90_coverage": 10, "conflation": 28,
                 "conflation_noise": 5, "measure": 5, "monte_carlo_coverage": 5,
-                "pleiades": 18, "real_roads": 7, "satellite": 3}
+                "pleiades": 18, "real_roads": 7, "satellite": 3, "drone_roads": 20}
 
 sys.path.insert(0, str(VALIDATION))
 from acceptance import coverage_1d, coverage_2d, share_band  # noqa: E402

@@ -610,6 +610,7 @@ def solve(setup: BundleSetup, settings, *, image_ids: np.ndarray, meas, warnings
                                           warnings)
     progress(0.72, "variance factor of the observation groups")
     _scale_covariances(sol, setup, settings, kept)
+    _datum_floor(sol, setup, datum_rec, warnings)
     if model is not None:
         sol.offsets = _offset_record(model, state, sol.result)
         _relative_to_control(sol.offsets, setup)
@@ -720,6 +721,22 @@ def free_network(setup: BundleSetup, warnings: list) -> None:
     if ctrl:
         warnings.append(f"free network: the {ctrl} control point(s) are used as tie points "
                         "(their coordinates are not used; compare them afterwards)")
+
+
+def _datum_floor(sol: Solution, setup: BundleSetup, datum_rec: dict, warnings: list) -> None:
+    """Without control points the datum rests on stated priors (camera positions, a
+    control database's systematic part) that the image residuals do not test: a
+    variance factor below 1 is not applied to them - the covariances are kept a priori
+    (a warning says so)."""
+    if datum_rec.get("kind") != "prior information" or (setup.point_kind == "control").any():
+        return
+    factor = sol.result.variance_factor
+    if factor < 1.0:
+        sol.result.set_covariance_scale("a-priori")
+        warnings.append(f"the variance factor {factor:.3g} (< 1) was not applied to the "
+                        "covariances: without control points the datum rests on stated priors "
+                        "(camera positions, a control database's systematic part) that the "
+                        "images do not test; the covariances are a priori")
 
 
 def _relative_to_control(offsets: dict, setup: BundleSetup) -> None:
