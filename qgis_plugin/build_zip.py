@@ -24,7 +24,7 @@ PLUGIN_NAME = "vectoradjust_qgis"
 
 # plugin files and folders (relative to qgis_plugin/) that go into the zip
 PLUGIN_FILES = ["__init__.py", "plugin.py", "provider.py", "qgis_io.py", "results.py",
-                "rpc_io.py", "styles.py", "metadata.txt", "icon.png"]
+                "rpc_io.py", "styles.py", "gdal_log.py", "metadata.txt", "icon.png"]
 PLUGIN_DIRS = ["algorithms"]
 EXCLUDE_DIRS = {"__pycache__", "tests"}
 

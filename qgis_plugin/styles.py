@@ -38,27 +38,69 @@ def style_path(kind):
     return None
 
 
-class StylePostProcessor(QgsProcessingLayerPostProcessorInterface):
-    """Loads a QML style into an output layer when QGIS adds it to the project."""
+#: colours of the bands of successive databases (fill; the outline is a darker shade)
+BAND_COLOURS = ("#1f78b4", "#e31a1c", "#33a02c", "#ff7f00", "#6a3d9a", "#b15928")
 
-    def __init__(self, qml, name=None):
+
+def band_renderer(layer):
+    """The uncertainty bands' style: a translucent fill (35 % opaque) with a thin darker
+    outline, one colour per database (field ``database``), so that the roads and the
+    other databases' bands stay visible under them."""
+    from qgis.core import (
+        QgsCategorizedSymbolRenderer,
+        QgsFillSymbol,
+        QgsRendererCategory,
+        QgsSingleSymbolRenderer,
+    )
+    from qgis.PyQt.QtGui import QColor
+
+    def symbol(k):
+        colour = QColor(BAND_COLOURS[k % len(BAND_COLOURS)])
+        fill = QColor(colour)
+        fill.setAlpha(90)
+        return QgsFillSymbol.createSimple({
+            "color": fill.name(QColor.HexArgb), "outline_color": colour.darker(140).name(),
+            "outline_width": "0.2", "outline_width_unit": "MM", "style": "solid"})
+
+    idx = layer.fields().indexFromName("database") if layer is not None else -1
+    names = sorted(str(v) for v in layer.uniqueValues(idx)) if idx >= 0 else []
+    if not names:
+        return QgsSingleSymbolRenderer(symbol(0))
+    return QgsCategorizedSymbolRenderer("database", [
+        QgsRendererCategory(name, symbol(k), name)
+        for k, name in enumerate(names)])
+
+
+#: output kind -> a function building its renderer from the layer (no QML file)
+BUILT_STYLES = {"bands": band_renderer}
+
+
+class StylePostProcessor(QgsProcessingLayerPostProcessorInterface):
+    """Loads a QML style (or sets a built renderer, ``build(layer)``) into an output
+    layer when QGIS adds it to the project."""
+
+    def __init__(self, qml, name=None, build=None):
         super().__init__()
         self.qml = qml
         self.name = name
+        self.build = build
 
     def postProcessLayer(self, layer, context, feedback):
         if layer is None or not layer.isValid():
             return
-        message, ok = layer.loadNamedStyle(self.qml)
-        if not ok:
-            feedback.reportError(f"Could not apply the style {self.qml}: {message}", False)
+        if self.build is not None:
+            layer.setRenderer(self.build(layer))
+        else:
+            message, ok = layer.loadNamedStyle(self.qml)
+            if not ok:
+                feedback.reportError(f"Could not apply the style {self.qml}: {message}", False)
         if self.name:
             layer.setName(self.name)
         layer.triggerRepaint()
 
     @staticmethod
-    def create(qml, name=None):
-        proc = StylePostProcessor(qml, name)
+    def create(qml, name=None, build=None):
+        proc = StylePostProcessor(qml, name, build)
         _KEEP.append(proc)
         return proc
 
@@ -70,11 +112,13 @@ def style_output(context, dest_id, kind, name=None):
     project, as in the Processing dialog); False otherwise (``qgis_process``,
     ``processing.run`` without a project).
     """
+    build = BUILT_STYLES.get(kind)
     qml = style_path(kind)
-    if not dest_id or qml is None or not context.willLoadLayerOnCompletion(dest_id):
+    if not dest_id or (qml is None and build is None) or \
+            not context.willLoadLayerOnCompletion(dest_id):
         return False
     details = context.layerToLoadOnCompletionDetails(dest_id)
-    details.setPostProcessor(StylePostProcessor.create(qml, name))
+    details.setPostProcessor(StylePostProcessor.create(qml, name, build))
     return True
 
 

@@ -133,15 +133,37 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
         self.addOutput(QgsProcessingOutputBoolean("CHI_SQUARE_PASSED", "Chi-square test passed"))
 
     # ------------------------------------------------------------------ run
+    #: the outputs written to files or layers: a run needs at least one of them
+    WRITTEN = ("SHAPE_POINTS", "FEATURES", "CONTROL_POINTS", "RESIDUALS", "SUMMARY", "REPORT")
+
+    def check_outputs(self, parameters):
+        """Stop at once (before anything is read) when no output is requested, e.g.
+        ``qgis_process run vectoradjust:adjustroadvectors -- INPUT=... PROJECT=...``: the
+        sinks are created by default only in the dialog, so nothing would be written."""
+        if any(parameters.get(k) not in (None, "") for k in self.WRITTEN):
+            return
+        from vectoradjust.errors import VectorAdjustError
+
+        names = ", ".join(f"{k} ({self.parameterDefinition(k).description()})"
+                          for k in self.WRITTEN)
+        raise VectorAdjustError(
+            f"No output is requested, so the adjustment would write nothing. The outputs "
+            f"are the parameters {names}",
+            "Give at least one, e.g. qgis_process run vectoradjust:adjustroadvectors -- "
+            "INPUT=roads.shp PROJECT=project.toml SHAPE_POINTS=shape_points.gpkg "
+            "SUMMARY=summary.json (TEMPORARY_OUTPUT for a temporary layer); in the dialog, "
+            "keep at least one output (not all set to Skip output)")
+
     def run_algorithm(self, parameters, context, feedback):
         t0 = time.perf_counter()
+        self.check_outputs(parameters)
         adj = inputs.run_adjustment(
             self, parameters, context, feedback, span=70.0,
             conflation=self.parameterAsBoolean(parameters, self.CONFLATION, context))
         out = adj.run
         # true centrelines ([truth]): buffer shares before/after, into the summary
-        project_truth_buffer(adj.prj, [out], context, feedback)
-        project_truth_lines(adj.prj, [out], context, feedback)  # as vectoradjust adjust
+        truth = project_truth_buffer(adj.prj, [out], context, feedback)  # read once
+        project_truth_lines(adj.prj, [out], context, feedback, truth)  # as vectoradjust adjust
         rpc_files = self._corrected_rpcs(parameters, context, feedback, out)
         outputs = self._write(parameters, context, feedback, out, adj.road.fields,
                               adj.road.wkb, adj.prj.crs)

@@ -71,13 +71,26 @@ class VectorAdjustAlgorithm(QgsProcessingAlgorithm):
         text = text.replace("on the command line", "as parameters of this algorithm")
         return re.sub(r"--[a-z][a-z-]*", label, text)
 
+    def checkParameterValues(self, parameters, context):  # noqa: N802 - the QGIS name
+        """QGIS's check, which opens the input layers (GDAL's messages of that opening
+        are kept for :meth:`processAlgorithm`'s log, folded with those of the run)."""
+        from ..gdal_log import gdal_messages, keep_for
+
+        with gdal_messages(None) as seen:
+            result = super().checkParameterValues(parameters, context)
+        keep_for(context, seen)
+        return result
+
     def processAlgorithm(self, parameters, context, feedback):
         try:
             from vectoradjust.errors import CancelledError, VectorAdjustError
         except ImportError as exc:
             raise QgsProcessingException(_missing_core(exc)) from exc
+        from ..gdal_log import gdal_messages, kept_for
+
         try:
-            return self.run_algorithm(parameters, context, feedback)
+            with gdal_messages(feedback, kept_for(context)):  # GDAL's warnings into the log
+                return self.run_algorithm(parameters, context, feedback)
         except CancelledError as exc:
             raise QgsProcessingException(f"Cancelled: {exc}") from None
         except VectorAdjustError as exc:

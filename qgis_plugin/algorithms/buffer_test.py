@@ -37,15 +37,19 @@ surveyed centre lines".</p>
 <li><b>Ground CRS</b> (optional; projected, metres; default the tested layer's CRS). Both
 layers are transformed to it.</li>
 </ul>
-<p>All reference lines are united before buffering, so overlapping buffers count once. Round
-caps and joins are approximated by <i>segments per quarter circle</i> chords (default 32, as in
-the vectoradjust core), which makes round parts at most 0.03 % narrow.</p>
+<p>All reference lines are united before buffering, so overlapping buffers count once. With
+round end caps (the default) the buffers are the exact round buffers computed by the
+vectoradjust core (<code>vectoradjust buffer-test --exact</code>: by segments, linear in the
+size of the data; only the reference lines near the tested ones are read). With flat or
+square caps QGIS's GEOS buffers the united reference lines, round joins approximated by
+<i>segments per quarter circle</i> chords (default 32), at most 0.03 % narrow.</p>
 <h3>Writes</h3>
 <p>A table, one row per width: <code>width</code>, <code>share</code> (0..1),
 <code>percent</code>, <code>inside</code> (length inside, m) and <code>total</code> (total
 length of the tested lines, m).</p>
-<p>The same numbers as <code>vectoradjust.accuracy.buffer.buffer_test</code> (computed here with
-QGIS's GEOS instead of shapely).</p>
+<p>The same numbers as <code>vectoradjust.accuracy.buffer.buffer_test</code> with
+<code>method="exact"</code> (round caps; the polygon buffers of the default method are up to
+0.03 % of the width narrower on round caps and joins).</p>
 """
 
 CAP_STYLES = ["round", "flat", "square"]
@@ -171,25 +175,244 @@ def buffer_shares(tested, reference, widths, quad_segs=32, cap_style="round", fe
              "length_total": total} for w, x in zip(widths, inside)]
 
 
-def _vertex_lines(xy, ranges):
-    """LineStrings of the vertex ranges of :func:`vectoradjust.files.truth.line_ranges`."""
+def exact_shares(tested, reference, widths, crs, context, feedback=None):
+    """The buffer test with round caps by the core
+    (:func:`vectoradjust.accuracy.buffer.segment_buffer_test`, the exact round buffers of
+    ``vectoradjust buffer-test --exact``): QGIS reads both layers into segments in
+    ``crs`` (the reference only near the tested lines); progress 5 .. 95 % per
+    :data:`SEGMENT_CHUNK` tested segments, Cancel between them."""
+    from vectoradjust.accuracy.buffer import segment_buffer_test
+
+    t = line_segments_of(tested, crs, context, f"tested layer {tested.sourceName()!r}",
+                         feedback)
+    feedback.setProgress(5)
+    rect = None
+    if len(t):
+        from qgis.core import QgsRectangle
+
+        lo, hi = t.min(axis=(0, 1)), t.max(axis=(0, 1))
+        m = max(widths, default=0.0) + 1.0
+        rect = QgsRectangle(float(lo[0] - m), float(lo[1] - m), float(hi[0] + m),
+                            float(hi[1] + m))
+    r = line_segments_of(reference, crs, context,
+                         f"reference layer {reference.sourceName()!r}", feedback, rect)
+    feedback.setProgress(10)
+    check_cancelled(feedback)
+    feedback.setProgressText("intersecting the tested lines")
+    report = progress_callback(feedback, 10.0, 85.0)
+    done = [0]
+
+    def step(n):
+        done[0] += n
+        report(done[0] / max(len(t), 1), "intersecting the tested lines")
+        check_cancelled(feedback)
+
+    return segment_buffer_test(t, r, widths, chunk=SEGMENT_CHUNK, step=step)
+
+
+#: tested segments measured per step of the exact (round) buffer test
+SEGMENT_CHUNK = 50_000
+
+
+def _parts_xy(geom):
+    """The line parts of a geometry as ``(n, 2)`` XY arrays, read from their WKB (one
+    numpy call per part, not one Python call per vertex); curves are segmentised."""
     from qgis.core import QgsLineString
 
-    return [QgsGeometry(QgsLineString([float(v) for v in xy[s:e, 0]],
-                                      [float(v) for v in xy[s:e, 1]]))
-            for s, e in ranges]
+    g = geom.constGet()
+    parts = ([g.geometryN(k) for k in range(g.numGeometries())]
+             if QgsWkbTypes.isMultiType(g.wkbType()) else [g])
+    out = []
+    for p in parts:
+        if p is None:
+            continue
+        if not isinstance(p, QgsLineString):
+            p = p.curveToLine() if hasattr(p, "curveToLine") else None
+            if p is None:
+                continue
+        n = p.numPoints()
+        if n < 2:
+            continue
+        wkb = bytes(p.asWkb())
+        dim = 2 + QgsWkbTypes.hasZ(p.wkbType()) + QgsWkbTypes.hasM(p.wkbType())
+        order = "<" if wkb[0] == 1 else ">"
+        xyz = np.frombuffer(wkb, dtype=f"{order}f8", count=n * dim, offset=9)
+        out.append(xyz.reshape(n, dim)[:, :2])
+    return out
 
 
-def truth_buffer(run, truth_path, widths, crs, context, feedback=None, start=0.0, span=100.0):
-    """:func:`vectoradjust.files.truth.truth_buffer` with QGIS reading and GEOS geometry
-    (QGIS's Python has no geopandas/shapely): the share of each database's lines inside
-    buffers of the true lines before and after the adjustment.
+def line_segments_of(source, crs, context, where, feedback=None, rect=None):
+    """The straight segments ``(n, 2, 2)`` of a line layer in ``crs``, for the core's
+    :class:`vectoradjust.accuracy.buffer.SegmentBuffer` (QGIS only reads and converts).
+
+    As :func:`vectoradjust.accuracy.buffer.line_segments`: segments never join two parts,
+    zero-length segments and those without coordinates are dropped. ``rect``
+    (QgsRectangle in ``crs``, optional): only the features whose bounding box meets it
+    (the lines near the tested ones; the others add nothing to a buffer or a nearest
+    distance inside it). Polls Cancel every :data:`CHUNK` features.
+    """
+    from vectoradjust.errors import CRSError, LayerError
+
+    wkb = source.wkbType()
+    if QgsWkbTypes.geometryType(wkb) != QgsWkbTypes.LineGeometry:
+        raise LayerError(f"{where}: the layer holds {QgsWkbTypes.displayString(wkb) or 'no'} "
+                         "geometries, not lines", "Give a line layer")
+    if not source.sourceCrs().isValid():
+        raise CRSError(f"{where}: the layer has no coordinate reference system",
+                       "Set the layer's CRS and run again")
+    request = QgsFeatureRequest().setNoAttributes()
+    if source.sourceCrs() != crs:
+        request.setDestinationCrs(crs, context.transformContext())
+    if rect is not None:
+        request.setFilterRect(rect)  # in the destination CRS when one is set
+    segs = []
+    for k, f in enumerate(source.getFeatures(request)):
+        if k % CHUNK == 0:
+            check_cancelled(feedback)
+        g = f.geometry()
+        if g is None or g.isNull() or g.isEmpty():
+            continue
+        for xy in _parts_xy(g):
+            segs.append(np.stack([xy[:-1], xy[1:]], axis=1))
+    if not segs:
+        return np.zeros((0, 2, 2))
+    seg = np.concatenate(segs)
+    keep = np.any(seg[:, 0] != seg[:, 1], axis=1) & np.isfinite(seg).all(axis=(1, 2))
+    return seg[keep]
+
+
+def runs_extent(runs, margin):
+    """The bounding box (QgsRectangle) of every database vertex of ``runs``, before and
+    after the adjustment, grown by ``margin``; None without vertices."""
+    from qgis.core import QgsRectangle
+
+    boxes = []
+    for r in runs:
+        for d in r.databases:
+            for xy in (d.shape.layer.coords[:, :2], d.adjusted_coords[:, :2]):
+                xy = np.asarray(xy, float)
+                xy = xy[np.isfinite(xy).all(axis=1)]
+                if len(xy):
+                    boxes.append(np.r_[xy.min(axis=0), xy.max(axis=0)])
+    if not boxes:
+        return None
+    b = np.asarray(boxes)
+    lo, hi = b[:, :2].min(axis=0) - margin, b[:, 2:].max(axis=0) + margin
+    return QgsRectangle(float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+
+
+#: true lines read beyond the tested lines' box (m, besides the widest buffer): the
+#: nearest true line of most points is inside it (the others read the whole layer)
+TRUTH_MARGIN = 100.0
+
+
+class TrueLines:
+    """The ``[truth]`` centrelines near the tested lines, read once per run through QGIS
+    and measured with the core's :class:`vectoradjust.accuracy.buffer.SegmentBuffer`
+    (the command line's implementation: the exact round buffers, the nearest distances).
+
+    Parameters
+    ----------
+    path : str
+        The ``[truth] path`` line layer.
+    crs : QgsCoordinateReferenceSystem
+        The ground CRS.
+    context : QgsProcessingContext
+    rect : QgsRectangle or None
+        Only the true lines whose box meets it are read (:func:`runs_extent`).
+    feedback : QgsProcessingFeedback, optional
+    """
+
+    def __init__(self, path, crs, context, rect=None, feedback=None):
+        import os
+
+        from qgis.core import QgsVectorLayer
+
+        from vectoradjust.accuracy.buffer import SegmentBuffer
+        from vectoradjust.errors import LayerError
+
+        if not os.path.exists(path):
+            raise LayerError(f"Line layer {path!r} does not exist ([truth] path)",
+                             "Check the path", path=str(path))
+        self.layer = QgsVectorLayer(str(path), "truth", "ogr")
+        if not self.layer.isValid():
+            raise LayerError(f"{path}: cannot be read as a vector layer ([truth] path)",
+                             "Give a shapefile, GeoPackage or GeoJSON of lines", path=str(path))
+        self.path, self.crs, self.context, self.rect = str(path), crs, context, rect
+        self.where = f"true centrelines {path!r} ([truth] path)"
+        self.segments = line_segments_of(self.layer, crs, context, self.where, feedback, rect)
+        self.buffers = SegmentBuffer(self.segments)
+        self._all = None  # every true line, read when a point's nearest may lie beyond rect
+
+    def _room(self, xy):
+        """Each point's distance to the outside of :attr:`rect` (inf without one): a
+        true line not read is at least that far."""
+        if self.rect is None:
+            return np.full(len(xy), np.inf)
+        r = self.rect
+        return np.minimum.reduce([xy[:, 0] - r.xMinimum(), r.xMaximum() - xy[:, 0],
+                                  xy[:, 1] - r.yMinimum(), r.yMaximum() - xy[:, 1]])
+
+    def distances(self, xy, feedback=None):
+        """Each point's distance to the nearest true line (NaN without coordinates): the
+        core's grid of segments for the near points, the whole layer's segments (GEOS
+        would give the same) for the few whose nearest line may not have been read."""
+        from vectoradjust.accuracy.buffer import SegmentBuffer
+
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        check_cancelled(feedback)
+        d = np.full(len(xy), np.nan)
+        ok = np.flatnonzero(np.isfinite(xy).all(axis=1))
+        if len(self.segments):
+            d[ok] = self._far(self.buffers, xy[ok], feedback)
+        far = ok[~(d[ok] <= self._room(xy[ok]))]
+        if len(far) and self.rect is not None:
+            if self._all is None:
+                seg = line_segments_of(self.layer, self.crs, self.context, self.where,
+                                       feedback)
+                self._all = SegmentBuffer(seg) if len(seg) else False
+            if self._all is not False:
+                d[far] = self._far(self._all, xy[far], feedback)
+        return d
+
+    @staticmethod
+    def _far(buffers, xy, feedback):
+        """Each point's distance to the nearest segment of ``buffers``: among the boxes
+        within the grid's radius, then within a growing radius."""
+        out = np.full(len(xy), np.nan)
+        for k in range(0, len(xy), 5000):  # bounded memory: few points per query
+            out[k:k + 5000] = TrueLines._nearest(buffers, xy[k:k + 5000], feedback)
+        return out
+
+    @staticmethod
+    def _nearest(buffers, xy, feedback):
+        out = np.full(len(xy), np.nan)
+        radius = max(buffers.cell, 1.0)
+        todo = np.arange(len(xy))
+        while len(todo):
+            check_cancelled(feedback)
+            d = buffers.nearest_distance(xy[todo], radius)
+            hit = np.isfinite(d)
+            out[todo[hit]] = d[hit]
+            todo = todo[~hit]
+            radius *= 4.0
+            if radius > 1e8:
+                break
+        return out
+
+
+def truth_buffer(run, truth_path, widths, crs, context, feedback=None, start=0.0, span=100.0,
+                 truth=None):
+    """:func:`vectoradjust.files.truth.truth_buffer` with QGIS reading: the share of each
+    database's lines inside the exact round buffers of the true lines before and after
+    the adjustment, measured by the core's code (the same as ``vectoradjust adjust``).
 
     The core's :func:`~vectoradjust.files.truth.drive_truth_buffer` chooses the lines
     (features with at least one adjusted vertex), reports progress per database and per
-    chunk of lines to ``feedback`` (``start`` .. ``start + span`` percent), polls Cancel
-    (:class:`vectoradjust.errors.CancelledError`) and writes
-    ``run.summary["databases"][i]["truth"]["buffer"]``; returns ``{database: entry}``.
+    chunk of ``vectoradjust.files.truth.TRUTH_CHUNK`` lines to ``feedback`` (``start`` ..
+    ``start + span`` percent), polls Cancel (:class:`vectoradjust.errors.CancelledError`)
+    and writes ``run.summary["databases"][i]["truth"]["buffer"]``; returns
+    ``{database: entry}``.
 
     Parameters
     ----------
@@ -200,92 +423,87 @@ def truth_buffer(run, truth_path, widths, crs, context, feedback=None, start=0.0
     crs : QgsCoordinateReferenceSystem
         The ground CRS.
     context : QgsProcessingContext
+    truth : TrueLines, optional
+        The true lines already read (else read here, those near the run's lines).
     """
-    import os
+    from vectoradjust.files import truth as core_truth
 
-    from qgis.core import QgsVectorLayer
-
-    from vectoradjust.errors import LayerError
-    from vectoradjust.files.truth import drive_truth_buffer
-
-    if not os.path.exists(truth_path):
-        raise LayerError(f"Line layer {truth_path!r} does not exist ([truth] path)",
-                         "Check the path", path=str(truth_path))
-    layer = QgsVectorLayer(str(truth_path), "truth", "ogr")
-    if not layer.isValid():
-        raise LayerError(f"{truth_path}: cannot be read as a vector layer ([truth] path)",
-                         "Give a shapefile, GeoPackage or GeoJSON of lines", path=str(truth_path))
+    widths = [float(w) for w in widths]
     say = progress_callback(feedback, start, span) if feedback is not None else None
+    if truth is None:
+        if say is not None:
+            say(0.0, "buffer test: reading the true centrelines")
+        rect = runs_extent([run], max(widths, default=0.0) + TRUTH_MARGIN)
+        truth = TrueLines(truth_path, crs, context, rect, feedback)
     if say is not None:
-        say(0.0, "buffer test: reading the true centrelines")
-    truth = _lines(layer, crs, context, f"true centrelines {truth_path!r} ([truth] path)",
-                   feedback)
-    if say is not None:
-        say(0.0, "buffer test: buffering the true centrelines")
-    buffers = _buffers(truth, widths, feedback=feedback)
+        say(0.0, "buffer test: indexing the true centrelines")
 
     def shares(xy, ranges, step):
-        inside, total = _inside(_vertex_lines(xy, ranges), buffers, step)
-        return [_share(x, total) for x in inside]
+        return core_truth._shares(xy, ranges, truth.buffers, widths, step)
 
-    return drive_truth_buffer(run, list(widths), shares, truth_path, say,
-                              cancel_callback(feedback))
+    return core_truth.drive_truth_buffer(run, widths, shares, truth_path, say,
+                                         cancel_callback(feedback))
 
 
-def project_truth_buffer(prj, runs, context, feedback, start=80.0, span=5.0):
-    """Apply :func:`truth_buffer` to every run when the project has a ``[truth]`` table
-    (true centrelines), as ``vectoradjust adjust`` / ``compare`` do; progress from
-    ``start`` to ``start + span`` percent, Cancel ends with CancelledError."""
+def read_project_truth(prj, runs, context, feedback):
+    """The project's ``[truth]`` lines near the runs' lines (:class:`TrueLines`, read
+    once for the buffer test and the distances) and its widths; None without
+    ``[truth]``."""
     from vectoradjust.files.truth import project_truth
 
     truth = project_truth(prj.spec)
     if truth is None:
-        return
+        return None
     path, widths = truth
-    feedback.setProgressText(f"buffer test against the true centrelines {path}")
+    feedback.setProgressText("buffer test: reading the true centrelines")
+    rect = runs_extent(runs, max(widths, default=0.0) + TRUTH_MARGIN)
+    return TrueLines(path, prj.crs, context, rect, feedback), widths
+
+
+def project_truth_buffer(prj, runs, context, feedback, start=80.0, span=5.0, truth=None):
+    """Apply :func:`truth_buffer` to every run when the project has a ``[truth]`` table
+    (true centrelines), as ``vectoradjust adjust`` / ``compare`` do; progress from
+    ``start`` to ``start + span`` percent, Cancel ends with CancelledError. ``truth``:
+    :func:`read_project_truth`'s result (else read here). Returns it (for
+    :func:`project_truth_lines`), or None without ``[truth]``."""
+    truth = truth or read_project_truth(prj, runs, context, feedback)
+    if truth is None:
+        return None
+    lines, widths = truth
+    feedback.setProgressText(f"buffer test against the true centrelines {lines.path}")
     each = span / max(len(runs), 1)
     for k, r in enumerate(runs):
-        truth_buffer(r, path, widths, prj.crs, context, feedback, start + k * each, each)
+        truth_buffer(r, lines.path, widths, prj.crs, context, feedback, start + k * each, each,
+                     truth=lines)
+    return truth
 
 
+def lines_exist(lines, feedback=None):
+    """Whether the true lines have a segment at all (the command line then writes no
+    distance table): those near the tested lines, else the whole layer's."""
+    if len(lines.segments):
+        return True
+    return lines.rect is not None and len(line_segments_of(
+        lines.layer, lines.crs, lines.context, lines.where, feedback)) > 0
 
-def project_truth_lines(prj, runs, context, feedback):
+
+def project_truth_lines(prj, runs, context, feedback, truth=None):
     """Each adjusted point's distance to the nearest true centreline before and after
-    (:func:`vectoradjust.files.truth.drive_truth_lines` with GEOS through QGIS) when the
-    project has a ``[truth]`` table, as ``vectoradjust adjust`` does: writes
-    ``databases[].truth.lines`` (share moved closer) into each run's summary."""
-    import os
+    (:func:`vectoradjust.files.truth.drive_truth_lines` with the core's grid of
+    segments) when the project has a ``[truth]`` table, as ``vectoradjust adjust`` does:
+    writes ``databases[].truth.lines`` (share moved closer) into each run's summary.
+    ``truth``: :func:`read_project_truth`'s result (else read here)."""
+    from vectoradjust.files.truth import drive_truth_lines
 
-    from qgis.core import QgsPoint, QgsVectorLayer
-
-    from vectoradjust.files.truth import drive_truth_lines, project_truth
-
-    truth = project_truth(prj.spec)
-    if truth is None or not os.path.exists(truth[0]):
+    truth = truth or read_project_truth(prj, runs, context, feedback)
+    if truth is None or not lines_exist(truth[0], feedback):
         return
-    layer = QgsVectorLayer(str(truth[0]), "truth", "ogr")
-    if not layer.isValid():
-        return
-    lines = _lines(layer, prj.crs, context, f"true centrelines {truth[0]!r} ([truth] path)",
-                   feedback)
-    parts = [QgsGeometry(p.clone()) for g in lines for p in g.constParts()]
-    if not parts:
-        return
-    united = QgsGeometry.collectGeometry(parts)  # kept alive: the engine points into it
-    engine = QgsGeometry.createGeometryEngine(united.constGet())
-    engine.prepareGeometry()
-
-    def distance(x, y):
-        d = engine.distance(QgsPoint(float(x), float(y)))  # (distance, error) in PyQGIS
-        return d[0] if isinstance(d, tuple) else d
-
-    def distances(xy):
-        check_cancelled(feedback)
-        return [distance(x, y) for x, y in xy]
-
+    lines = truth[0]
     feedback.setProgressText("distances to the true centrelines")
+    say = progress_callback(feedback, 85.0, 0.0)
     for r in runs:
-        drive_truth_lines(r, distances, truth[0])
+        drive_truth_lines(r, lambda xy: lines.distances(xy, feedback), lines.path,
+                          progress=say)
 
 
 class BufferAccuracyTest(VectorAdjustAlgorithm):
@@ -347,16 +565,19 @@ class BufferAccuracyTest(VectorAdjustAlgorithm):
                            "reference system", "Set the layer's CRS and run again")
         qgis_io.check_ground_crs(crs, where)
         feedback.setProgressText("reading the tested and reference lines")
-        t = _lines(tested, crs, context, f"tested layer {tested.sourceName()!r}", feedback)
-        feedback.setProgress(5)
-        r = _lines(reference, crs, context, f"reference layer {reference.sourceName()!r}",
-                   feedback)
-        feedback.setProgress(10)
-        check_cancelled(feedback)
         cap = CAP_STYLES[self.parameterAsEnum(parameters, self.CAP_STYLE, context)]
-        rows = buffer_shares(t, r, widths,
-                             self.parameterAsInt(parameters, self.QUAD_SEGS, context), cap,
-                             feedback, 10.0, 85.0)
+        if cap == "round":  # the core's exact round buffers (vectoradjust buffer-test --exact)
+            rows = exact_shares(tested, reference, widths, crs, context, feedback)
+        else:
+            t = _lines(tested, crs, context, f"tested layer {tested.sourceName()!r}", feedback)
+            feedback.setProgress(5)
+            r = _lines(reference, crs, context, f"reference layer {reference.sourceName()!r}",
+                       feedback)
+            feedback.setProgress(10)
+            check_cancelled(feedback)
+            rows = buffer_shares(t, r, widths,
+                                 self.parameterAsInt(parameters, self.QUAD_SEGS, context), cap,
+                                 feedback, 10.0, 85.0)
         fields = qgis_io.fields_for(self.FIELDS, {})
         sink, dest = self.parameterAsSink(parameters, self.OUTPUT, context, fields,
                                           QgsWkbTypes.NoGeometry, crs)

@@ -98,18 +98,23 @@ class CompareRoadDatabases(VectorAdjustAlgorithm):
         self.addParameter(QgsProcessingParameterMultipleLayers(
             self.LAYERS, "Road line layers (databases)", QgsProcessing.TypeVectorLine))
         self.addParameter(QgsProcessingParameterString(
-            self.ID_FIELDS, "Id fields, one per layer in order (comma-separated)",
+            self.ID_FIELDS, "Id fields, one per layer in order (comma-separated; default: "
+            "each layer's [[vectors]] entry's id_field, else the feature index)",
             optional=True))
         self.addParameter(QgsProcessingParameterString(
-            self.NAMES, "Database names, one per layer in order (comma-separated)",
+            self.NAMES, "Database names, one per layer in order (comma-separated; default: "
+            "each layer's [[vectors]] entry's name, else the layer name)",
             optional=True))
         self.addParameter(QgsProcessingParameterRasterLayer(
-            self.DEM, "DEM for the shape point heights", optional=True))
+            self.DEM, "DEM for the shape point heights (default: each layer's [[vectors]] "
+            "entry's dem, else the layer's Z)", optional=True))
         self.addParameter(QgsProcessingParameterNumber(
-            self.SIGMA_XY, "Prior sigma of the shape points, horizontal [m] (default 10)",
+            self.SIGMA_XY, "Prior sigma of the shape points, horizontal [m] (default: each "
+            "layer's [[vectors]] entry's sigma, else 10)",
             QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
         self.addParameter(QgsProcessingParameterNumber(
-            self.SIGMA_Z, "Prior sigma of the shape points, vertical [m] (default 10)",
+            self.SIGMA_Z, "Prior sigma of the shape points, vertical [m] (default: each "
+            "layer's [[vectors]] entry's sigma, else 10)",
             QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
         p = QgsProcessingParameterMultipleLayers(
             self.TRUTH, "Truth tables (point_id, X, Y, Z), one per layer or one for all",

@@ -524,9 +524,13 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
     from vectoradjust.files.tables import read_truth_points
     from vectoradjust.model import VectorSpec
 
-    from .matching import vertex_renames
+    from .matching import holds_whole_entry, vertex_renames
 
     entry = matching_vector_spec(prj, vlayer, source, (id_field or "").strip())
+    if entry is not None:
+        feedback.pushInfo(entry_settings_text(source.sourceName(), entry, name=name,
+                                              id_field=id_field, sigma=(sigma_xy, sigma_z),
+                                              dem=dem, truth=truth, error_model=error_model))
     name = (name or "").strip() or (entry.name if entry else source.sourceName())
     id_field = (id_field or "").strip() or (entry.id_field if entry else None)
     sigma = shape_point_sigma(entry.sigma if entry else (10.0, 10.0, 10.0), sigma_xy, sigma_z)
@@ -553,7 +557,8 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
                       offset=offset)
     # roads of the entry's file the layer does not hold (selection, filter, deletions)
     renames = (vertex_renames(prj, entry, id_field, line_layer, context)
-               if entry is not None and id_field else {})
+               if entry is not None and id_field
+               and not holds_whole_entry(entry, vlayer, len(line_layer.feature_ids)) else {})
     return RoadDatabase(spec, line_layer, fields, source.wkbType(), entry, truth, where,
                         renames)
 
@@ -721,6 +726,35 @@ SIGMA_Z = "SIGMA_Z"
 IDENT_XY = "IDENTIFICATION_SIGMA_XY"
 IDENT_Z = "IDENTIFICATION_SIGMA_Z"
 OFFSET = "OFFSET"
+def entry_settings_text(layer_name, entry, *, name="", id_field="", sigma=(None, None),
+                        dem=None, truth=None, error_model=None):
+    """The log line saying that the road layer ``layer_name`` stands for the project's
+    ``[[vectors]]`` entry and which of its settings are taken from the entry (those not
+    given as parameters)."""
+    em = error_model or {}
+    taken = []
+    if not (name or "").strip():
+        taken.append(f"name {entry.name!r}")
+    if not (id_field or "").strip() and entry.id_field:
+        taken.append(f"id field {entry.id_field!r}")
+    if sigma[0] is None:
+        taken.append(f"horizontal sigma {entry.sigma[0]:g} m")
+    if sigma[1] is None:
+        taken.append(f"vertical sigma {entry.sigma[2]:g} m")
+    if dem is None and entry.dem:
+        taken.append(f"DEM {entry.dem}")
+    if truth is None and entry.truth:
+        taken.append(f"truth {entry.truth}")
+    if em.get("identification") is None and entry.identification_sigma is not None:
+        taken.append("identification sigma "
+                     f"{', '.join(f'{v:g}' for v in entry.identification_sigma)} m")
+    if em.get("offset") is None and entry.offset:
+        taken.append(f"offset {entry.offset!r}")
+    return (f"road layer {layer_name!r} is the project's [[vectors]] entry {entry.name!r} "
+            f"({entry.path}); from the entry: "
+            + (", ".join(taken) if taken else "nothing (every setting given here)"))
+
+
 #: the Database offset choices; the first takes the project's [[vectors]] entry
 OFFSET_CHOICES = ["as in the project (default: shift)", "none", "shift", "shift3d"]
 
@@ -736,15 +770,19 @@ def add_road_parameters(alg, optional=False):
     alg.addParameter(QgsProcessingParameterFeatureSource(
         INPUT, label, [QgsProcessing.TypeVectorLine], optional=optional))
     alg.addParameter(QgsProcessingParameterField(
-        ID_FIELD, "Feature id field (empty: feature index)", parentLayerParameterName=INPUT,
+        ID_FIELD, "Feature id field (empty: the project's [[vectors]] entry's id_field, else "
+        "the feature index)", parentLayerParameterName=INPUT,
         optional=True))
     alg.addParameter(QgsProcessingParameterRasterLayer(
-        DEM, "DEM for the shape point heights", optional=True))
+        DEM, "DEM for the shape point heights (default: the project's [[vectors]] entry's "
+        "dem, else the layer's Z)", optional=True))
     alg.addParameter(QgsProcessingParameterNumber(
-        SIGMA_XY, "Prior sigma of the shape points, horizontal [m] (default 10)",
+        SIGMA_XY, "Prior sigma of the shape points, horizontal [m] (default: the project's "
+        "[[vectors]] entry's sigma, else 10)",
         QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
     alg.addParameter(QgsProcessingParameterNumber(
-        SIGMA_Z, "Prior sigma of the shape points, vertical [m] (default 10)",
+        SIGMA_Z, "Prior sigma of the shape points, vertical [m] (default: the project's "
+        "[[vectors]] entry's sigma, else 10)",
         QgsProcessingParameterNumber.Double, optional=True, minValue=0.0))
     alg.addParameter(QgsProcessingParameterNumber(
         IDENT_XY, "Identification sigma, horizontal [m]: where the measured point is relative "
@@ -758,7 +796,8 @@ def add_road_parameters(alg, optional=False):
     alg.addParameter(QgsProcessingParameterEnum(
         OFFSET, "Database offset estimated with the adjustment (shift: a horizontal shift "
         "of the whole database)", options=OFFSET_CHOICES, defaultValue=0))
-    p = QgsProcessingParameterString(NAME, "Database name (default: layer name)",
+    p = QgsProcessingParameterString(NAME, "Database name (default: the project's [[vectors]] "
+                                     "entry's name, else the layer name)",
                                      optional=True)
     p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
     alg.addParameter(p)

@@ -137,6 +137,25 @@ def missing_features(entry, id_field, given_ids):
     return set(known) - {str(i) for i in given_ids}
 
 
+def holds_whole_entry(entry, vlayer, n_features):
+    """Whether the road layer is the entry's whole file, known without reading the file
+    again: its file is the entry's ``path`` (and layer), neither it nor the entry is
+    filtered, it is not being edited, and the ``n_features`` features read are all of
+    the layer's (a selection holds fewer)."""
+    path = qgis_io.layer_path(vlayer) if vlayer is not None else None
+    if not path or not entry.path or os.path.realpath(path) != os.path.realpath(entry.path):
+        return False
+    if getattr(entry, "where", None) or vlayer.subsetString() or vlayer.isEditable():
+        return False
+    sub = entry.layer or ("lines" if str(path).lower().endswith(".pbf") else None)
+    layername = next((p.split("=", 1)[1] for p in vlayer.source().split("|")[1:]
+                      if p.startswith("layername=")), None)
+    if layername != sub:  # another layer of the file, or one not named
+        return False
+    count = vlayer.featureCount()
+    return count >= 0 and count == int(n_features)
+
+
 def vertex_renames(prj, entry, id_field, line_layer, context):
     """What becomes of the measured ids of the entry's roads ``line_layer`` does not hold.
 

@@ -17,6 +17,7 @@ from qgis.core import (
 )
 
 from .. import qgis_io, results
+from ..styles import style_output
 from . import inputs
 from .base import VectorAdjustAlgorithm, check_cancelled
 
@@ -144,6 +145,7 @@ class UncertaintyBands(VectorAdjustAlgorithm):
         if sink is None:
             raise QgsProcessingException(self.invalidSinkError(parameters, self.OUTPUT))
         results.add_all(sink, feats, feedback, 90.0, 10.0)
+        style_output(context, dest, "bands")
         area = float(sum(f.geometry().area() for f in feats))
         feedback.pushInfo(f"{len(feats)} uncertainty bands ({confidence:g}), total area "
                           f"{area:.1f} m2; done in {time.perf_counter() - t0:.1f} s")

@@ -4,7 +4,9 @@ Uses the headless readers (geopandas, rasterio) and shapely, which must never be
 loaded into QGIS, so the tests call this script in a subprocess::
 
     python headless_reference.py extract OUT.json LAYER ID_FIELD|- DEM|- CRS TOLERANCE
-    python headless_reference.py buffer OUT.json TESTED REFERENCE WIDTH,WIDTH,...
+    python headless_reference.py buffer OUT.json TESTED REFERENCE WIDTH,WIDTH,... [METHOD]
+
+(``METHOD``: ``exact``, the default, as the plugin's round buffers, or ``polygon``.)
 """
 
 import json
@@ -36,7 +38,7 @@ def extract(out, layer, id_field, dem, crs, tolerance):
         json.dump(result, fh)
 
 
-def buffer(out, tested, reference, widths):
+def buffer(out, tested, reference, widths, method="exact"):
     import geopandas as gpd
 
     from vectoradjust.accuracy.buffer import buffer_test
@@ -47,7 +49,8 @@ def buffer(out, tested, reference, widths):
         r = r.to_crs(t.crs)
     w = [float(x) for x in widths.split(",")]
     with open(out, "w", encoding="utf-8") as fh:
-        json.dump(buffer_test(t.geometry.to_numpy(), r.geometry.to_numpy(), w), fh)
+        json.dump(buffer_test(t.geometry.to_numpy(), r.geometry.to_numpy(), w, method=method),
+                  fh)
 
 
 if __name__ == "__main__":

@@ -178,3 +178,85 @@ def test_compare_with_a_copy_named_like_the_entry(qgis_app, sample):
         if key != "_geom":
             assert mine[key] == ref[key] or all(
                 close(a, b, 1e-9 * max(1.0, abs(b))) for a, b in zip(mine[key], ref[key])), key
+
+
+def _infos():
+    from qgis.core import QgsProcessingFeedback
+
+    class Recorder(QgsProcessingFeedback):
+        def __init__(self):
+            super().__init__()
+            self.infos = []
+
+        def pushInfo(self, text):  # noqa: N802 - the QGIS name
+            self.infos.append(text)
+            super().pushInfo(text)
+
+    return Recorder()
+
+
+def test_the_matched_entry_and_its_settings_are_logged(qgis_app, sample):
+    """A layer matched to a [[vectors]] entry: one log line names the entry and the
+    settings taken from it; those given as parameters are not among them."""
+    fb = _infos()
+    run(params(sample, str(sample / "osm_roads.shp")), feedback=fb)
+    said = [t for t in fb.infos if "[[vectors]] entry" in t]
+    assert len(said) == 1, said
+    line = said[0]
+    assert "road layer 'osm_roads' is the project's [[vectors]] entry 'OSM'" in line
+    for part in ("name 'OSM'", "id field 'osm_id'", "horizontal sigma 10 m",
+                 "vertical sigma 0.15 m", "DEM ", "identification sigma 0.5, 0 m"):
+        assert part in line, (part, line)
+    fb = _infos()
+    run(params(sample, str(sample / "osm_roads.shp"), SIGMA_XY=3.0, NAME="OSM"), feedback=fb)
+    line = next(t for t in fb.infos if "[[vectors]] entry" in t)
+    assert "horizontal sigma" not in line and "name 'OSM'" not in line
+    assert "vertical sigma 0.15 m" in line
+
+
+def test_a_layer_outside_the_project_is_not_said_to_match(qgis_app, sample, tmp_path):
+    from .util import project_copy
+
+    project = project_copy(sample, tmp_path / "two.toml", drop=("OSM",))
+    fb = _infos()
+    run({"INPUT": str(sample / "osm_roads.shp"), "PROJECT": str(project), "ID_FIELD": "osm_id",
+         "DEM": str(sample / "dem.tif"), "SHAPE_POINTS": "TEMPORARY_OUTPUT"}, feedback=fb)
+    assert not [t for t in fb.infos if "is the project's [[vectors]] entry" in t]
+
+
+def test_dialog_labels_say_where_the_defaults_come_from(qgis_app):
+    from qgis.core import QgsApplication
+
+    alg = QgsApplication.processingRegistry().algorithmById("vectoradjust:adjustroadvectors")
+    labels = {k: alg.parameterDefinition(k).description()
+              for k in ("ID_FIELD", "SIGMA_XY", "SIGMA_Z", "NAME", "DEM")}
+    for key, text in labels.items():
+        assert "[[vectors]] entry" in text, (key, text)
+    assert labels["ID_FIELD"].endswith("else the feature index)")
+    assert labels["NAME"].endswith("else the layer name)")
+    assert labels["SIGMA_XY"].endswith("else 10)")
+
+
+def test_the_entry_file_itself_is_read_once(qgis_app, sample, monkeypatch, file_run):
+    """The road layer that is the entry's whole file: its ids are not read a second time
+    to look for roads it lacks (a selection of it still is, see above)."""
+    from qgis_plugin.algorithms import matching
+
+    calls = []
+    real = matching.entry_ids
+    monkeypatch.setattr(matching, "entry_ids", lambda *a, **k: calls.append(a) or real(*a, **k))
+    out = run(params(sample, str(sample / "osm_roads.shp")))
+    assert calls == []
+    assert_same_run(out, file_run)
+    layer = osm_layer(sample)
+    assert matching.holds_whole_entry(_entry(sample), layer, layer.featureCount())
+    assert not matching.holds_whole_entry(_entry(sample), layer, layer.featureCount() - 1)
+    layer.setSubsetString('"osm_id" IS NOT NULL')
+    assert not matching.holds_whole_entry(_entry(sample), layer, layer.featureCount())
+
+
+def _entry(sample):
+    from vectoradjust.files.project import load_project
+
+    return next(v for v in load_project(str(sample / "project.toml")).vectors
+                if v.name == "OSM")

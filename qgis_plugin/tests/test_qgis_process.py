@@ -150,3 +150,22 @@ def test_qgis_process_reports_user_errors(qgis_process, sample, tmp_path):
                         "ID_FIELD=no_such_field", f"SHAPE_POINTS={tmp_path / 'x.gpkg'}")
     assert proc.returncode != 0
     assert "'no_such_field' is not a field" in proc.stdout + proc.stderr
+
+
+def test_qgis_process_without_outputs_stops_at_once(qgis_process, sample):
+    """Only INPUT and PROJECT: no sink is created by default outside the dialog, so the
+    run stops before reading anything, naming the output parameters."""
+    import time
+
+    t0 = time.perf_counter()
+    proc = qgis_process("run", "vectoradjust:adjustroadvectors", "--",
+                        f"INPUT={sample / 'osm_roads.shp'}", f"PROJECT={sample / 'project.toml'}")
+    seconds = time.perf_counter() - t0
+    text = proc.stdout + proc.stderr
+    assert proc.returncode != 0, text[-2000:]
+    assert "No output is requested" in text
+    for name in ("SHAPE_POINTS", "FEATURES", "CONTROL_POINTS", "RESIDUALS", "SUMMARY",
+                 "REPORT"):
+        assert name in text, name
+    assert "reading the inputs" not in text  # stopped before the adjustment
+    assert seconds < 60.0, seconds  # qgis_process's own start included

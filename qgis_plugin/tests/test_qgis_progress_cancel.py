@@ -44,12 +44,17 @@ def _feedback(cancel_on=None):
 
 @pytest.fixture
 def small_chunks(qgis_app, monkeypatch):
-    """Chunks of 3 lines, so the sample's few roads give several steps."""
+    """Chunks of 3 lines (the ``[truth]`` test: the core's TRUTH_CHUNK) and of 20 segments
+    (the Buffer accuracy test), so the sample's few roads give several steps."""
     from qgis.core import QgsApplication
+
+    from vectoradjust.files import truth
 
     alg = QgsApplication.processingRegistry().algorithmById("vectoradjust:bufferaccuracytest")
     module = sys.modules[type(alg).__module__]
     monkeypatch.setattr(module, "CHUNK", 3)
+    monkeypatch.setattr(module, "SEGMENT_CHUNK", 20)
+    monkeypatch.setattr(truth, "TRUTH_CHUNK", 3)
     return module
 
 
@@ -59,7 +64,7 @@ def test_adjust_reports_the_truth_buffer_stage(qgis_app, sample, small_chunks):
     assert out["SHAPE_POINTS"]
     texts = fb.texts()
     assert "buffer test: reading the true centrelines" in texts
-    assert "buffer test: buffering the true centrelines" in texts
+    assert "buffer test: indexing the true centrelines" in texts
     assert any(t.startswith("buffer test: OSM") for t in texts)
     # per chunk: several increasing values inside the stage's 80 .. 85 %
     stage = [v for v in fb.values() if 80.0 < v <= 85.0]
@@ -83,7 +88,7 @@ def test_cancel_while_reading_the_true_centrelines(qgis_app, sample):
     fb = _feedback(cancel_on="buffer test: reading")
     with pytest.raises(QgsProcessingException, match="[Cc]ancelled"):
         run("adjustroadvectors", adjust_params(sample), feedback=fb)
-    assert not any(t.startswith("buffer test: buffering") for t in fb.texts())
+    assert not any(t.startswith("buffer test: indexing") for t in fb.texts())
 
 
 def _buffer_params(sample):

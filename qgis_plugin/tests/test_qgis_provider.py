@@ -193,6 +193,41 @@ def test_styles_applied_to_loaded_outputs(qgis_app, sample):
         assert layer.renderer().type() == renderer, key
 
 
+def test_uncertainty_bands_are_styled_when_loaded(qgis_app, sample):
+    """The bands layer (the one output without a QML file) gets a translucent fill per
+    database when it is loaded into a project."""
+    import processing
+    from qgis.core import (
+        QgsFillSymbol,
+        QgsProcessingContext,
+        QgsProcessingFeedback,
+        QgsProcessingOutputLayerDefinition,
+        QgsProject,
+    )
+
+    project = QgsProject.instance()
+    context = QgsProcessingContext()
+    context.setProject(project)
+    params = {"INPUT": str(sample / "osm_roads.shp"), "PROJECT": str(sample / "project.toml"),
+              "OUTPUT": QgsProcessingOutputLayerDefinition("TEMPORARY_OUTPUT", project)}
+    feedback = QgsProcessingFeedback()
+    out = processing.run("vectoradjust:uncertaintybands", params, context=context,
+                         feedback=feedback)
+    layer = out["OUTPUT"] if not isinstance(out["OUTPUT"], str) else \
+        context.getMapLayer(out["OUTPUT"])
+    assert layer.featureCount() > 0
+    details = context.layerToLoadOnCompletionDetails(layer.id())
+    assert details.postProcessor() is not None
+    details.postProcessor().postProcessLayer(layer, context, feedback)
+    r = layer.renderer()
+    assert r.type() == "categorizedSymbol" and r.classAttribute() == "database"
+    cats = r.categories()  # kept: the symbols belong to these copies
+    assert [c.value() for c in cats] == ["OSM"]
+    symbol = cats[0].symbol()
+    assert isinstance(symbol, QgsFillSymbol)
+    assert 0 < symbol.color().alpha() < 255  # translucent: the roads stay visible
+
+
 def test_build_zip(tmp_path):
     from qgis_plugin import build_zip
 

@@ -31,8 +31,8 @@ import numpy as np
 
 from vectoradjust.errors import LayerError
 
-__all__ = ["buffer_test", "line_segments", "capsule_intervals", "covered_length",
-           "covered_lengths", "SegmentBuffer"]
+__all__ = ["buffer_test", "segment_buffer_test", "line_segments", "capsule_intervals",
+           "covered_length", "covered_lengths", "SegmentBuffer"]
 
 _LINE_TYPES = ("LineString", "MultiLineString", "LinearRing")
 
@@ -171,12 +171,63 @@ SEGMENT_CHUNK = 200_000
 
 def _exact_inside(tst: np.ndarray, ref: np.ndarray, widths: np.ndarray) -> np.ndarray:
     """Length of the tested lines inside the exact round buffers (by segments)."""
-    buf = SegmentBuffer(line_segments(ref))
-    seg = line_segments(tst)
+    return _segments_inside(SegmentBuffer(line_segments(ref)), line_segments(tst), widths)
+
+
+def _segments_inside(buf: SegmentBuffer, seg: np.ndarray, widths: np.ndarray,
+                     chunk: int = 0, step: Optional[Any] = None) -> np.ndarray:
+    """Length of the segments ``seg`` inside each width's buffer ``buf``, ``chunk``
+    segments at a time (default :data:`SEGMENT_CHUNK`), ``step(n)`` after each."""
+    chunk = int(chunk) if chunk and chunk > 0 else SEGMENT_CHUNK
     inside = np.zeros(len(widths))
-    for k in range(0, len(seg), SEGMENT_CHUNK):
-        inside += buf.inside(seg[k:k + SEGMENT_CHUNK], widths)
+    for k in range(0, len(seg), chunk):
+        inside += buf.inside(seg[k:k + chunk], widths)
+        if step is not None:
+            step(len(seg[k:k + chunk]))
     return inside
+
+
+def segment_buffer_test(tested: np.ndarray, reference: np.ndarray, widths: Any, *,
+                        chunk: int = 0, step: Optional[Any] = None) -> list[dict[str, Any]]:
+    """:func:`buffer_test` with ``method="exact"`` on segment arrays (numpy only).
+
+    For callers that read the lines themselves (the QGIS plugin converts its layers to
+    segments): the same computation and result rows as ``buffer_test(..., method="exact")``
+    of the lines the segments come from.
+
+    Parameters
+    ----------
+    tested, reference : numpy.ndarray, shape (n, 2, 2)
+        Segments (:func:`line_segments`: no zero-length segment, none joining two parts),
+        projected coordinates in metres.
+    widths : float or sequence of float
+        Buffer widths (>= 0).
+    chunk : int, optional
+        Tested segments measured per step (default :data:`SEGMENT_CHUNK`).
+    step : callable, optional
+        ``step(n)`` after each chunk of ``n`` segments (progress; it may raise to stop).
+
+    Returns
+    -------
+    list of dict
+        ``{"width", "share", "length_inside", "length_total"}`` per width.
+
+    Raises
+    ------
+    ValueError
+        If a width is negative or not finite.
+    """
+    w = np.atleast_1d(np.asarray(widths, dtype=float)).reshape(-1)
+    if np.any(~np.isfinite(w)) or np.any(w < 0):
+        raise ValueError(f"buffer widths must be finite and >= 0, got {w.tolist()}")
+    seg = np.asarray(tested, float).reshape(-1, 2, 2)
+    ref = np.asarray(reference, float).reshape(-1, 2, 2)
+    total = float(np.sum(np.hypot(*(seg[:, 1] - seg[:, 0]).T))) if len(seg) else 0.0
+    if total <= 0 or not len(ref):
+        if step is not None:
+            step(len(seg))
+        return _rows(w, np.zeros(len(w)), total)
+    return _rows(w, _segments_inside(SegmentBuffer(ref), seg, w, chunk, step), total)
 
 
 # ------------------------------------------------------------------ exact, by segments
