@@ -385,6 +385,8 @@ class ProjectData:
     interior: dict = field(default_factory=dict)
     qa: Optional[dict] = None
     conflation: Optional[dict] = None
+    #: warnings of the reading that the run repeats (e.g. images without a trajectory row)
+    reading_warnings: list = field(default_factory=list)
     #: object coordinates to longitude, latitude and ellipsoidal height
     #: (:class:`vectoradjust.sensor.ground.GroundFrame`); needed by RPC images, None without
     ground_frame: Any = None

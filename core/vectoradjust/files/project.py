@@ -48,13 +48,14 @@ PROJECT_SCHEMA: dict = {
     "top level": ("name", "description", "crs", "vertical_crs", "heights", "camera",
                   "corrections", "images",
                   "measurements", "control", "vectors", "adjustment", "truth", "qa",
-                  "conflation"),
+                  "conflation", "trajectory"),
     "[camera]": tuple(_CAMERA_KEYS),
     "[corrections]": tuple(CORRECTION_KEYS),
     "[[images]]": ("id", "position", "attitude", "sigma_position", "sigma_attitude", "date",
                    "path", "model", "rpc", "bias", "bias_sigma"),
     "[measurements]": ("path", "unit", "sigma", "fiducials"),
     "[control]": ("path", "crs", "vertical_crs"),
+    "[trajectory]": ("path", "crs", "vertical_crs"),
     "[[vectors]]": ("name", "path", "layer", "where", "id_field", "sigma",
                     "identification_sigma", "offset", "dem", "truth", "role",
                     "systematic_sigma"),
@@ -68,7 +69,7 @@ PROJECT_SCHEMA: dict = {
 }
 #: the optional tables that are single tables (``[name]``), not arrays (``[[name]]``)
 _TABLES = ("camera", "corrections", "measurements", "control", "adjustment", "truth", "qa",
-           "conflation")
+           "conflation", "trajectory")
 _REWEIGHT = ("none", "two-pass", "vce")
 
 
@@ -123,6 +124,9 @@ class ProjectSpec:
     #: the kind of the project's heights, ``"ellipsoidal"`` or ``"orthometric"`` (required
     #: with RPC images, whose heights are ellipsoidal); None when not given
     heights: Optional[str] = None
+    #: ``[trajectory]``: GNSS/INS camera positions (and attitudes, sigmas) per image from a
+    #: CSV (``path`` resolved, ``crs``, ``vertical_crs``); None when not given
+    trajectory: Optional[dict] = None
 
     @property
     def has_rpc(self) -> bool:
@@ -266,6 +270,8 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
     heights = _parse_heights(raw, images, where)
     meas = _parse_measurements(raw.get("measurements"), base_dir, where)
     control = _parse_control(raw.get("control"), base_dir, where)
+    trajectory = _parse_control(raw.get("trajectory"), base_dir, where, "trajectory",
+                                "gnss_ins.csv")
     vectors = _parse_vectors(raw.get("vectors", []), base_dir, where)
     settings = _parse_adjustment(raw.get("adjustment", {}) or {}, where)
     for name in ("truth", "qa"):  # read where they are used (files.truth, qa.verdict)
@@ -282,7 +288,7 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
         measurements=meas, control=control, vectors=vectors, settings=settings, raw=raw,
         vertical_crs=_text(where, "vertical_crs", raw.get("vertical_crs"),
                            'vertical_crs = "EPSG:5703"'),
-        heights=heights,
+        heights=heights, trajectory=trajectory,
     )
 
 
@@ -524,18 +530,20 @@ def _parse_rpc_image(im: dict, iid: str, base_dir: Path, w: str) -> ImageSpec:
                      rpc=RpcImage(None, bias, sigma, path))
 
 
-def _parse_control(control: Any, base_dir: Path, where: str) -> Optional[dict]:
-    """``[control]`` (optional): its path resolved."""
+def _parse_control(control: Any, base_dir: Path, where: str, name: str = "control",
+                   example_path: str = "gcps.csv") -> Optional[dict]:
+    """``[control]`` or ``[trajectory]`` (optional): its path resolved, crs and
+    vertical_crs stripped."""
     if control is not None:
         if not isinstance(control, Mapping) or "path" not in control:
-            raise _err(where, "[control] has no path", 'Add [control] path = "gcps.csv"')
-        check_keys(control, PROJECT_SCHEMA["[control]"], where, "[control]")
+            raise _err(where, f"[{name}] has no path", f'Add [{name}] path = "{example_path}"')
+        check_keys(control, PROJECT_SCHEMA[f"[{name}]"], where, f"[{name}]")
         control = dict(control)
-        control["path"] = _resolve(base_dir, control["path"], where, "[control] path")
+        control["path"] = _resolve(base_dir, control["path"], where, f"[{name}] path")
         for key, example in (("crs", 'crs = "EPSG:4326"'),
                              ("vertical_crs", 'vertical_crs = "EPSG:5703"')):
             if key in control:
-                control[key] = _text(f"{where} [control]", key, control[key], example)
+                control[key] = _text(f"{where} [{name}]", key, control[key], example)
     return control
 
 

@@ -25,6 +25,7 @@ __all__ = [
     "line_layers",
     "read_line_layer",
     "transformation_info",
+    "same_crs",
     "read_dem",
     "sample_dem",
     "load_project_data",
@@ -384,6 +385,94 @@ def _check_exact_ids(p: Path, id_field: str, values: list) -> None:
             details={"id_field": id_field, "example": big[0]})
 
 
+def same_crs(a, b) -> bool:
+    """Whether two CRSs place coordinates identically, judged by the CRSs, not their names.
+
+    The same when pyproj finds them equivalent (names and other metadata aside, the axis
+    order ignored: every reader here takes X = easting or longitude), or when both stand
+    for the same authority code (an explicit ``ID``/``AUTHORITY`` of the CRS, else PROJ's
+    identification as equivalent) and each agrees with that code's definition except in
+    names: e.g. EPSG:3067 as "ETRS89 / TM35FIN(E,N)" and as "EUREF-FIN / TM35FIN(E,N)"
+    with its datum called "EUREF-FIN". A real datum change (another ellipsoid, a datum
+    with a shift, another projection) is never the same.
+
+    Parameters
+    ----------
+    a, b : pyproj.CRS or anything :meth:`pyproj.CRS.from_user_input` takes
+
+    Returns
+    -------
+    bool
+    """
+    from pyproj import CRS
+
+    a, b = CRS.from_user_input(a), CRS.from_user_input(b)
+    if a.equals(b, ignore_axis_order=True):
+        return True
+    code = _authority_code(a)
+    if code is None or code != _authority_code(b):
+        return False
+    try:
+        ref = CRS.from_authority(*code)
+    except Exception:  # noqa: BLE001 - an authority PROJ does not know: not the same
+        return False
+    return _alike(a, ref) and _alike(b, ref)
+
+
+def _authority_code(crs) -> Optional[tuple]:
+    """``(authority, code)`` the CRS stands for: its explicit identifier, else the one
+    PROJ identifies as equivalent (confidence >= 90); None when neither."""
+    ident = (crs.to_json_dict() or {}).get("id")
+    if isinstance(ident, dict) and ident.get("authority") and ident.get("code") is not None:
+        return str(ident["authority"]).upper(), str(ident["code"])
+    found = crs.to_authority(min_confidence=90)
+    return (found[0].upper(), str(found[1])) if found else None
+
+
+def _alike(crs, ref) -> bool:
+    """``crs`` is ``ref`` except in names: the same kind, ellipsoid, prime meridian,
+    map projection (method and parameters) and axis units (compound: part by part)."""
+    if crs.is_compound or ref.is_compound:
+        subs, refs = crs.sub_crs_list, ref.sub_crs_list
+        return (crs.is_compound and ref.is_compound and len(subs) == len(refs)
+                and all(_alike(x, y) for x, y in zip(subs, refs)))
+    if (crs.type_name != ref.type_name
+            or [ax.unit_conversion_factor for ax in crs.axis_info]
+            != [ax.unit_conversion_factor for ax in ref.axis_info]):
+        return False
+    if crs.is_vertical:
+        return True  # a vertical datum's name is all there is: the code vouches for it
+    e, f = crs.ellipsoid, ref.ellipsoid
+    if e is None or f is None or not np.isclose(e.semi_major_metre, f.semi_major_metre,
+                                                rtol=1e-12, atol=0.0) \
+            or not np.isclose(e.inverse_flattening, f.inverse_flattening, rtol=1e-12,
+                              atol=0.0):
+        return False
+    pa, pb = crs.prime_meridian, ref.prime_meridian
+    if pa is not None and pb is not None and pa.longitude != pb.longitude:
+        return False
+    if crs.is_projected:
+        return _same_conversion(crs.coordinate_operation, ref.coordinate_operation)
+    return True
+
+
+def _same_conversion(a, b) -> bool:
+    """Two map projections (pyproj CoordinateOperation) with the same method and the
+    same parameter values (by EPSG code, else by name)."""
+    if a is None or b is None:
+        return a is b
+    if a.method_code != b.method_code or (not a.method_code and a.method_name != b.method_name):
+        return False
+
+    def values(op):
+        return {(p.code or p.name): (p.value, p.unit_conversion_factor) for p in op.params}
+
+    va, vb = values(a), values(b)
+    return va.keys() == vb.keys() and all(
+        np.isclose(va[k][0] * va[k][1], vb[k][0] * vb[k][1], rtol=1e-12, atol=1e-12)
+        for k in va)
+
+
 def transformation_info(source_crs, target_crs, bounds=None):
     """The transformation from ``source_crs`` to ``target_crs`` PROJ chooses, and a verdict.
 
@@ -558,7 +647,7 @@ def control_to_project_crs(control, spec: ProjectSpec, project_crs, where: str):
         source = _with_vertical(source, _user_crs(vname, f"{w} vertical_crs"), w)
     target = _project_target(project_crs, spec, where)
     reading = {"source": control.source, "source_crs": source.name, "crs": None}
-    if not source.equals(target):
+    if not same_crs(source, target):
         control.xyz, info = transform_points(control.xyz, source, target,
                                              f"{w} ({control.source})")
         if info["warning"]:
@@ -588,7 +677,7 @@ def dem_heights(z: np.ndarray, xy: np.ndarray, spec: ProjectSpec, project_crs, w
         return z, None
     source = _with_vertical(project_crs, _user_crs(spec.vertical_crs, f"{where} vertical_crs"),
                             where)
-    if source.equals(target):
+    if same_crs(source, target):
         return z, None
     pts = np.column_stack([np.asarray(xy, float)[:, :2], z])
     out, info = transform_points(pts, source, target, where)
@@ -631,7 +720,7 @@ def _transform_geometries(geoms: np.ndarray, transformer) -> np.ndarray:
 def _to_project_crs(gdf, target_crs):
     """The layer's geometries in the project CRS and the transformation used (dict or None)."""
     geoms = gdf.geometry.to_numpy()
-    if not gdf.geometry.notna().any() or gdf.crs.equals(target_crs):
+    if not gdf.geometry.notna().any() or same_crs(gdf.crs, target_crs):
         return geoms, None
     transformer, info = transformation_info(gdf.crs, target_crs, gdf.total_bounds)
     return _transform_geometries(geoms, transformer), info
@@ -802,7 +891,7 @@ def sample_dem(path: str, xy: np.ndarray, project_crs, report: Optional[dict] = 
     if crs is None:
         raise CRSError(f"{path}: the DEM has no coordinate reference system",
                        "Assign the CRS to the GeoTIFF (gdal_edit.py -a_srs)", path=str(path))
-    if not crs.equals(project_crs):
+    if not same_crs(crs, project_crs):
         pcrs = CRS.from_user_input(project_crs)
         finite = pts[np.isfinite(pts).all(axis=1)]
         bounds = (np.r_[finite.min(axis=0), finite.max(axis=0)] if len(finite) else None)
@@ -867,6 +956,7 @@ def load_project_data(project, vectors: Optional[list] = None,
         control = control_to_project_crs(control, spec, crs, where)
     fid_path = spec.measurements.get("fiducials")
     fiducials = read_fiducials(fid_path, unit) if fid_path else None
+    trajectory_warnings = _trajectory(spec, crs, where)
     layers = []
     truth = {}
     names = vectors or [v.name for v in spec.vectors]
@@ -899,7 +989,34 @@ def load_project_data(project, vectors: Optional[list] = None,
     if spec.has_rpc:
         say("reading the RPCs of the satellite images")
         read_rpc_images(data, spec, crs.to_string())
+    data.reading_warnings.extend(trajectory_warnings)
     return data
+
+
+def _trajectory(spec: ProjectSpec, project_crs, where: str) -> list:
+    """``[trajectory]``: GNSS/INS positions (and attitudes, sigmas) into the
+    ``[[images]]`` entries, transformed to the project CRS like the control points;
+    returns the warnings (images without a row, the transformation's)."""
+    if not spec.trajectory:
+        return []
+    from vectoradjust.files.trajectory import apply_trajectory, read_trajectory
+
+    table = spec.trajectory
+    w = f"{where} [trajectory]"
+    cols = read_trajectory(table["path"])
+    xyz = np.column_stack([cols["X"], cols["Y"], cols["Z"]])
+    source = _user_crs(table["crs"], f"{w} crs") if table.get("crs") else project_crs
+    vname = table.get("vertical_crs") or spec.vertical_crs
+    if vname:
+        source = _with_vertical(source, _user_crs(vname, f"{w} vertical_crs"), w)
+    target = _project_target(project_crs, spec, where)
+    warnings: list = []
+    if not same_crs(source, target):
+        xyz, info = transform_points(xyz, source, target, f"{w} ({table['path']})")
+        if info.get("warning"):
+            warnings.append(info["warning"])
+    apply_trajectory(spec.images, cols, xyz, str(table["path"]), warnings)
+    return warnings
 
 
 def read_rpc_images(data: ProjectData, spec: ProjectSpec, crs: str) -> None:
