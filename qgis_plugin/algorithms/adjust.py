@@ -10,6 +10,7 @@ from qgis.core import (
     QgsProcessingOutputNumber,
     QgsProcessingParameterBoolean,
     QgsProcessingParameterDefinition,
+    QgsProcessingParameterEnum,
     QgsProcessingParameterFeatureSink,
     QgsProcessingParameterFileDestination,
     QgsProcessingParameterNumber,
@@ -90,6 +91,11 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
     SIGMA_Z = "SIGMA_Z"
     RESIDUAL_SCALE = "RESIDUAL_SCALE"
     CONFLATION = "CONFLATION"
+    DATUM = "DATUM"
+    #: the DATUM choices and the project's [adjustment] datum each stands for
+    DATUM_OPTIONS = (("as the project says (control points, camera priors, control "
+                      "databases; checked before the solve)", None),
+                     ("free network (no priors: relative precision only)", "free"))
     SHAPE_POINTS = "SHAPE_POINTS"
     FEATURES = "FEATURES"
     CONTROL_POINTS = "CONTROL_POINTS"
@@ -107,6 +113,10 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
         self.addParameter(p)
         self.addParameter(QgsProcessingParameterBoolean(
             self.CONFLATION, "Correct every vertex (conflation)", defaultValue=True))
+        p = QgsProcessingParameterEnum(self.DATUM, "Datum", [o for o, _ in self.DATUM_OPTIONS],
+                                       defaultValue=0)
+        p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        self.addParameter(p)
         # optional sinks, created by default in the dialog: qgis_process and models write
         # only those that are given
         for key, label, kind in (
@@ -159,7 +169,8 @@ class AdjustRoadVectors(VectorAdjustAlgorithm):
         self.check_outputs(parameters)
         adj = inputs.run_adjustment(
             self, parameters, context, feedback, span=70.0,
-            conflation=self.parameterAsBoolean(parameters, self.CONFLATION, context))
+            conflation=self.parameterAsBoolean(parameters, self.CONFLATION, context),
+            datum=self.DATUM_OPTIONS[self.parameterAsEnum(parameters, self.DATUM, context)][1])
         out = adj.run
         # true centrelines ([truth]): buffer shares before/after, into the summary
         truth = project_truth_buffer(adj.prj, [out], context, feedback)  # read once

@@ -822,14 +822,16 @@ class Adjusted:
 
 
 def run_adjustment(alg, parameters, context, feedback, *, road_optional=False, start=10.0,
-                   span=75.0, conflation: Optional[bool] = None):
+                   span=75.0, conflation: Optional[bool] = None,
+                   datum: Optional[str] = None):
     """Read the road layer (if any) and the project, and run the adjustment.
 
     With a road layer, that database is adjusted (``pipeline.run(data,
     vectors=[name])``) with every other ``[[vectors]]`` entry of the project read
     too; without one (``road_optional``), every ``[[vectors]]`` entry is adjusted
     together (as ``vectoradjust qa PROJECT`` / ``equal-error`` do). ``conflation``
-    (not None) replaces the project's ``[conflation] enabled``.
+    (not None) replaces the project's ``[conflation] enabled``, ``datum`` (not None)
+    its ``[adjustment] datum`` (``"free"``: a free network).
 
     Returns
     -------
@@ -868,6 +870,11 @@ def run_adjustment(alg, parameters, context, feedback, *, road_optional=False, s
         from dataclasses import replace
 
         data = replace(data, conflation={**(data.conflation or {}), "enabled": bool(conflation)})
+    if datum is not None:
+        from dataclasses import replace
+
+        data = replace(data, settings=replace(data.settings, datum=datum))
+        feedback.pushInfo(f"datum: {datum} (instead of the project's)")
     feedback.setProgress(start)
     out = run_pipeline(data, vectors=[road.spec.name] if road is not None else None,
                        progress=progress_callback(feedback, start, span),

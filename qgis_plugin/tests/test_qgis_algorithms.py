@@ -631,3 +631,22 @@ def test_adjust_conflation_switch_defaults_on_and_the_log_counts_the_vertices(qg
     c = columns(res["SHAPE_POINTS"])
     src = np.array(c["Source"], dtype=object)[np.array(c["Adjusted"]) == 0]
     assert src.size > 0 and set(src) == {"unchanged"}
+
+
+def test_adjust_datum_parameter(qgis_app, sample, tmp_path):
+    """The dialog's default takes the datum from the project (the sample's control);
+    "free network" adjusts without priors and says the precision is relative."""
+    import json
+
+    from qgis.core import QgsApplication
+
+    alg = QgsApplication.processingRegistry().algorithmById("vectoradjust:adjustroadvectors")
+    assert alg.parameterDefinition("DATUM").defaultValue() == 0
+    default, free = tmp_path / "default.json", tmp_path / "free.json"
+    run("adjustroadvectors", adjust_params(sample, SUMMARY=str(default)))
+    run("adjustroadvectors", adjust_params(sample, SUMMARY=str(free), DATUM=1))
+    a = json.loads(default.read_text())["datum"]
+    b = json.loads(free.read_text())["datum"]
+    assert a["kind"] == "prior information"
+    assert a["sources"][0].startswith("24 measured control point(s)")
+    assert b["kind"] == "free network" and "relative" in b["note"]
