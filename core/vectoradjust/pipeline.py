@@ -25,6 +25,7 @@ plugin). No file I/O here; numpy and scipy only, so the QGIS plugin calls it dir
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import replace
 from typing import Callable, Optional
 
 import numpy as np
@@ -190,6 +191,8 @@ def _inputs(out: AdjustmentRun) -> None:
         for what, crs in (("layer", info.get("crs")), ("DEM", (info.get("dem") or {}).get("crs"))):
             if crs and crs.get("warning"):
                 _warn(out, f"{d.name}: the transformation of its {what} {crs['warning']}")
+    for w in getattr(out.data, "reading_warnings", None) or []:
+        _warn(out, w)
     reading = getattr(out.data.control, "reading", None)
     if reading:  # how the control points were read ([control] crs / vertical_crs)
         out.summary["control_input"] = reading
@@ -263,6 +266,152 @@ def run(
     on_adjusted: Optional[Callable[[AdjustmentRun], None]] = None,
 ) -> AdjustmentRun:
     """Adjust the road vectors of a project.
+
+    A database whose ``identification_sigma`` is not given gets one that no user has to
+    guess: a first adjustment estimates it where the data allow (truth, common
+    intersections of two databases: :func:`vectoradjust.accuracy.identification.
+    choose_identification`), else the conservative default of ten pixels on the ground;
+    the run is then made with it, and summary.json says which was used and why.
+
+    Parameters
+    ----------
+    data : ProjectData
+        Inputs as arrays (from :func:`vectoradjust.files.readers.load_project_data`, the
+        simulator or QGIS).
+    vectors : list of str, optional
+        Names of the ``[[vectors]]`` entries to adjust (default: all). Measurements of
+        the other databases' shape points are left out (not turned into tie points).
+    progress : callable, optional
+        ``progress(fraction, message)``.
+    is_cancelled : callable, optional
+        Polled between iterations.
+    on_adjusted : callable, optional
+        ``on_adjusted(run)`` as soon as the adjustment is final: before the control
+        points' and the vertices' tables, the statistics, the control-only run and the
+        conflation. The command line starts the uncertainty bands (which need no more)
+        in other processes there. ``run.summary`` is still empty at that point, and
+        ``run.control_points`` and the databases' ``vertices``, ``features`` and
+        ``truth`` are not filled in yet.
+
+    Returns
+    -------
+    AdjustmentRun
+
+    Raises
+    ------
+    VectorAdjustError
+        For every inconsistency of the input (named file, line, feature or point).
+    """
+    selected = _selected_databases(data, vectors)
+    unstated = [spec.name for spec, _ in data.vectors
+                if spec.name in selected and spec.identification_sigma is None]
+    if not unstated or data.settings.datum == "free":
+        return _run_once(data, vectors=vectors, progress=progress, is_cancelled=is_cancelled,
+                         on_adjusted=on_adjusted)
+
+    def first(frac, msg):
+        if progress is not None:
+            progress(0.2 * frac, f"identification error: {msg}")
+
+    chosen = _identification_pass(data, vectors, first, is_cancelled, unstated)
+    stated = replace(data, vectors=[
+        (replace(spec, identification_sigma=(chosen[spec.name]["horizontal"],
+                                             chosen[spec.name]["vertical"]))
+         if spec.name in chosen else spec, layer) for spec, layer in data.vectors])
+
+    def second(frac, msg):
+        if progress is not None:
+            progress(0.2 + 0.8 * frac, msg)
+
+    out = _run_once(stated, vectors=vectors, progress=second, is_cancelled=is_cancelled,
+                    on_adjusted=on_adjusted)
+    _identification_used(out, chosen)
+    return out
+
+
+def _identification_pass(data: ProjectData, vectors, report, is_cancelled,
+                         unstated: list) -> dict:
+    """The adjustment alone (no statistics, no conflation), its identification
+    estimates, and per unstated database the sigma to use (estimate or default)."""
+    from vectoradjust.accuracy.identification import (
+        choose_identification,
+        default_identification,
+    )
+
+    warnings: list = []
+    selected = _selected_databases(data, vectors)
+    cls = classify_measurements(data, selected, warnings)
+    setup = build_problem(data, cls, selected, warnings)
+    solution = solve(setup, data.settings, image_ids=cls.image_ids[setup.img_used],
+                     meas=data.measurements, warnings=warnings, progress=report,
+                     is_cancelled=is_cancelled)
+    out = AdjustmentRun(
+        data=data, problem=solution.problem, result=solution.result,
+        point_ids=setup.point_ids, point_kind=setup.point_kind,
+        point_database=setup.point_database,
+        image_ids=cls.image_ids[setup.img_used].tolist(), obs_rows=setup.obs_rows,
+        databases=setup.databases, control_points={}, summary={}, warnings=warnings,
+        passes=solution.passes)
+    for d in out.databases:
+        tabulate_database(out, d)
+    estimates = identification_estimates(out)
+    default = default_identification(_pixel_on_ground(out))
+    chosen = {}
+    for name in unstated:
+        c = choose_identification(name, estimates)
+        chosen[name] = c if c is not None else dict(default)
+    return chosen
+
+
+def _pixel_on_ground(out: AdjustmentRun) -> Optional[float]:
+    """A pixel's size on the ground (m) of the frame images: the camera's pixel size
+    (else the median stated measurement sigma) times the image scale (the flying height
+    above the median shape point over the focal length); None for RPC images."""
+    prob, data = out.problem, out.data
+    if prob.sensors is not None and prob.is_rpc.any():
+        return None
+    cal = getattr(data.camera, "calibration", None)
+    px = getattr(cal, "pixel_size", None) if cal is not None else None
+    pixel = float(np.mean(px)) if px is not None else float(np.median(data.measurements.sigma))
+    shape = out.point_kind == "shape"
+    ground = float(np.median(out.result.xyz[shape, 2])) if shape.any() else \
+        float(np.median(out.result.xyz[:, 2]))
+    height = float(np.median(out.result.eo[:, 2])) - ground
+    if not (height > 0 and prob.focal_length > 0):
+        return None
+    return pixel * height / float(prob.focal_length)
+
+
+def _identification_used(out: AdjustmentRun, chosen: dict) -> None:
+    """summary.json: the identification sigma used for each unstated database, and why."""
+    for d, entry in zip(out.databases, out.summary["databases"]):
+        c = chosen.get(d.name)
+        if c is None:
+            continue
+        entry["identification_sigma"] = None  # not given in the project ...
+        entry["identification_sigma_used"] = {  # ... this was used
+            "horizontal": c["horizontal"], "vertical": c["vertical"], "source": c["source"],
+            **{k: c[k] for k in ("estimate", "se", "count") if k in c}}
+        said = (f"estimated from {c['source']}: {c['estimate']:.2f} +- {c['se']:.2f} m "
+                f"(n = {c['count']}) plus one standard error" if "estimate" in c
+                else f"the data do not determine it; the conservative {c['source']}")
+        note = (f"{d.name}: identification_sigma is not given; "
+                f"[{c['horizontal']:.2f}, {c['vertical']:.2f}] m was used ({said}); state "
+                "it in the [[vectors]] entry if you know it (README: identification error)")
+        own = f"{d.name}: identification_sigma = "  # a 'disagrees' note of our own value
+        out.warnings = [w for w in out.warnings if not w.startswith(own)] + [note]
+        out.summary["warnings"] = list(out.warnings)
+
+
+def _run_once(
+    data: ProjectData,
+    *,
+    vectors: Optional[list] = None,
+    progress: Optional[Progress] = None,
+    is_cancelled: Optional[Callable[[], bool]] = None,
+    on_adjusted: Optional[Callable[[AdjustmentRun], None]] = None,
+) -> AdjustmentRun:
+    """One run of :func:`run` with the identification sigmas as given.
 
     Parameters
     ----------

@@ -28,7 +28,14 @@ from scipy.spatial import cKDTree
 from vectoradjust.accuracy.tables import truth_vertex_index
 from vectoradjust.results import AdjustmentRun, DatabaseResult
 
-__all__ = ["from_truth", "from_common_intersections", "identification_estimates"]
+__all__ = ["from_truth", "from_common_intersections", "identification_estimates",
+           "choose_identification", "default_identification", "DEFAULT_PIXELS"]
+
+#: the conservative default identification error: this many pixels on the ground
+#: (horizontal; the measured point lies on the terrain, so 0 vertically)
+DEFAULT_PIXELS = 10.0
+#: an estimate is used when it rests on at least this many points ...
+MIN_COUNT = 5
 
 #: two databases' adjusted intersections closer than this (m) are the same intersection
 MATCH_RADIUS = 6.0
@@ -136,3 +143,52 @@ def identification_estimates(out: AdjustmentRun) -> dict:
             if est is not None:
                 pairs.append(est)
     return {"databases": dbs, "pairs": pairs}
+
+
+def _candidates(name: str, estimates: dict) -> list:
+    """The estimates that concern database ``name`` (its truth, its pairs)."""
+    found = [e for e in [estimates.get("databases", {}).get(name)] if e]
+    found += [e for e in estimates.get("pairs", [])
+              if name in e["source"].split(" ", 2)[-1].split("/")]
+    return [e for e in found if e.get("horizontal") is not None]
+
+
+def choose_identification(name: str, estimates: dict) -> Optional[dict]:
+    """The identification sigma the data determine for database ``name``, or None.
+
+    Among the estimates with at least :data:`MIN_COUNT` points and a standard error
+    below half the estimate (or 5 cm), the one with the smallest standard error; the
+    value used is the estimate plus one standard error (a conservative choice: the
+    estimates from common intersections run a little low, see the module docstring).
+
+    Returns
+    -------
+    dict or None
+        ``{"horizontal", "vertical", "source", "estimate", "se", "count"}`` (m).
+    """
+    ok = [e for e in _candidates(name, estimates)
+          if e["count"] >= MIN_COUNT and e["horizontal_se"] is not None
+          and e["horizontal_se"] < max(0.5 * e["horizontal"], 0.05)]
+    if not ok:
+        return None
+    best = min(ok, key=lambda e: e["horizontal_se"])
+    h = best["horizontal"] + best["horizontal_se"]
+    v = 0.0
+    if best.get("vertical") is not None and best.get("vertical_se") is not None \
+            and best["vertical_se"] < max(0.5 * best["vertical"], 0.05):
+        v = best["vertical"] + best["vertical_se"]
+    return {"horizontal": float(h), "vertical": float(v), "source": best["source"],
+            "estimate": float(best["horizontal"]), "se": float(best["horizontal_se"]),
+            "count": int(best["count"])}
+
+
+def default_identification(pixel_ground: Optional[float]) -> dict:
+    """The conservative default: :data:`DEFAULT_PIXELS` pixels on the ground
+    horizontally (``pixel_ground`` m; None: 1 m), 0 vertically."""
+    if pixel_ground is None or not np.isfinite(pixel_ground) or pixel_ground <= 0:
+        return {"horizontal": 1.0, "vertical": 0.0,
+                "source": "default: 1 m (the image scale is not known)"}
+    h = DEFAULT_PIXELS * float(pixel_ground)
+    return {"horizontal": h, "vertical": 0.0,
+            "source": f"default: {DEFAULT_PIXELS:g} pixels of {pixel_ground:.3g} m on the "
+                      "ground"}

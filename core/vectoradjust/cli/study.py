@@ -265,7 +265,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
     i.add_argument("--reweight", choices=("none", "two-pass", "vce"), default="two-pass",
                    help="[adjustment] reweight of the runs (two-pass, as the sample)")
     i.add_argument("--no-stated-sigma", action="store_true",
-                   help="do not state identification_sigma = the simulated error")
+                   help="do not state identification_sigma = the simulated error (the "
+                        "runs then estimate it from the data, or use the default)")
     i.add_argument("-q", "--quiet", action="store_true", help="no progress bar or table")
     i.set_defaults(func=cmd_identification)
     return s

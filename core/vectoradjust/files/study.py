@@ -375,7 +375,8 @@ def identification_study(errors: Sequence[float], *, seed: int = 35, repeats: in
     reweight : str
         ``[adjustment] reweight`` of the runs.
     state_sigma : bool
-        Give each database ``identification_sigma = (error, 0)`` (else none).
+        Give each database ``identification_sigma = (error, 0)`` (else none: each run
+        estimates it from the data or uses the default, :func:`vectoradjust.pipeline.run`).
 
     Returns
     -------
