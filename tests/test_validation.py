@@ -43,13 +43,18 @@ from scipy.stats import binom
 ROOT = Path(__file__).resolve().parents[1]
 VALIDATION = ROOT / "validation"
 PLEIADES = ROOT.parent / "shared" / "data" / "rpc" / "pleiades_pair"
+NGI = ROOT.parent / "shared" / "data" / "aerial" / "ngi_dmc"
+#: scripts that read ../shared/data (skipped with a reason where it is absent)
+NEEDS = {"pleiades": PLEIADES / "img_01.tif", "aerial_gnss": NGI / "camera_pos_ori.txt"}
 SCRIPTS = ("blunder_detection", "ce90_coverage", "conflation", "conflation_noise", "measure",
-           "monte_carlo_coverage", "pleiades", "real_roads", "satellite", "drone_roads")
+           "monte_carlo_coverage", "pleiades", "real_roads", "satellite", "drone_roads",
+           "aerial_gnss")
 #: at least this many criteria in a fast run (so that a script cannot pass by checking
 #: nothing)
 MIN_CRITERIA = {"blunder_detection": 13, "ce90_coverage": 10, "conflation": 28,
                 "conflation_noise": 5, "measure": 5, "monte_carlo_coverage": 5,
-                "pleiades": 18, "real_roads": 7, "satellite": 3, "drone_roads": 20}
+                "pleiades": 18, "real_roads": 7, "satellite": 3, "drone_roads": 20,
+                "aerial_gnss": 14}
 
 sys.path.insert(0, str(VALIDATION))
 from acceptance import coverage_1d, coverage_2d, share_band  # noqa: E402
@@ -76,12 +81,12 @@ def criteria_lines(out: str) -> list:
 
 
 def _needs_data(name: str) -> None:
-    if name != "pleiades":
+    if name not in NEEDS:
         return
-    if not (PLEIADES / "img_01.tif").is_file():
-        pytest.skip(f"Pleiades pair not found: {PLEIADES}")
+    if not NEEDS[name].is_file():
+        pytest.skip(f"validation/{name}.py: its real data not found: {NEEDS[name].parent}")
     if importlib.util.find_spec("rasterio") is None:
-        pytest.skip("validation/pleiades.py needs rasterio, not installed here")
+        pytest.skip(f"validation/{name}.py needs rasterio, not installed here")
 
 
 def _assert_passed(name: str, status: int, out: str) -> list:
@@ -95,7 +100,7 @@ def _assert_passed(name: str, status: int, out: str) -> list:
 
 
 def _params():
-    return [pytest.param(n, marks=pytest.mark.io) if n == "pleiades" else n for n in SCRIPTS]
+    return [pytest.param(n, marks=pytest.mark.io) if n in NEEDS else n for n in SCRIPTS]
 
 
 @pytest.mark.slow
