@@ -40,6 +40,7 @@ OFFSET_KINDS = {
     "none": (),
     "shift": ("X", "Y"),
     "shift3d": ("X", "Y", "Z"),
+    "height": ("Z",),
     "similarity": ("X", "Y", "rotation", "scale"),
     "affine": ("X", "Y", "a11", "a12", "a21", "a22"),
 }

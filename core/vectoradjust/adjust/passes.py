@@ -25,7 +25,11 @@ __all__ = ["Solution", "solve", "datum_record", "free_network"]
 Progress = Callable[[float, str], None]
 
 #: measured points a database needs for its offset kind (fewer: no offset estimated)
-_MIN_OFFSET_POINTS = {"none": 0, "shift": 1, "shift3d": 1, "similarity": 3, "affine": 4}
+_MIN_OFFSET_POINTS = {"none": 0, "shift": 1, "shift3d": 1, "height": 1, "similarity": 3,
+                      "affine": 4}
+#: heights from a DEM: its systematic height error is estimated too (issue 30: a biased
+#: DEM must not pull the stereo model), the offset kind becomes this
+_WITH_DEM_HEIGHT = {"shift": "shift3d", "none": "height"}
 
 #: variance components of the well-known groups may move at most this factor from the
 #: stated sigma; beyond it they are held and a finding is reported (issue: a biased
@@ -139,6 +143,11 @@ def _reweight_two_pass(setup: BundleSetup, result: BundleResult, warnings: list)
     """
     q = (np.einsum("mii->mi", result.point_cov) / result.variance_factor
          if result.point_cov is not None else np.zeros(result.v_point.shape))
+    if result.point_cov is not None and result.offset_cofactor is not None:
+        # a point's own pull (q / s^2) excludes the offsets' share: an offset is common to
+        # all the database's points, its uncertainty is not one prior pulling one point
+        qb = result.offset_qb
+        q = q - np.einsum("miq,qr,mir->mi", qb, result.offset_cofactor, qb)
     weight = setup.problem.prior_weight.copy()
     sig1 = 1.0 / np.sqrt(np.maximum(np.einsum("mii->mi", weight), 1e-300))
     kept = []
@@ -327,7 +336,10 @@ def _scale_covariances(sol: Solution, setup: BundleSetup, settings, kept: list) 
 def _offset_model(setup: BundleSetup, warnings: list) -> Optional[off.OffsetModel]:
     """The databases whose systematic offset is estimated (None: none is).
 
-    A control database (``role = "control"``) is never offset freely: with a stated
+    Heights from a DEM add a height offset (``shift`` -> ``shift3d``, ``none`` ->
+    ``height``): the DEM's systematic height error, estimated with the adjustment, so that
+    a biased DEM does not pull the stereo model. A control database (``role =
+    "control"``) is never offset freely: with a stated
     ``systematic_sigma`` it gets a 3D shift whose prior is that systematic part (an
     error common to its vertices, carried into the covariances, not estimated from
     the data); without one, no offset.
@@ -335,6 +347,8 @@ def _offset_model(setup: BundleSetup, warnings: list) -> Optional[off.OffsetMode
     names, kinds, points, dems, priors = [], [], [], [], []
     for d in setup.databases:
         kind = getattr(d.spec, "offset", "none") or "none"
+        if getattr(d.spec, "dem", None):  # the DEM's height bias, its own parameter
+            kind = _WITH_DEM_HEIGHT.get(kind, kind)
         prior = None
         if getattr(d.spec, "role", "adjust") == "control":
             sys_ = np.sqrt(d.spec.systematic_variance)
