@@ -411,37 +411,8 @@ def _run_once(
     is_cancelled: Optional[Callable[[], bool]] = None,
     on_adjusted: Optional[Callable[[AdjustmentRun], None]] = None,
 ) -> AdjustmentRun:
-    """One run of :func:`run` with the identification sigmas as given.
-
-    Parameters
-    ----------
-    data : ProjectData
-        Inputs as arrays (from :func:`vectoradjust.files.readers.load_project_data`, the
-        simulator or QGIS).
-    vectors : list of str, optional
-        Names of the ``[[vectors]]`` entries to adjust (default: all). Measurements of
-        the other databases' shape points are left out (not turned into tie points).
-    progress : callable, optional
-        ``progress(fraction, message)``.
-    is_cancelled : callable, optional
-        Polled between iterations.
-    on_adjusted : callable, optional
-        ``on_adjusted(run)`` as soon as the adjustment is final: before the control
-        points' and the vertices' tables, the statistics, the control-only run and the
-        conflation. The command line starts the uncertainty bands (which need no more)
-        in other processes there. ``run.summary`` is still empty at that point, and
-        ``run.control_points`` and the databases' ``vertices``, ``features`` and
-        ``truth`` are not filled in yet.
-
-    Returns
-    -------
-    AdjustmentRun
-
-    Raises
-    ------
-    VectorAdjustError
-        For every inconsistency of the input (named file, line, feature or point).
-    """
+    """One run of :func:`run` (same parameters, returns, raises) with the
+    identification sigmas as given."""
     def report(frac, msg):
         if progress is not None:
             progress(frac, msg)

@@ -41,6 +41,7 @@ import numpy as np
 from vectoradjust.errors import CRSError, DEMError, ProjectError
 from vectoradjust.measure.geometry import inv2, window_axes
 from vectoradjust.measure.matching import FLAGS
+from vectoradjust.measure.ties import foerstner
 from vectoradjust.measure.transfer import MatchSettings, match_batch
 from vectoradjust.sensor.rpc import RpcModel
 
@@ -159,22 +160,7 @@ class RpcTies:
 
 
 # ---------------------------------------------------------------------- interest points
-def _foerstner(img: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
-    """Foerstner weight ``w`` and roundness ``q`` of every pixel (NaN-free input)."""
-    from scipy.ndimage import uniform_filter
-
-    gy, gx = np.gradient(img)
-    nxx = uniform_filter(gx * gx, window, mode="nearest")
-    nyy = uniform_filter(gy * gy, window, mode="nearest")
-    nxy = uniform_filter(gx * gy, window, mode="nearest")
-    det = nxx * nyy - nxy * nxy
-    tr = nxx + nyy
-    with np.errstate(invalid="ignore", divide="ignore"):
-        w = np.where(tr > 0, det / tr, 0.0)
-        q = np.where(tr > 0, 4.0 * det / (tr * tr), 0.0)
-    return w, q
-
-
+# (the Foerstner operator: vectoradjust.measure.ties.foerstner)
 def interest_points(reader, spacing: int = 48, border: int = 20, window: int = 7,
                     min_roundness: float = 0.5, n: Optional[int] = None
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -218,7 +204,7 @@ def interest_points(reader, spacing: int = 48, border: int = 20, window: int = 7
         img = np.where(np.isfinite(img), img, np.nanmean(img) if np.isfinite(img).any() else 0)
         # beyond the image edge: the edge rows repeated (no artificial edge there)
         img = np.pad(img, ((lo - (r0 - pad), r0 + spacing + pad - hi), (0, 0)), mode="edge")
-        w, q = _foerstner(img, window)
+        w, q = foerstner(img, window)
         w = np.where(q >= min_roundness, w, -np.inf)[pad:pad + spacing, x0:x0 + ncol * spacing]
         cells = w.reshape(spacing, ncol, spacing).transpose(1, 0, 2).reshape(ncol, -1)
         k = np.argmax(cells, axis=1)

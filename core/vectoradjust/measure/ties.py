@@ -46,8 +46,8 @@ from vectoradjust.measure.geometry import ImageGeometry, local_affine, transfer_
 from vectoradjust.measure.matching import FLAGS
 from vectoradjust.measure.transfer import MatchSettings, match_batch
 
-__all__ = ["TIE_FLAGS", "TiePoints", "ArrayReader", "texture_points", "tie_settings",
-           "tie_points"]
+__all__ = ["TIE_FLAGS", "TiePoints", "ArrayReader", "foerstner", "texture_points",
+           "tie_settings", "tie_points"]
 
 #: flags of a candidate on a target image (bits): those of
 #: :data:`vectoradjust.measure.matching.FLAGS` for the forward match, and:
@@ -167,8 +167,9 @@ def tie_settings(**changes) -> MatchSettings:
 
 
 # ---------------------------------------------------------------------- candidates
-def _foerstner(img: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
-    """Foerstner weight ``w`` and roundness ``q`` of every pixel (NaN-free input)."""
+def foerstner(img: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Foerstner weight ``w`` and roundness ``q`` of every pixel (NaN-free input); also
+    :func:`vectoradjust.files.rpc_ties.interest_points`'s operator."""
     gy, gx = np.gradient(img)
     nxx = uniform_filter(gx * gx, window, mode="nearest")
     nyy = uniform_filter(gy * gy, window, mode="nearest")
@@ -211,7 +212,7 @@ def texture_points(image, spacing: int = 32, border: int = 16, window: int = 7,
     img = rd.read(0, 0, width, height)
     bad = ~np.isfinite(img)
     img = np.where(bad, np.nanmean(img) if (~bad).any() else 0.0, img)
-    w, q = _foerstner(img, window)
+    w, q = foerstner(img, window)
     w = np.where((q >= min_roundness) & ~uniform_filter(bad.astype(float), window).astype(bool),
                  w, -np.inf)
     ncol = max((width - 2 * border) // spacing, 0)
