@@ -17,7 +17,14 @@ Scenarios (``vectoradjust.simulate.conflation.conflation_scenario``, one databas
 - ``helsinki-10``: as ``helsinki`` with only 10 % of the vertices measured;
 - ``helsinki-0.3`` (for information): as ``helsinki`` but the database states only its
   white noise (0.3 m) as its sigma, not its real error after the shift (2 m): the
-  adjustment is strained, the images' positions err more than their covariance says.
+  adjustment is strained, the images' positions err more than their covariance says;
+- ``helsinki-waves``: on the Helsinki geometry a long-wavelength field instead of the
+  150 m one: three plane waves per axis of wavelengths 300-1500 m (2 m per axis,
+  ``vectoradjust.simulate.conflation.wave_field``);
+- ``helsinki-waves-clusters`` and ``helsinki-long-clusters`` (for information): the
+  waves, or a Gaussian-process field of correlation length 500 m, measured only in
+  three patches of 120 m radius (30 % of the vertices there), so that the predicted
+  vertices lie 0 to 500 m from the nearest measured one.
 
 The database states its real error once the shift is removed (``hypot(2, 0.3)`` m, the
 shift-only database 0.3 m) and its heights are DEM heights (0.1 m error) stated 3 m.
@@ -50,7 +57,15 @@ information: it shows what a misstated sigma does), over the ``n`` seeds:
 5. the step between a measured and an unmeasured neighbour: after / before at most 0.3
    in every seed (4.2-5.0 m -> 0.5-0.7 m measured);
 6. height RMSE of the predicted vertices after / before, mean over the seeds, at most
-   1.05 (not worse than the DEM's).
+   1.05 (not worse than the DEM's);
+7. (issue 30) CE90 pooled per distance band of the predicted vertices from the nearest
+   measured one (0-50, 50-100, 100-200, > 200 m; bands with fewer than ``MIN_BAND``
+   vertices over the seeds are skipped) within 85-95 %, widened by ``z SD / sqrt(n)``
+   with the band's per-seed SD (``BAND_SD``) and ``z`` for ``0.01 / 20``, also for
+   ``helsinki-waves``.
+
+The per-band table (CE90 and LE90 pooled, vertices per band) is printed for every
+scenario, the clustered ones included.
 
 ``z`` is for a two-sided ``0.01 / 12`` (three statistical criteria, four scenarios): a
 correct implementation passes all with >= 99 %.
@@ -84,6 +99,14 @@ ROADS = ROOT / "tests" / "data" / "helsinki" / "helsinki_roads.geojson"
 SEED_SD = {"smooth": (0.07, 0.015, 0.06), "shift": (0.07, 0.015, 0.01),
            "helsinki": (0.035, 0.05, 0.03), "helsinki-10": (0.055, 0.03, 0.03)}
 ALPHA = 0.01 / 12
+#: fewest predicted vertices (over the seeds) a distance band needs for criterion 7
+MIN_BAND = 100
+#: the band criteria's own two-sided level: at most 20 bands (five scenarios x four)
+BAND_ALPHA = 0.01 / 20
+#: per-seed SD of a band's CE90 coverage (bands 0-50, 50-100, 100-200, > 200 m)
+BAND_SD = {"smooth": (0.07, 0.1, 0.15, 0.15), "shift": (0.07, 0.1, 0.15, 0.15),
+           "helsinki": (0.035, 0.1, 0.15, 0.15), "helsinki-10": (0.055, 0.08, 0.15, 0.15),
+           "helsinki-waves": (0.05, 0.1, 0.15, 0.15)}
 
 
 def scenarios():
@@ -96,6 +119,12 @@ def scenarios():
         # not one of the four: the database states only its white noise (0.3 m) although
         # a 2 m field is present, so the adjustment itself is strained (sigma0^2 7-12)
         "helsinki-0.3": {"true_roads": roads, "stated_sigma": 0.3},
+        # issue 30: long-wavelength fields, and predictions far from measured patches
+        "helsinki-waves": {"true_roads": roads, "field": "waves"},
+        "helsinki-waves-clusters": {"true_roads": roads, "field": "waves",
+                                    "layout": "clusters"},
+        "helsinki-long-clusters": {"true_roads": roads, "length": 500.0,
+                                   "layout": "clusters"},
     }
 
 
@@ -150,7 +179,40 @@ def one(name: str, kw: dict, seed: int) -> dict:
             "z_db": tr["rmse_database_truth_z"], "z_conf": tr["rmse_conflated_truth_z"],
             "cv_rmse": cv["rmse"], "cv_share": cv["share_within_90"], "moved": moved,
             "spread": spread, "step0": step0, "step1": step1, "seconds": el,
-            "nugget": fit["nugget"], "sill": fit["sill"], "length": fit["length"]}
+            "nugget": fit["nugget"], "sill": fit["sill"], "length": fit["length"],
+            "model": fit["model"], "bands": tr["bands"]}
+
+
+def pooled_bands(sel: list) -> list:
+    """Per distance band over the rows ``sel``: ``(band, count, CE90, LE90)`` pooled
+    over all predicted vertices of all seeds (None where a band is empty)."""
+    out = []
+    for j, b in enumerate(sel[0]["bands"]):
+        n = sum(r["bands"][j]["count"] for r in sel)
+        ce = sum((r["bands"][j]["ce90"] or 0.0) * r["bands"][j]["count"] for r in sel)
+        le = sum((r["bands"][j]["le90"] or 0.0) * r["bands"][j]["count"] for r in sel)
+        out.append((b["band"], n, ce / n if n else None, le / n if n else None))
+    return out
+
+
+def band_table(rows: list, names: list) -> None:
+    """Print CE90 / LE90 coverage pooled per distance band from the nearest measured
+    vertex, per scenario, and the per-seed CE90 range per band."""
+    print("\nper distance band from the nearest measured vertex (pooled over the seeds; "
+          "CE90 per seed min-max):")
+    for name in names:
+        sel = [r for r in rows if r["scenario"] == name]
+        if not sel:
+            continue
+        cells = []
+        for j, (band, n, ce, le) in enumerate(pooled_bands(sel)):
+            if not n:
+                cells.append(f"{band} m: -")
+                continue
+            per = [r["bands"][j]["ce90"] for r in sel if r["bands"][j]["count"]]
+            cells.append(f"{band} m: n {n} CE90 {ce:.3f} ({min(per):.2f}-{max(per):.2f}) "
+                         f"LE90 {le:.3f}")
+        print(f"{name:24s} " + " | ".join(cells))
 
 
 def summary(rows: list, names: list) -> None:
@@ -207,6 +269,15 @@ def criteria(rows: list, names: list) -> Criteria:
                  np.max(col["step1"] / col["step0"]), 0.0, 0.3)
         crit.add(f"{tag}: height RMSE after / before (mean)",
                  np.mean(col["z_conf"] / col["z_db"]), 0.0, 1.05)
+    for name in names:  # 7: per distance band
+        sel = [r for r in rows if r["scenario"] == name]
+        if name not in BAND_SD or not sel:
+            continue
+        for sd, (band, n, ce, _) in zip(BAND_SD[name], pooled_bands(sel)):
+            if n >= MIN_BAND:
+                w = z_two_sided(BAND_ALPHA) * sd / math.sqrt(len(sel))
+                crit.add(f"{name} ({len(sel)} seeds): CE90 pooled at {band} m ({n})", ce,
+                         0.85 - w, min(0.95 + w, 1.0), "issue 30")
     return crit
 
 
@@ -289,6 +360,7 @@ def main(argv=None) -> int:
                   f"{r['seconds']:5.1f} {r['nugget']:6.3f} {r['sill']:5.2f} {r['length']:5.0f} "
                   f"{flag}")
     summary(rows, list(todo))
+    band_table(rows, list(todo))
     if args.true_covariance or args.true_nugget:
         print("(the criteria are those of the fitted covariance; here for information)")
     return criteria(rows, list(todo)).report(args.json, {"rows": rows})

@@ -25,7 +25,9 @@ The variance of the real vertex's position error is
 its own database noise ``n_db``; the trend's variance from the joint covariance of the
 adjusted points, :func:`_mean_variance`). The horizontal CE90 is that of the predictive
 distribution, the normal mixed over the distributions of the estimated ``n_db`` and
-``C0`` (:func:`ce90_factor`); the sigmas are the plug-in ones.
+``C0`` (:func:`ce90_factor`; the sill with the database's stated variance as its prior,
+:func:`_sill_prior`, which carries the vertices far from measured patches); the sigmas
+are the plug-in ones.
 
 Only the ``k`` nearest measured points enter each prediction (a KD-tree; the ``k x k``
 systems are solved batch-wise with :func:`numpy.linalg.solve`), so the cost is linear
@@ -46,7 +48,7 @@ __all__ = ["ConflationSettings", "CovarianceModel", "settings_from_table", "fit_
            "empirical_semivariogram", "krige", "cross_validate", "image_only", "FieldModel",
            "field_grid", "ce90_factor",
            "conflate_database", "conflate_run", "SOURCES", "CONFLATION_KEYS",
-           "CE90_CIRCULAR", "LE90"]
+           "CE90_CIRCULAR", "LE90", "band_coverage", "DISTANCE_BANDS", "SILL_PRIOR_DOF"]
 
 #: the ``Source`` values of a vertex
 SOURCES = ("measured", "interpolated", "extrapolated", "unchanged")
@@ -57,6 +59,9 @@ CE90_CIRCULAR = float(np.sqrt(-2.0 * np.log(0.1)))
 #: LE90 / sigma of a normal error, Phi^-1(0.95)
 LE90 = 1.6448536269514722
 _MODELS = ("auto", "exponential", "gaussian")
+#: degrees of freedom of the database's stated variance as the sill's prior
+#: (:func:`_sill_prior`): known to about +-50 % (``sqrt(2 / 8)``)
+SILL_PRIOR_DOF = 8.0
 
 
 @dataclass
@@ -156,6 +161,10 @@ class CovarianceModel:
         Degrees of freedom of the sill's estimate (:func:`_sill_dof`; inf: known).
         With ``nugget_posterior`` they make the CE90 that of the predictive
         distribution (:func:`ce90_factor`).
+    sill_prior : tuple, optional
+        ``(S0, nu0)``: the database's stated variance of its field (m^2) and its degrees
+        of freedom, the sill's prior in the CE90 (:func:`_sill_prior`,
+        :func:`_ce90_table`); None: the estimate alone.
     """
 
     kind: str
@@ -166,6 +175,7 @@ class CovarianceModel:
     fit: dict = field(default_factory=dict)
     nugget_posterior: Optional[tuple] = None
     sill_dof: float = float("inf")
+    sill_prior: Optional[tuple] = None
     _table: Optional[np.ndarray] = field(default=None, init=False, repr=False, compare=False)
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
@@ -187,7 +197,10 @@ class CovarianceModel:
                 "known_noise": float(self.known_noise), **self.fit,
                 "nugget_sd": (float(self.nugget * np.sqrt(np.sum(self.nugget_posterior[1] * (
                     self.nugget_posterior[0] - 1.0) ** 2))) if self.nugget_posterior else 0.0),
-                "sill_dof": float(self.sill_dof) if np.isfinite(self.sill_dof) else None}
+                "sill_dof": float(self.sill_dof) if np.isfinite(self.sill_dof) else None,
+                "sill_prior": (None if self.sill_prior is None else
+                               {"variance": float(self.sill_prior[0]),
+                                "dof": float(self.sill_prior[1])})}
 
 
 def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
@@ -639,12 +652,22 @@ def _ce90_table(cov: CovarianceModel, n_grid: int = 33) -> np.ndarray:
     distributions, ``P(R > r) = E exp(-r^2 / (2 V (f_t + f_s X_s + f_n X_n)))`` with
     ``X_s = nu / chi2_nu`` (:func:`_variance_nodes`; the Student-t construction) and
     ``X_n`` the database noise's distribution given the data
-    (``cov.nugget_posterior``, as an 8-point Gauss rule, :func:`_gauss_rule`). ``r``
-    solves ``P = 0.1`` by Newton's method on ``log r^2``, safeguarded by bisection in
-    the bracket of the smallest and the largest mixed variance. Lattice points with
+    (``cov.nugget_posterior``, as an 8-point Gauss rule, :func:`_gauss_rule`). With
+    ``cov.sill_prior = (S0, nu0)`` (the database's stated variance, :func:`_sill_prior`)
+    the sill's distribution is the posterior of the conjugate prior, ``X_s = q nu' /
+    chi2_nu'`` with ``nu' = nu + nu0`` and ``q = (nu C0 + nu0 S0) / (nu' C0)``: it
+    matters only where ``nu`` is a few (the sill seen on a few patches). ``r`` solves
+    ``P = 0.1`` by Newton's method on ``log r^2``, safeguarded by bisection in the
+    bracket of the smallest and the largest mixed variance. Lattice points with
     ``f_s + f_n > 1`` take the value of ``(f_s, f_n) / (f_s + f_n)``.
     """
     xs, ws = _variance_nodes(cov.sill_dof if cov.sill > 0 else float("inf"))
+    if cov.sill_prior is not None and cov.sill > 0 and np.isfinite(cov.sill_dof):
+        # the prior's scale and degrees of freedom join the estimate's (conjugate
+        # scaled inverse chi-square): X_s = r nu' / chi2_nu'
+        (s0, nu0), nu = cov.sill_prior, cov.sill_dof
+        xs, ws = _variance_nodes(nu + nu0)
+        xs = xs * (nu * cov.sill + nu0 * s0) / ((nu + nu0) * cov.sill)
     xn, wn = (_gauss_rule(*cov.nugget_posterior) if cov.nugget_posterior is not None
               else (np.ones(1), np.ones(1)))
     f = np.linspace(0.0, 1.0, n_grid)
@@ -1107,8 +1130,35 @@ def _vertex_columns(d, meas_v, adj, cov, source, ce_factor=None) -> None:
     d.features.update(_feature_geometry(d.shape.layer, d.adjusted_coords))
 
 
-def _truth_check(out, d, meas_v, source) -> Optional[dict]:
-    """RMSE of the unmeasured vertices to the truth before and after, CE90/LE90 coverage."""
+#: distance bands (m) from the nearest measured point of the truth check's coverage table
+DISTANCE_BANDS = (0.0, 50.0, 100.0, 200.0, np.inf)
+
+
+def band_coverage(near: np.ndarray, inside_h: np.ndarray, inside_v: np.ndarray,
+                  edges=DISTANCE_BANDS) -> list:
+    """Coverage per distance band: ``[{"band", "count", "ce90", "le90"}]``.
+
+    ``near`` (n,) the distance to the nearest measured point, ``inside_h`` and
+    ``inside_v`` (n,) whether the truth lies within the CE90 / LE90 (NaN: no LE90);
+    ``edges`` the bands' limits (m), lower inclusive.
+    """
+    near = np.asarray(near, float)
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (near >= lo) & (near < hi)
+        v = np.asarray(inside_v, float)[m]
+        v = v[np.isfinite(v)]
+        out.append({"band": f"{lo:g}-{hi:g}" if np.isfinite(hi) else f">{lo:g}",
+                    "count": int(m.sum()),
+                    "ce90": float(np.mean(np.asarray(inside_h, float)[m])) if m.any() else None,
+                    "le90": float(np.mean(v)) if v.size else None})
+    return out
+
+
+def _truth_check(out, d, meas_v, source, near=None) -> Optional[dict]:
+    """RMSE of the unmeasured vertices to the truth before and after, CE90/LE90 coverage
+    (also per distance band of ``near``, each vertex's distance to the nearest measured
+    point, :func:`band_coverage`)."""
     from vectoradjust.adjust.shapepoints import lookup
 
     truth = (getattr(out.data, "truth", None) or {}).get(d.name)
@@ -1127,7 +1177,10 @@ def _truth_check(out, d, meas_v, source) -> Optional[dict]:
     ez = np.abs(adj[:, 2] - t[:, 2])
     okz = np.isfinite(ez) & np.isfinite(v["LE90"][m])
     r_db, r_adj = float(np.sqrt(np.mean(e_db ** 2))), float(np.sqrt(np.mean(e_adj ** 2)))
-    return {"count": int(m.sum()), "rmse_database_truth_horizontal": r_db,
+    in_v = np.where(okz, ez <= np.where(okz, v["LE90"][m], 0.0), np.nan)
+    bands = (band_coverage(np.asarray(near, float)[m], e_adj <= v["CE90"][m], in_v)
+             if near is not None else None)
+    return {"bands": bands, "count": int(m.sum()), "rmse_database_truth_horizontal": r_db,
             "rmse_conflated_truth_horizontal": r_adj,
             "reduction": float(1.0 - r_adj / r_db) if r_db > 0 else None,
             "share_within_ce90": float(np.mean(e_adj <= v["CE90"][m])),
@@ -1299,6 +1352,23 @@ def _mean_variance(result, pts: np.ndarray) -> np.ndarray:
     return result.variance_factor * np.diagonal(total).copy() / p ** 2
 
 
+def _sill_prior(spec, cov: CovarianceModel) -> tuple:
+    """``(S0, nu0)``: the database's statement about its field's variance, the prior of
+    the horizontal sill (:func:`_ce90_table`).
+
+    The database's stated horizontal sigma (``[[vectors]] sigma``, its error once the
+    offset is removed) less its stated systematic part and the fitted white noise:
+    ``S0 = max(sigma_h^2 - systematic_h^2 - n_db, 0)``, with :data:`SILL_PRIOR_DOF`
+    degrees of freedom (the statement known to about +-50 % in variance). Where the
+    measured points see the field on a few patches only (``sill_dof`` of a few: e.g.
+    the images cover a part of the database) the data cannot tell how large the field
+    is elsewhere; the statement then carries the far vertices' variance.
+    """
+    sig = np.asarray(spec.sigma, float)[:2]
+    s0 = float(np.mean(sig ** 2) - spec.systematic_variance[0] - cov.nugget)
+    return max(s0, 0.0), SILL_PRIOR_DOF
+
+
 def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     """Displacement, covariance and nearest distance of the unmeasured object points."""
     db = d.shape.object_xyz
@@ -1321,6 +1391,8 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
                      (np.column_stack([g_m[:, :2, :].reshape(len(m_obj), -1),
                                        np.ones(len(m_obj))]), g_m[:, 2, :]), corr_v)
     wsum_h, fh.wsum = _split_weight_sum(fh.wsum, len(u_obj))
+    if fh.cov is not None:
+        fh.cov.sill_prior = _sill_prior(d.spec, fh.cov)
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
     extra = _trend_field_cov(g_m, xy_m, (fh.cov, fv.cov))
     cov_field = _trend_cov(replace(tr, c=extra, fixed=np.zeros(3)), u_obj, fh.wsum, fv.wsum)
@@ -1538,7 +1610,7 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
         d.vertices["Vz"][u] = np.nan
     entry.update({"status": "conflated", "max_distance": float(maxd), **info,
                   "vertices": {k: int((source == k).sum()) for k in SOURCES},
-                  "truth": _truth_check(out, d, meas_v, source)})
+                  "truth": _truth_check(out, d, meas_v, source, near_o[vo])})
     return entry
 
 
@@ -1566,6 +1638,25 @@ def inside_hull(points: np.ndarray, query: np.ndarray, chunk: int = 65536) -> np
         q = query[lo:lo + chunk]
         out[lo:lo + chunk] = np.all(q @ eq[:, :2].T + eq[:, 2] <= tol, axis=1)
     return out
+
+
+def _horizontal(rec: Optional[dict]) -> Optional[dict]:
+    """An offset record without the height of a DEM (``dem_height``): the DEM's
+    systematic height error, estimated so that it does not pull the stereo model, is
+    left to the conflation's own height rule (:func:`_trend`: a common height
+    displacement is applied only where it exceeds one measured point's height error, and
+    counted in the variance where not), not applied to every unmeasured vertex."""
+    if rec is None or not rec.get("dem_height") or "Z" not in rec["axes"]:
+        return rec
+    keep = [i for i, a in enumerate(rec["axes"]) if a != "Z"]
+    if not keep:
+        return None
+    cof = np.asarray(rec["cofactor"], float)[np.ix_(keep, keep)]
+    kinds = {("X", "Y"): "shift"}
+    return {**rec, "axes": [rec["axes"][i] for i in keep],
+            "kind": kinds.get(tuple(rec["axes"][i] for i in keep), rec["kind"]),
+            "values": [rec["values"][i] for i in keep],
+            "sigma": [rec["sigma"][i] for i in keep], "cofactor": cof.tolist()}
 
 
 def conflate_run(out, offsets: Optional[dict], settings: ConflationSettings,
@@ -1597,7 +1688,8 @@ def conflate_run(out, offsets: Optional[dict], settings: ConflationSettings,
             if progress is not None:
                 progress((i + f) / n, msg)
 
-        entries.append(conflate_database(out, d, (offsets or {}).get(d.name), settings,
+        entries.append(conflate_database(out, d, _horizontal((offsets or {}).get(d.name)),
+                                         settings,
                                          report, is_cancelled))
     return {"enabled": settings.enabled, "k": settings.k, "model": settings.model,
             "max_distance": settings.max_distance, "min_points": settings.min_points,

@@ -111,6 +111,9 @@ class OffsetModel:
     #: (q,) prior weight of each parameter (1/sigma^2; 0: estimated freely): a control
     #: database's stated systematic part, carried with the datum, not estimated
     prior_weight: Optional[np.ndarray] = None
+    #: databases whose height offset is their DEM's systematic error (added because the
+    #: heights come from a DEM): the conflation leaves it to its own height rule
+    dem_height: list = field(default_factory=list)
 
     @classmethod
     def build(cls, names, kinds, points, db_xyz: np.ndarray, dems=None,

@@ -344,11 +344,12 @@ def _offset_model(setup: BundleSetup, warnings: list) -> Optional[off.OffsetMode
     error common to its vertices, carried into the covariances, not estimated from
     the data); without one, no offset.
     """
-    names, kinds, points, dems, priors = [], [], [], [], []
+    names, kinds, points, dems, priors, dem_height = [], [], [], [], [], []
     for d in setup.databases:
         kind = getattr(d.spec, "offset", "none") or "none"
-        if getattr(d.spec, "dem", None):  # the DEM's height bias, its own parameter
-            kind = _WITH_DEM_HEIGHT.get(kind, kind)
+        if getattr(d.spec, "dem", None) and kind in _WITH_DEM_HEIGHT:
+            kind = _WITH_DEM_HEIGHT[kind]  # the DEM's height bias, its own parameter
+            dem_height.append(d.name)
         prior = None
         if getattr(d.spec, "role", "adjust") == "control":
             sys_ = np.sqrt(d.spec.systematic_variance)
@@ -369,7 +370,9 @@ def _offset_model(setup: BundleSetup, warnings: list) -> Optional[off.OffsetMode
                 "for it (measure more points, or choose offset = \"shift\")")
     if not names:
         return None
-    return off.OffsetModel.build(names, kinds, points, setup.db_prior, dems, priors)
+    model = off.OffsetModel.build(names, kinds, points, setup.db_prior, dems, priors)
+    model.dem_height = [n for n in dem_height if n in names]
+    return model
 
 
 def _adjust(setup: BundleSetup, model, adjust_kwargs: dict, progress, state: dict):
@@ -555,6 +558,8 @@ def _offset_record(model, state: dict, result: BundleResult) -> dict:
                      "cofactor": cof.tolist(), "variance_factor": vf,
                      "converged": bool(state.get("converged", True)),
                      "newton_steps": len(state.get("history", []))}
+        if name in getattr(model, "dem_height", []):
+            rec[name]["dem_height"] = True  # its Z is the DEM's systematic height error
     return rec
 
 

@@ -22,7 +22,12 @@ from vectoradjust.model import ProjectData
 from vectoradjust.simulate.roads import DatabaseModel
 from vectoradjust.simulate.scenario import make_scenario
 
-__all__ = ["smooth_field", "conflation_scenario"]
+__all__ = ["smooth_field", "wave_field", "measured_subset", "conflation_scenario"]
+
+#: the error fields of :func:`conflation_scenario`
+FIELDS = ("gaussian", "waves")
+#: how the measured object points are chosen
+LAYOUTS = ("random", "clusters")
 
 
 def smooth_field(xy: np.ndarray, amplitude: float, length: float, seed: int,
@@ -42,12 +47,59 @@ def smooth_field(xy: np.ndarray, amplitude: float, length: float, seed: int,
     return out
 
 
+def wave_field(xy: np.ndarray, amplitude: float, wavelengths=(300.0, 1500.0), seed: int = 0,
+               n_waves: int = 3) -> np.ndarray:
+    """A long-wavelength 2D displacement field at ``xy`` (n, 2): a few plane waves.
+
+    Per component ``sum_j a sqrt(2 / n) cos(2 pi u_j . x / lambda_j + phi_j)`` with
+    ``n_waves`` waves, wavelengths ``lambda_j`` uniform in ``wavelengths`` (m), random
+    directions ``u_j`` and phases: a field of standard deviation ``amplitude`` per
+    component (over the phases) whose few long waves a Gaussian covariance of one
+    length does not describe (on an extent shorter than a wavelength a wave looks like
+    a trend).
+    """
+    rng = np.random.default_rng(seed)
+    lo, hi = (float(w) for w in wavelengths)
+    out = np.zeros((len(xy), 2))
+    for c in range(2):
+        lam = rng.uniform(lo, hi, n_waves)
+        ang = rng.uniform(0.0, 2 * np.pi, n_waves)
+        w = (2 * np.pi / lam)[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
+        phi = rng.uniform(0.0, 2 * np.pi, n_waves)
+        out[:, c] = amplitude * np.sqrt(2.0 / n_waves) * np.cos(xy @ w.T + phi).sum(axis=1)
+    return out
+
+
+def measured_subset(xy: np.ndarray, fraction: float, rng: np.random.Generator,
+                    layout: str = "random", clusters: int = 3,
+                    radius: float = 120.0) -> np.ndarray:
+    """Which object points (n,) the images measure.
+
+    ``"random"``: each with probability ``fraction``; ``"clusters"``: only those within
+    ``radius`` (m) of one of ``clusters`` centres (random object points), each of them
+    with probability ``fraction``, so that the predicted vertices lie from 0 to several
+    hundred metres from the nearest measured one (as where an operator measured a few
+    image patches).
+    """
+    draw = rng.random(len(xy)) < fraction
+    if layout == "random":
+        return draw
+    if layout != "clusters":
+        raise ValueError(f"layout {layout!r} is not one of {LAYOUTS}")
+    centres = xy[rng.choice(len(xy), clusters, replace=False)]
+    near = np.min(np.hypot(*(xy[:, None, :] - centres[None, :, :]).transpose(2, 0, 1)),
+                  axis=1) <= radius
+    return draw & near
+
+
 def conflation_scenario(seed: int = 1, *, bias=(3.0, -2.0), amplitude: float = 2.0,
                         length: float = 150.0, noise: float = 0.3,
                         measured_fraction: float = 0.3, true_roads=None,
                         spacing: float = 20.0, identification_sigma=(0.3, 0.1),
                         stated_sigma: float | None = None,
-                        conflation: dict | None = None) -> ProjectData:
+                        conflation: dict | None = None, field: str = "gaussian",
+                        wavelengths=(300.0, 1500.0), layout: str = "random",
+                        clusters: int = 3, cluster_radius: float = 120.0) -> ProjectData:
     """Project data of one database ``OSM`` with a smooth error field, partly measured.
 
     Parameters
@@ -78,6 +130,14 @@ def conflation_scenario(seed: int = 1, *, bias=(3.0, -2.0), amplitude: float = 2
         that no cross-validation can see it.
     conflation : dict, optional
         The ``[conflation]`` table.
+    field : str
+        ``"gaussian"``: :func:`smooth_field` of correlation length ``length``;
+        ``"waves"``: :func:`wave_field`, three plane waves per component of
+        ``wavelengths`` (m).
+    wavelengths : (float, float)
+        Range of the waves' wavelengths (``field = "waves"``).
+    layout, clusters, cluster_radius :
+        Which object points are measured (:func:`measured_subset`).
 
     Returns
     -------
@@ -94,11 +154,15 @@ def conflation_scenario(seed: int = 1, *, bias=(3.0, -2.0), amplitude: float = 2
     ti = lookup(tid, sp.vertex_ids)
     true_obj = np.asarray(txyz, float)[ti[sp.object_vertex], :2]
     rng = np.random.default_rng(seed + 1000)
-    err = (np.asarray(bias, float) + smooth_field(true_obj, amplitude, length, seed + 2000)
-           + rng.normal(0.0, noise, (len(true_obj), 2)))
+    if field not in FIELDS:
+        raise ValueError(f"field {field!r} is not one of {FIELDS}")
+    sig = (smooth_field(true_obj, amplitude, length, seed + 2000) if field == "gaussian"
+           else wave_field(true_obj, amplitude, wavelengths, seed + 2000))
+    err = np.asarray(bias, float) + sig + rng.normal(0.0, noise, (len(true_obj), 2))
     coords = layer.coords.copy()
     coords[:, :2] = true_obj[sp.vertex_object] + err[sp.vertex_object]
-    measured_obj = rng.random(len(true_obj)) < measured_fraction
+    measured_obj = measured_subset(true_obj, measured_fraction, rng, layout, clusters,
+                                   cluster_radius)
     drop = sp.vertex_ids[~measured_obj[sp.vertex_object]]
     meas = data.measurements
     keep = ~np.isin(meas.point_id, drop)
