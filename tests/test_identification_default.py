@@ -93,6 +93,10 @@ def test_choice_rules():
     c = choose_identification("A", est)  # the truth rests on 3 points only: the pair
     assert c["source"] == "common intersections A/B" and c["horizontal"] == pytest.approx(0.45)
     assert c["vertical"] == 0.0  # 0.1 +- 0.2: not determined
+    est["databases"]["A"]["count"] = 30  # from truth: the estimate itself (unbiased)
+    c = choose_identification("A", est)
+    assert c["source"] == "truth" and c["horizontal"] == pytest.approx(0.5)
+    est["databases"]["A"]["count"] = 3
     est["pairs"][0]["horizontal_se"] = 0.3  # not determined either
     assert choose_identification("A", est) is None
     assert default_identification(None)["horizontal"] == 1.0

@@ -393,7 +393,8 @@ def _identification_used(out: AdjustmentRun, chosen: dict) -> None:
             "horizontal": c["horizontal"], "vertical": c["vertical"], "source": c["source"],
             **{k: c[k] for k in ("estimate", "se", "count") if k in c}}
         said = (f"estimated from {c['source']}: {c['estimate']:.2f} +- {c['se']:.2f} m "
-                f"(n = {c['count']}) plus one standard error" if "estimate" in c
+                f"(n = {c['count']})" + ("" if c["source"] == "truth" else
+                                         " plus one standard error") if "estimate" in c
                 else f"the data do not determine it; the conservative {c['source']}")
         note = (f"{d.name}: identification_sigma is not given; "
                 f"[{c['horizontal']:.2f}, {c['vertical']:.2f}] m was used ({said}); state "

@@ -158,8 +158,8 @@ def choose_identification(name: str, estimates: dict) -> Optional[dict]:
 
     Among the estimates with at least :data:`MIN_COUNT` points and a standard error
     below half the estimate (or 5 cm), the one with the smallest standard error; the
-    value used is the estimate plus one standard error (a conservative choice: the
-    estimates from common intersections run a little low, see the module docstring).
+    value used is the estimate (from truth) or the estimate plus one standard error
+    (from common intersections, which run a little low: see the module docstring).
 
     Returns
     -------
@@ -172,11 +172,14 @@ def choose_identification(name: str, estimates: dict) -> Optional[dict]:
     if not ok:
         return None
     best = min(ok, key=lambda e: e["horizontal_se"])
-    h = best["horizontal"] + best["horizontal_se"]
+    # truth gives an unbiased variance; common intersections neglect the shared exterior
+    # orientation and run a little low: one standard error is added to them
+    pad = 0.0 if best["source"] == "truth" else 1.0
+    h = best["horizontal"] + pad * best["horizontal_se"]
     v = 0.0
     if best.get("vertical") is not None and best.get("vertical_se") is not None \
             and best["vertical_se"] < max(0.5 * best["vertical"], 0.05):
-        v = best["vertical"] + best["vertical_se"]
+        v = best["vertical"] + pad * best["vertical_se"]
     return {"horizontal": float(h), "vertical": float(v), "source": best["source"],
             "estimate": float(best["horizontal"]), "se": float(best["horizontal_se"]),
             "count": int(best["count"])}
