@@ -100,6 +100,11 @@ def test_cross_covariance_matches_joint_covariance(adj_run):
 
 
 # ----------------------------------------------------------------------- LengthSD
+def _photogrammetric(db):
+    """The database without its identification error: the adjustment's covariance only."""
+    return replace(db, spec=replace(db.spec, identification_sigma=None))
+
+
 def _dense_length_check(res, db, f):
     """sigma of the feature's length from joint_covariance and propagate's Jacobian."""
     layer = db.shape.layer
@@ -131,7 +136,7 @@ def test_length_sd_matches_the_dense_check(adj_run):
     res = adj_run.result
     n_partial = 0
     for db in adj_run.databases:
-        sd, sd_nc = derived.feature_length_sigma(adj_run, db)
+        sd, sd_nc = derived.feature_length_sigma(adj_run, _photogrammetric(db), lengthening=False)
         layer = db.shape.layer
         assert sd.shape == sd_nc.shape == (layer.n_features,)
         for f in range(layer.n_features):
@@ -149,7 +154,7 @@ def test_length_sd_against_the_inverse_of_the_normal_matrix(adj_run, dense):
     n = res.problem.n_images
     db = adj_run.databases[0]
     layer = db.shape.layer
-    sd, _ = derived.feature_length_sigma(adj_run, db)
+    sd, _ = derived.feature_length_sigma(adj_run, _photogrammetric(db), lengthening=False)
     multi = np.unique(layer.vertex_feature[layer.vertex_part > 0])
     feats = np.unique(np.r_[multi, 0, 1, layer.n_features - 1])
     for f in feats:
@@ -180,7 +185,7 @@ def test_length_sd_of_a_feature_through_one_point_twice(adj_run):
                             vertex_part=np.zeros(6, np.int64), coords=xyz)
     db = SimpleNamespace(shape=SimpleNamespace(layer=layer), vertex_point=vp,
                          adjusted_coords=xyz)
-    sd, sd_nc = derived.feature_length_sigma(adj_run, db)
+    sd, sd_nc = derived.feature_length_sigma(adj_run, db, lengthening=False)
     for f, v in ((0, [0, 1, 2, 3]), (1, [4, 5])):
         p = vp[v]
         m = p >= 0
@@ -214,7 +219,7 @@ def test_length_sd_monte_carlo(adj_run):
     """The linearised sigma against lengths of simulated adjusted geometries."""
     db = adj_run.databases[0]
     layer = db.shape.layer
-    sd, _ = derived.feature_length_sigma(adj_run, db)
+    sd, _ = derived.feature_length_sigma(adj_run, _photogrammetric(db), lengthening=False)
     meas = db.vertex_point >= 0
     f = int(np.argmax(np.bincount(layer.vertex_feature[meas], minlength=layer.n_features)))
     v = np.flatnonzero(layer.vertex_feature == f)
@@ -324,22 +329,23 @@ def test_g_band_of_independent_equal_ends_is_a_stadium_with_a_waist():
 
 def test_segment_bands_contain_their_end_point_ellipses(adj_run):
     res = adj_run.result
-    k = prop.confidence_scale(0.9)
+    k = derived.band_scale(0.9)  # the error across the line (1-D)
     db = adj_run.databases[0]
-    sb = derived.segment_bands(adj_run, db, 0.9)
+    sb = derived.segment_bands(adj_run, db, 0.9, segments="measured")
+    ident = np.diag(db.spec.identification_variance)  # the real road's, as CE90
     vp = db.vertex_point
     assert len(sb.rings) == len(sb.feature) > 0
     for a, ring in zip(sb.start_vertex, sb.rings):
         for p in (vp[a], vp[a + 1]):
-            pts = _ellipse_points(res.xyz[p, :2], res.point_cov[p, :2, :2], k)
+            pts = _ellipse_points(res.xyz[p, :2], (res.point_cov[p] + ident)[:2, :2], k)
             assert _covered(ring, pts, 1e-6).all()  # 1 um: round-off at tangent points
     # the joint covariance of each segment is the dense one
     i = len(sb.start_vertex) // 2
     a = sb.start_vertex[i]
-    assert np.allclose(sb.cov_joint[i], res.joint_covariance([vp[a], vp[a + 1]]), rtol=1e-9,
-                       atol=1e-15)
+    want = res.joint_covariance([vp[a], vp[a + 1]]) + np.kron(np.eye(2), ident)
+    assert np.allclose(sb.cov_joint[i], want, rtol=1e-9, atol=1e-15)
     bands = derived.uncertainty_bands(adj_run, db)
-    assert [f for f, _ in bands] == sb.feature.tolist()
+    assert [f for f, _ in bands] == derived.segment_bands(adj_run, db).feature.tolist()
 
 
 def test_segment_bands_from_kept_covariances_once_the_factorisation_is_let_go(adj_run):
@@ -387,7 +393,8 @@ def test_distance_length_and_mean_height_against_the_dense_inverse(adj_run, dens
     ids = db.shape.vertex_ids[db.vertex_point >= 0][:5]
     pts = db.vertex_point[db.vertex_point >= 0][:5]
     sel = (6 * n + 3 * pts[:, None] + np.arange(3)).ravel()
-    c = dense[np.ix_(sel, sel)]
+    # plus the identification error of each (distinct) shape point, as their CE90
+    c = dense[np.ix_(sel, sel)] + np.kron(np.eye(5), np.diag(db.spec.identification_variance))
     xyz = res.xyz[pts]
     # 2D distance, explicit gradient
     d = xyz[0, :2] - xyz[4, :2]
@@ -450,15 +457,18 @@ def test_profile_of_a_feature(adj_run, dense):
     vp = db.vertex_point[v]
     m = vp >= 0
     assert np.allclose(pr.z, db.adjusted_coords[v, 2])
-    assert np.allclose(pr.sigma_z[m], np.sqrt(res.point_cov[vp[m], 2, 2]), rtol=1e-9)
-    assert np.all(np.isnan(pr.sigma_z[~m]))
+    idz = db.spec.identification_variance[2]
+    assert np.allclose(pr.sigma_z[m], np.sqrt(res.point_cov[vp[m], 2, 2] + idz), rtol=1e-9)
+    # conflated vertices: their own sigma (SigmaZ), the others none
+    assert np.allclose(pr.sigma_z[~m], np.asarray(db.vertices["SigmaZ"])[v][~m], rtol=1e-9,
+                       equal_nan=True)
     # chainage: cumulative segment lengths within each part; the part ends sum to Length
     ends = np.r_[np.flatnonzero(np.diff(pr.part)), len(v) - 1]
     assert pr.chainage[ends].sum() == pytest.approx(db.features["Length"][f], rel=1e-12)
     # rise between the first and last adjusted vertex: sigma from the dense inverse
     i0, i1 = vp[m][0], vp[m][-1]
     zi = [6 * n + 3 * i0 + 2, 6 * n + 3 * i1 + 2]
-    cz = dense[np.ix_(zi, zi)]
+    cz = dense[np.ix_(zi, zi)] + idz * np.eye(2)
     assert pr.rise.sigma == pytest.approx(np.sqrt(cz[0, 0] + cz[1, 1] - 2 * cz[0, 1]), rel=1e-8)
     assert pr.rise.sigma_no_cov == pytest.approx(np.sqrt(cz[0, 0] + cz[1, 1]), rel=1e-8)
     d = pr.to_dict()
@@ -584,13 +594,13 @@ def test_writers(adj_run, tmp_path):
     sb = derived.segment_bands(adj_run, db)
     mine = bands[bands["database"] == db.name]
     assert mine["NSeg"].sum() == len(sb.rings)
-    # every measured segment's end points lie in its feature's band
+    # every segment's end points (measured or conflated) lie in its feature's band
     import shapely
 
     geo = dict(zip(mine["feature_id"], mine.geometry))
     fids = db.shape.layer.feature_ids
     for f, a in zip(sb.feature, sb.start_vertex):
-        ends = adj_run.result.xyz[db.vertex_point[[a, a + 1]], :2]
+        ends = db.adjusted_coords[[a, a + 1], :2]
         assert shapely.covers(geo[fids[f]], shapely.points(ends)).all()
     shp = write_uncertainty_bands(adj_run, tmp_path / "bands.shp")
     assert len(gpd.read_file(shp)) == len(bands)

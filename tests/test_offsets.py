@@ -37,25 +37,18 @@ def test_offsets_equal_the_dense_adjustment_with_explicit_offset_unknowns(small_
     out = small_shift_run
     prob, res = out.problem, out.result
     n, m = prob.n_images, prob.n_points
-    a, p = _dense(prob, res.eo, res.xyz)
-    # two more unknowns: the offset (dX, dY) enters every shape point prior X_db = X + E T
-    a = np.hstack([a, np.zeros((a.shape[0], 2))])
-    k_img = 2 * len(prob.obs_point)
-    shape = np.flatnonzero(out.point_kind == "shape")
-    has = np.flatnonzero(prob.has_prior)
-    row_of = {j: k_img + 3 * r for r, j in enumerate(has)}
-    for j in shape:
-        a[row_of[j] + 0, -2] = 1.0
-        a[row_of[j] + 1, -1] = 1.0
+    # more unknowns: the offset (dX, dY, and dZ: the heights come from a DEM, whose bias
+    # is its own parameter) enters every shape point prior X_db = X + G T
+    a, p, _ = _dense_with_offsets(out)
+    q_off = res.offset_g.shape[2]
+    assert q_off == 3 and out.summary["databases"][0]["offset"]["axes"] == ["X", "Y", "Z"]
     n_mat = a.T @ p @ a
     q = np.linalg.inv(n_mat)
-    # misclosures at the solution: database prior minus (X + E T)
+    # misclosures at the solution: database prior minus (X + G T); prior_xyz holds
+    # X_db - G T (the DEM heights sampled at the shifted position)
     entry = out.summary["databases"][0]["offset"]
-    t = np.array(entry["values"])
-    db_prior = prob.prior_xyz.copy()
-    db_prior[shape, :2] += t  # prior_xyz holds X_db - E T
-    lp = (db_prior[has] - res.xyz[has]).copy()
-    lp[np.isin(has, shape), :2] -= t
+    has = np.flatnonzero(prob.has_prior)
+    lp = (prob.prior_xyz[has] - res.xyz[has]).copy()
     we = prob.eo_weight.ravel()
     ell = np.concatenate([-res.v_image.ravel(), lp.ravel(), (prob.eo0 - res.eo).ravel()[we > 0]])
     step = np.linalg.solve(n_mat, a.T @ p @ ell)
@@ -65,7 +58,7 @@ def test_offsets_equal_the_dense_adjustment_with_explicit_offset_unknowns(small_
     assert res.dof == dof
     assert res.sigma0_squared == pytest.approx(vtpv / dof, rel=1e-6)
     s0 = res.sigma0_squared
-    assert np.allclose(np.array(entry["sigma"]) ** 2, s0 * np.diag(q)[-2:], rtol=1e-6)
+    assert np.allclose(np.array(entry["sigma"]) ** 2, s0 * np.diag(q)[-q_off:], rtol=1e-6)
     for i in range(n):
         assert np.allclose(res.eo_cov[i], s0 * q[6 * i:6 * i + 6, 6 * i:6 * i + 6],
                            rtol=1e-6, atol=1e-14)
@@ -103,8 +96,8 @@ def test_a_biased_database_no_longer_pulls_the_images(reweight):
     ti = lookup(tid, d.shape.vertex_ids)
     sel = (d.vertices["Adjusted"] == 1) & (ti >= 0)
     mean = (d.shape.layer.coords[sel] - txyz[ti[sel]]).mean(axis=0)[:2]
-    sig = np.array(entry["sigma"])
-    assert np.all(np.abs(np.array(entry["values"]) - mean) < 4 * sig + 0.02)
+    sig = np.array(entry["sigma"][:2])  # (X, Y; Z is the DEM heights' own offset)
+    assert np.all(np.abs(np.array(entry["values"][:2]) - mean) < 4 * sig + 0.02)
     assert entry["test"]["significant"]
     assert "north-east of the images" in entry["statement"]
 
@@ -202,7 +195,7 @@ def test_a_priori_covariances_are_the_cofactors():
     prior sigma that is too large would otherwise shrink every covariance)."""
     db = DatabaseModel("DB", "db_id", "db", 25.0, 0.5, (0.0, 0.0), 0.0, 0.0, 1.0)
     sc = make_scenario(4, databases=(db,), n_shape_points=300, shape_sigma=(3.0, 3.0, 3.0))
-    data = sc.to_project_data()
+    data = _with(sc.to_project_data(), identification_sigma=(0.0, 0.0))  # none simulated
     post = run(replace(data, settings=replace(data.settings, covariance_scale="a-posteriori")))
     prio = run(replace(data, settings=replace(data.settings, covariance_scale="a-priori")))
     s0 = post.result.sigma0_squared
@@ -232,20 +225,23 @@ def test_identification_sigma_is_estimated_from_truth_and_common_intersections()
     assert pair["count"] >= 30
     assert abs(pair["horizontal"] - 0.5) < 3 * pair["horizontal_se"] + 0.02  # 0.469 measured
     warn = [w for w in out.summary["warnings"] if "identification_sigma is not given" in w]
-    assert warn and "the data suggest" in warn[0]
+    assert warn and "was used (estimated from truth" in warn[0]  # and applied
+    used = out.summary["databases"][0]["identification_sigma_used"]
+    assert abs(used["horizontal"] - 0.5) < 3 * used["se"] + 0.02
 
 
 def _dense_with_offsets(out):
     """A, P and the inverse of N of the adjustment with the offsets as unknowns."""
     prob, res = out.problem, out.result
     a, p = _dense(prob, res.eo, res.xyz)
-    a = np.hstack([a, np.zeros((a.shape[0], 2))])
+    g = res.offset_g  # (m, 3, q): the shift (X, Y) and the DEM heights' own Z offset
+    q = g.shape[2]
+    a = np.hstack([a, np.zeros((a.shape[0], q))])
     k_img = 2 * len(prob.obs_point)
     has = np.flatnonzero(prob.has_prior)
     row_of = {j: k_img + 3 * r for r, j in enumerate(has)}
     for j in np.flatnonzero(out.point_kind == "shape"):
-        a[row_of[j] + 0, -2] = 1.0
-        a[row_of[j] + 1, -1] = 1.0
+        a[row_of[j]:row_of[j] + 3, -q:] = g[j]
     return a, p, np.linalg.inv(a.T @ p @ a)
 
 
@@ -294,8 +290,14 @@ def test_length_sigma_with_offsets_matches_the_joint_covariance(small_shift_run)
     gp = np.zeros((len(pts), 3))
     np.add.at(gp, inv, g)
     c = out.result.joint_covariance(pts)
-    assert d.features["LengthSD"][f] == pytest.approx(float(np.sqrt(gp.ravel() @ c @
-                                                                    gp.ravel())), rel=1e-8)
+    # the adjustment's share (LengthSD adds the identification error and the lengthening)
+    from dataclasses import replace
+
+    from vectoradjust.accuracy.derived import feature_length_sigma
+
+    bare = replace(d, spec=replace(d.spec, identification_sigma=None))
+    sd = feature_length_sigma(out, bare, lengthening=False)[0]
+    assert sd[f] == pytest.approx(float(np.sqrt(gp.ravel() @ c @ gp.ravel())), rel=1e-8)
 
 
 @pytest.mark.slow
@@ -333,7 +335,7 @@ def test_auto_scale_leaves_out_a_prior_stated_too_large():
     were left out."""
     db = DatabaseModel("DB", "db_id", "db", 25.0, 0.5, (0.0, 0.0), 0.0, 0.0, 1.0)
     sc = make_scenario(4, databases=(db,), n_shape_points=300, shape_sigma=(3.0, 3.0, 3.0))
-    data = sc.to_project_data()
+    data = _with(sc.to_project_data(), identification_sigma=(0.0, 0.0))  # none simulated
     auto = run(data)
     post = run(replace(data, settings=replace(data.settings, covariance_scale="a-posteriori")))
     rec = auto.summary["covariance_scale"]

@@ -455,6 +455,10 @@ def _run_once(
         report(0.9, "roads against the control")
         _roads_and_control(out, cls, setup)
         _conflation(out, solution, report, is_cancelled)
+    from vectoradjust.accuracy.derived import feature_accuracy
+
+    for d in out.databases:  # CE90/LE90 per feature, conflated vertices' LengthSD, Problem
+        feature_accuracy(out, d)
     names = [spec.name for spec, _ in data.vectors]
     out.warnings = distinct_warnings(out.warnings, names)
     out.summary["warnings"] = list(out.warnings)

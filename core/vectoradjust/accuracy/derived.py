@@ -23,6 +23,15 @@ Both are evaluated for many points or functions at once (:func:`cross_covariance
 the points with ``bincount``, so the cost grows with the number of observations, not
 with the number of images squared per point.
 
+What the bands, lengths, distances and profiles state is the real road, as the
+vertices' CE90/LE90 do: the adjustment's covariance (the database offsets' share
+included) plus the identification error of each shape point (``identification_sigma``,
+independent from object point to object point), and for the vertices the conflation
+predicted their covariance from it (:func:`vertex_covariance`). ``LengthSD`` is the
+root mean square error of a length, its expected lengthening included
+(:func:`segment_lengthening`); the G-band's ellipses are drawn at the one-dimensional
+scale of the error across the line (:func:`band_scale`).
+
 Heart module: numpy and scipy only (and other vectoradjust heart modules).
 """
 
@@ -34,8 +43,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, NamedTuple, Optional, Union
 
 import numpy as np
+from scipy.special import ndtri
 
 from vectoradjust.accuracy import propagate as prop
+from vectoradjust.accuracy import stats
 from vectoradjust.adjust.orientation import two_step
 from vectoradjust.errors import (
     ControlError,
@@ -54,10 +65,18 @@ __all__ = [
     "segment_covariances",
     "SegmentCovariances",
     "feature_length_sigma",
+    "segment_lengthening",
+    "conflated_length_variance",
+    "conflated_length_sigma",
+    "feature_vertex_accuracy",
+    "feature_accuracy",
     "g_band_batch",
     "g_band_rings",
     "SegmentBands",
     "segment_bands",
+    "band_segment_counts",
+    "band_scale",
+    "vertex_covariance",
     "uncertainty_bands",
     "DerivedValue",
     "resolve_points",
@@ -201,8 +220,15 @@ def _segments(db: DatabaseResult):
 
 
 # ------------------------------------------------------------------- length of features
-def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult,
-                         dims: int = 2) -> tuple[np.ndarray, np.ndarray]:
+def _identification_variance(db) -> np.ndarray:
+    """Per-axis variance (3,) of the database's identification error (zeros when none is
+    stated, or for a stand-in without a ``spec``)."""
+    spec = getattr(db, "spec", None)
+    return np.zeros(3) if spec is None else np.asarray(spec.identification_variance, float)
+
+
+def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult, dims: int = 2,
+                         lengthening: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Standard deviation of the length of every feature of a road database.
 
     The length is that of the adjusted geometry, the sum of the segment lengths within
@@ -211,12 +237,24 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult,
     adjacent segments; a zero-length segment contributes nothing). Vertices that share
     one object point are one point (their gradients are added).
 
-    Vertices that were not measured keep their database position and are treated as
-    fixed (zero covariance): the sigma is that of the length change the adjustment can
-    account for. Features without any measured vertex get NaN.
+    ``LengthSD`` is the root mean square error of the length: its standard deviation
+    and its expected lengthening (:func:`segment_lengthening`: errors across a segment
+    always lengthen it, by about ``sigma^2 / l`` per segment of length ``l``; on a
+    road of many short segments this is most of the error).
+
+    The covariance is that of the vertices' CE90: the adjustment's (with the database
+    offsets' share) plus the identification error of every measured object point
+    (``identification_sigma``, independent from point to point). Vertices that were not
+    measured are taken as fixed here: :func:`conflated_length_sigma` adds the conflated
+    vertices' share once the run is conflated. Features without any measured vertex
+    get NaN.
 
     All features at once (module docstring): ``sigma^2 = s0^2 [sum_j J_j D_j J_j' +
     b S^-1 b']`` with ``b`` accumulated per feature with ``bincount``.
+
+    With the vertices tabulated it also sets ``db.features["CE90"]`` / ``["LE90"]``
+    (:func:`feature_vertex_accuracy`; :func:`feature_accuracy` completes them after the
+    conflation).
 
     Parameters
     ----------
@@ -225,6 +263,9 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult,
         One of ``run.databases``.
     dims : {2, 3}
         Horizontal (2, the ``Length`` field) or 3D (3) length.
+    lengthening : bool
+        Include the expected lengthening (default; False: the standard deviation of
+        the linearised length alone).
 
     Returns
     -------
@@ -299,10 +340,282 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult,
         hq = np.stack([np.bincount(pf, weights=hq[:, c], minlength=nf)
                        for c in range(hq.shape[1])], axis=1)
         quad += np.einsum("fq,qr,fr->f", hq, res.offset_cofactor, hq)
-    var = res.variance_factor * (diag + quad)
-    sd[has] = np.sqrt(np.clip(var[has], 0.0, None))
-    sd_nc[has] = np.sqrt(np.clip(var_nc[has], 0.0, None))
+    # the identification error: independent per object point (DESIGN section 10)
+    ident = np.bincount(pf, weights=g ** 2 @ _identification_variance(db), minlength=nf)
+    var = res.variance_factor * (diag + quad) + ident
+    var_nc = var_nc + ident
+    bias, bias_nc = _lengthening_so_far(run, db, dims, lengthening)
+    sd[has] = np.sqrt(np.clip(var[has], 0.0, None) + bias[has] ** 2)
+    sd_nc[has] = np.sqrt(np.clip(var_nc[has], 0.0, None) + bias_nc[has] ** 2)
     return sd, sd_nc
+
+
+def _lengthening_so_far(run: AdjustmentRun, db: DatabaseResult, dims: int, lengthening: bool):
+    """:func:`_measured_bias` (zeros without ``lengthening``), kept for
+    :func:`conflated_length_sigma` (the ``LengthSD`` field's); and the features' CE90 /
+    LE90 of the vertices tabulated so far (:func:`feature_accuracy` completes them)."""
+    nf = db.shape.layer.n_features
+    bias = _measured_bias(run, db, dims) if lengthening else (np.zeros(nf), np.zeros(nf))
+    if lengthening and dims == 2:
+        db.__dict__["_length_bias"] = bias
+    if getattr(db, "vertices", None) and isinstance(getattr(db, "features", None), dict):
+        db.features["CE90"], db.features["LE90"] = feature_vertex_accuracy(db)
+    return bias
+
+
+def segment_lengthening(rel_cov: np.ndarray, u: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """Expected lengthening of segments whose ends err: ``E|d + e| - |d|``.
+
+    To second order ``(tr D - u' D u) / (2 l)`` with ``D`` (s, k, k) the covariance of
+    the relative error ``e = e_b - e_a`` of the ends, ``u`` the unit direction and ``l``
+    the length: an error across the segment always lengthens it. At most
+    ``sqrt(tr D - u' D u)`` (about the mean length of the error itself, where ``l`` is
+    not larger than it).
+    """
+    p = np.einsum("sii->s", rel_cov) - np.einsum("si,sij,sj->s", u, rel_cov, u)
+    p = np.maximum(p, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        b = np.where(length > 0, p / (2.0 * length), np.inf)
+    return np.minimum(b, np.sqrt(p))
+
+
+def _measured_bias(run: AdjustmentRun, db: DatabaseResult, dims: int):
+    """Expected lengthening per feature (with / without the cross covariances) from its
+    segments with two measured ends (:func:`segment_lengthening`): the relative
+    covariance of the adjusted ends plus twice the identification variance."""
+    res = run.result
+    nf = db.shape.layer.n_features
+    a = _measured_segments(db)
+    if a.size == 0:
+        return np.zeros(nf), np.zeros(nf)
+    vp = np.asarray(db.vertex_point, np.int64)
+    pa, pb = vp[a], vp[a + 1]
+    own_a = res.point_cov[pa] if res.point_cov is not None else cross_covariance(res, pa, pa)
+    own_b = res.point_cov[pb] if res.point_cov is not None else cross_covariance(res, pb, pb)
+    cab = cross_covariance(res, pa, pb)
+    rel_nc = own_a + own_b + 2.0 * np.diag(_identification_variance(db))
+    rel = rel_nc - cab - np.swapaxes(cab, 1, 2)
+    adj = _adjusted_coords(run, db)
+    d = adj[a + 1, :dims] - adj[a, :dims]
+    length = np.sqrt(np.sum(d ** 2, axis=1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.where(length[:, None] > 0, d / length[:, None], 0.0)
+    fi = db.shape.layer.vertex_feature[a]
+    return tuple(np.bincount(fi, weights=segment_lengthening(r[:, :dims, :dims], u, length),
+                             minlength=nf) for r in (rel, rel_nc))
+
+
+def _conflated_gradients(run: AdjustmentRun, db: DatabaseResult, vc: np.ndarray, dims: int):
+    """The length gradients of the conflated vertices, per (feature, object point):
+    feature (m,), a vertex of the object point (m,), gradient (m, 3); sorted by
+    feature."""
+    layer = db.shape.layer
+    fi = np.asarray(layer.vertex_feature, np.int64)
+    vo = np.asarray(db.shape.vertex_object, np.int64)
+    conf = (np.asarray(db.vertex_point) < 0) & np.isfinite(vc[:, 0, 0])
+    a = _segments(db)
+    a = a[conf[a] | conf[a + 1]] if a.size else a
+    b = a + 1
+    adj = _adjusted_coords(run, db)
+    d = adj[b, :dims] - adj[a, :dims]
+    length = np.sqrt(np.sum(d ** 2, axis=1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.where(length[:, None] > 0, d / length[:, None], 0.0)
+    grad = np.zeros((2 * a.size, 3))
+    grad[: a.size, :dims] = -u
+    grad[a.size:, :dims] = u
+    vert = np.concatenate([a, b])
+    keep = conf[vert]
+    vert, grad = vert[keep], grad[keep]
+    nobj = max(int(db.shape.n_objects), 1)
+    uniq, inv = np.unique(fi[vert] * nobj + vo[vert], return_inverse=True)
+    inv = np.asarray(inv).reshape(-1)
+    g = _block_sum(inv, grad, len(uniq))
+    rep = np.zeros(len(uniq), np.int64)
+    rep[inv] = vert
+    return uniq // nobj, rep, g
+
+
+def _correlation(cov_model, r: np.ndarray) -> np.ndarray:
+    """``C(r) / C(0)`` of a fitted covariance function (1 without a correlated field:
+    what is left is the trend's error, common to all vertices)."""
+    if cov_model is None or cov_model.sill <= 0 or cov_model.length <= 0:
+        return np.ones_like(r)
+    return cov_model(r) / cov_model.sill
+
+
+def conflated_length_variance(run: AdjustmentRun, db: DatabaseResult,
+                              dims: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """The conflated vertices' share of the variance of every feature's length.
+
+    A conflated vertex's error (:func:`vertex_covariance`) is the database's white noise
+    ``n_db`` (the fitted nugget, independent from object point to object point) and a
+    smooth part, the rest of its variance, correlated between two vertices at distance
+    ``r`` as the fitted covariance function says (``C(r) / C0``; fully without a fitted
+    field). The measured vertices' share (:func:`feature_length_sigma`) is independent
+    of it (their cross covariance with the prediction is left out). All features at
+    once: the pairs of conflated points within each feature, in chunks.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    db : DatabaseResult
+        Conflated (``db.conflation`` set); otherwise the share is zero.
+    dims : {2, 3}
+
+    Returns
+    -------
+    var : numpy.ndarray, shape (nf,)
+        With the correlations (m^2).
+    var_nocov : numpy.ndarray, shape (nf,)
+        Each point's own variance only.
+    """
+    nf = db.shape.layer.n_features
+    vc = vertex_covariance(db)
+    model = getattr(db, "conflation", None)
+    if vc is None or model is None:
+        return np.zeros(nf), np.zeros(nf)
+    f, rep, g = _conflated_gradients(run, db, vc, dims)
+    var = np.einsum("mii->mi", vc[rep])
+    nug = np.array([getattr(model.cov_h, "nugget", 0.0)] * 2
+                   + [getattr(model.cov_v, "nugget", 0.0)], float)
+    nug = np.minimum(np.nan_to_num(nug), var)
+    c = np.sqrt(np.maximum(var - nug, 0.0))
+    var_nc = np.bincount(f, weights=np.sum(g * g * var, axis=1), minlength=nf)
+    total = np.bincount(f, weights=np.sum(g * g * nug, axis=1), minlength=nf)
+    xy = _adjusted_coords(run, db)[rep, :2]
+    gc = g * c
+    counts = np.bincount(f, minlength=nf)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    per = counts[f]  # pairs of each entry
+    ends = np.cumsum(per)
+    lo = 0
+    while lo < len(f):  # chunks of about _CHUNK pairs
+        hi = int(np.searchsorted(ends, ends[lo] - per[lo] + _CHUNK, side="right"))
+        hi = max(hi, lo + 1)
+        ii = np.repeat(np.arange(lo, hi), per[lo:hi])
+        jj = first[f[ii]] + (np.arange(ii.size) - np.repeat(np.cumsum(per[lo:hi])
+                                                             - per[lo:hi], per[lo:hi]))
+        r = np.hypot(*(xy[ii] - xy[jj]).T)
+        rho_h, rho_v = _correlation(model.cov_h, r), _correlation(model.cov_v, r)
+        term = (gc[ii, 0] * gc[jj, 0] + gc[ii, 1] * gc[jj, 1]) * rho_h \
+            + gc[ii, 2] * gc[jj, 2] * rho_v
+        total += np.bincount(f[ii], weights=term, minlength=nf)
+        lo = hi
+    return np.maximum(total, 0.0), var_nc
+
+
+def _conflated_bias(run: AdjustmentRun, db: DatabaseResult, vc: np.ndarray) -> np.ndarray:
+    """Expected lengthening per feature (:func:`segment_lengthening`) from its segments
+    with a conflated end and a covariance at both: two conflated ends share the smooth
+    part of their error as the fitted covariance function says (the database noise is
+    theirs alone); a measured and a conflated end are taken as independent."""
+    nf = db.shape.layer.n_features
+    model = db.conflation
+    vp = np.asarray(db.vertex_point, np.int64)
+    vo = np.asarray(db.shape.vertex_object)
+    a = _segments(db)
+    if a.size:
+        ok = np.isfinite(vc[a, 0, 0]) & np.isfinite(vc[a + 1, 0, 0])
+        a = a[ok & ((vp[a] < 0) | (vp[a + 1] < 0)) & (vo[a] != vo[a + 1])]
+    if a.size == 0:
+        return np.zeros(nf)
+    adj = _adjusted_coords(run, db)
+    d = adj[a + 1, :2] - adj[a, :2]
+    length = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.where(length[:, None] > 0, d / length[:, None], 0.0)
+    rel = vc[a] + vc[a + 1]
+    both = (vp[a] < 0) & (vp[a + 1] < 0)
+    nug = max(float(np.nan_to_num(getattr(model.cov_h, "nugget", 0.0))), 0.0)
+    for ax in (0, 1):
+        va, vb = vc[a, ax, ax], vc[a + 1, ax, ax]
+        ca = np.sqrt(np.maximum(va - np.minimum(nug, va), 0.0))
+        cb = np.sqrt(np.maximum(vb - np.minimum(nug, vb), 0.0))
+        shared = 2.0 * ca * cb * _correlation(model.cov_h, length)
+        rel[:, ax, ax] -= np.where(both, shared, 0.0)
+    fi = db.shape.layer.vertex_feature[a]
+    return np.bincount(fi, weights=segment_lengthening(rel[:, :2, :2], u, length),
+                       minlength=nf)
+
+
+def feature_vertex_accuracy(db: DatabaseResult) -> tuple[np.ndarray, np.ndarray]:
+    """The ``CE90`` and ``LE90`` of every feature: the largest of its vertices'.
+
+    Each vertex with a value (measured, or predicted by the conflation) lies within its
+    CE90 of the real road vertex with 90 % probability; the feature's CE90 is the
+    largest of them, so that every vertex of the feature is stated at least as
+    uncertain as it is (a statement per vertex, not a simultaneous one for all of them).
+    NaN for a feature without a vertex with a value.
+
+    Returns
+    -------
+    ce90, le90 : numpy.ndarray, shape (nf,)
+    """
+    layer = db.shape.layer
+    nf = layer.n_features
+    v = db.vertices
+    out = []
+    for name in ("CE90", "LE90"):
+        col = np.asarray(v.get(name, np.full(len(layer.vertex_feature), np.nan)), float)
+        ok = np.isfinite(col)
+        best = np.full(nf, -np.inf)
+        np.maximum.at(best, np.asarray(layer.vertex_feature)[ok], col[ok])
+        out.append(np.where(np.isfinite(best), best, np.nan))
+    return out[0], out[1]
+
+
+def feature_accuracy(run: AdjustmentRun, db: DatabaseResult) -> None:
+    """The features' statements from the covariance of their vertices' CE90/LE90, in
+    place: ``CE90`` / ``LE90`` (:func:`feature_vertex_accuracy`), the ``Problem`` note of
+    vertices without a height on the final geometry and, once the run is conflated, the
+    conflated vertices' share of ``LengthSD`` / ``LengthSDnc``
+    (:func:`conflated_length_sigma`). Safe to call again (the share is added once).
+    """
+    if db.vertices:
+        db.features["CE90"], db.features["LE90"] = feature_vertex_accuracy(db)
+    if db.adjusted_coords is not None and "Problem" in db.features:
+        from vectoradjust.accuracy.tables import _feature_problems
+
+        # vertices without a height after the conflation too (a vertex of an object
+        # point shared with a vertex without one takes its position)
+        db.features["Problem"] = _feature_problems(db, np.asarray(db.adjusted_coords))
+    conflated_length_sigma(run, db)
+
+
+def conflated_length_sigma(run: AdjustmentRun, db: DatabaseResult) -> None:
+    """Add the conflated vertices' share to the features' ``LengthSD`` / ``LengthSDnc``
+    (in place, once; the run must be conflated, :func:`conflated_length_variance`).
+
+    Every feature with a measured or conflated vertex then has a ``LengthSD``;
+    ``LengthSDOf`` says ``"all vertices"`` when every vertex has a covariance (measured
+    or conflated), ``"measured vertices"`` when some kept their database position
+    without one (they count as fixed), ``""`` without any.
+    """
+    feats = db.features
+    if db.__dict__.get("_length_sd_conflated") or "LengthSD" not in feats:
+        return
+    vc = vertex_covariance(db)
+    if vc is None or getattr(db, "conflation", None) is None:
+        return
+    var, var_nc = conflated_length_variance(run, db)
+    b_c = _conflated_bias(run, db, vc)
+    nf0 = db.shape.layer.n_features
+    b_m, b_m_nc = db.__dict__.get("_length_bias", (np.zeros(nf0), np.zeros(nf0)))
+    layer = db.shape.layer
+    fi = np.asarray(layer.vertex_feature, np.int64)
+    nf = layer.n_features
+    valued = np.isfinite(vc[:, 0, 0]) | (np.asarray(db.vertex_point) >= 0)
+    n_val = np.bincount(fi, weights=valued, minlength=nf)
+    n_all = np.bincount(fi, minlength=nf)
+    has = n_val > 0
+    for name, v, b in (("LengthSD", var, b_m), ("LengthSDnc", var_nc, b_m_nc)):
+        old = np.nan_to_num(np.asarray(feats[name], float), nan=0.0)
+        v_old = np.maximum(old ** 2 - b ** 2, 0.0)  # the measured part's variance
+        feats[name] = np.where(has, np.sqrt(v_old + v + (b + b_c) ** 2), np.nan)
+    feats["LengthSDOf"] = np.where(~has, "", np.where(n_val >= n_all, "all vertices",
+                                                      "measured vertices")).astype(object)
+    db.__dict__["_length_sd_conflated"] = True
 
 
 # ------------------------------------------------------------------------------ G-band
@@ -908,12 +1221,91 @@ def _measured_segments(db: DatabaseResult, part: tuple = (0, 1)) -> np.ndarray:
     """First vertices of the segments with both end points measured (distinct points),
     of the features ``i`` modulo ``n`` (``part = (i, n)``)."""
     vp = np.asarray(db.vertex_point, np.int64)
-    a = _segments(db)
-    if part[1] > 1 and a.size:
-        a = a[np.asarray(db.shape.layer.vertex_feature)[a] % part[1] == part[0]]
+    a = _part_segments(db, part)
     if a.size:
         a = a[(vp[a] >= 0) & (vp[a + 1] >= 0) & (vp[a] != vp[a + 1])]
     return a
+
+
+def _part_segments(db: DatabaseResult, part: tuple = (0, 1)) -> np.ndarray:
+    """:func:`_segments` of the features ``i`` modulo ``n`` (``part = (i, n)``)."""
+    a = _segments(db)
+    if part[1] > 1 and a.size:
+        a = a[np.asarray(db.shape.layer.vertex_feature)[a] % part[1] == part[0]]
+    return a
+
+
+def vertex_covariance(db: DatabaseResult) -> Optional[np.ndarray]:
+    """The covariance (nv, 3, 3) of every vertex that its ``CE90`` / ``LE90`` state.
+
+    Built from ``d.vertices``: the sigmas ``SigmaX/Y/Z`` on the diagonal (a measured
+    vertex: the adjustment's covariance, the database offsets' share included, plus the
+    identification error; a conflated one: the collocation's prediction error with the
+    database noise and the trend's error, :mod:`vectoradjust.accuracy.conflation`), the
+    horizontal block scaled so that its CE90 is the vertex's ``CE90`` (for a conflated
+    vertex the CE90 of the predictive distribution, a little wider than the plug-in
+    normal's). NaN where the vertex has no value (unmeasured and not conflated).
+
+    Returns
+    -------
+    numpy.ndarray or None
+        None before the vertices are tabulated (``d.vertices`` empty).
+    """
+    v = db.vertices
+    if not v or "SigmaX" not in v or "CE90" not in v:
+        return None
+    sig = np.column_stack([np.asarray(v[f"Sigma{a}"], float) for a in "XYZ"])
+    cov = np.zeros((len(sig), 3, 3))
+    cov[:, [0, 1, 2], [0, 1, 2]] = sig ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ce_diag = stats.ce90(cov[:, :2, :2])
+        f = np.asarray(v["CE90"], float) / ce_diag
+    f = np.where(np.isfinite(f) & (f > 0), f, 1.0)
+    cov[:, :2, :2] *= (f * f)[:, None, None]
+    cov[~np.isfinite(sig[:, :2]).all(axis=1)] = np.nan
+    return cov
+
+
+def _identification_blocks(cov: np.ndarray, idv: np.ndarray) -> np.ndarray:
+    """``cov`` (s, 6, 6) of segments' two measured end points plus the identification
+    error of each (independent per object point: the two ends are distinct points)."""
+    out = cov.copy()
+    d = np.concatenate([idv, idv])
+    out[:, np.arange(6), np.arange(6)] += d
+    return out
+
+
+def _other_segments(run: AdjustmentRun, db: DatabaseResult, part: tuple):
+    """The segments with an end point that was not measured but has a covariance (the
+    conflation predicted it): first vertices (s,), end points and joint covariances
+    (s, 6, 6); None before the conflation.
+
+    A conflated vertex's error is a smooth field plus the database's white noise; the
+    two ends of a segment (tens of metres apart, the field's range hundreds) are taken
+    as fully correlated, ``C_ab = C_a^1/2 C_b^1/2``: the band between them is then the
+    linear interpolation of their ellipses (the widest the two ends allow), never the
+    narrower band of independent ends.
+    """
+    vc = vertex_covariance(db)
+    if vc is None:
+        return None
+    vp = np.asarray(db.vertex_point, np.int64)
+    vo = np.asarray(db.shape.vertex_object)
+    a = _part_segments(db, part)
+    if a.size:
+        both = (vp[a] >= 0) & (vp[a + 1] >= 0)
+        ok = np.isfinite(vc[a, 0, 0]) & np.isfinite(vc[a + 1, 0, 0])
+        a = a[~both & ok & (vo[a] != vo[a + 1])]
+    adj = _adjusted_coords(run, db)
+    ca, cb = vc[a], vc[a + 1]
+    sa = np.sqrt(np.einsum("sii->si", ca))
+    sb = np.sqrt(np.einsum("sii->si", cb))
+    cov = np.zeros((a.size, 6, 6))
+    cov[:, :3, :3], cov[:, 3:, 3:] = ca, cb
+    cross = np.zeros((a.size, 3, 3))
+    cross[:, [0, 1, 2], [0, 1, 2]] = sa * sb
+    cov[:, :3, 3:], cov[:, 3:, :3] = cross, cross
+    return a, adj[a], adj[a + 1], cov
 
 
 def segment_covariances(run: AdjustmentRun, db: DatabaseResult,
@@ -944,33 +1336,104 @@ def segment_covariances(run: AdjustmentRun, db: DatabaseResult,
 
 def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.9,
                   part: tuple = (0, 1), covariances: Optional[dict] = None,
-                  **kwargs) -> SegmentBands:
-    """G-band of every segment of a road database whose two end points were measured.
+                  segments: str = "all", **kwargs) -> SegmentBands:
+    """G-band of every segment of a road database, from the covariance of its vertices'
+    CE90/LE90.
 
-    The joint 6x6 covariance of the end points comes from :func:`cross_covariance`
-    (their own blocks and the cross block), all segments at once. Segments with an
-    unmeasured end point have no a-posteriori covariance there and get no band; a
-    segment whose two vertices are one object point is skipped too.
+    A segment whose two end points were measured: the joint 6x6 covariance of the
+    adjusted points from :func:`cross_covariance` (their own blocks and the cross
+    block, the database offsets' share included), plus the identification error
+    (``identification_sigma``, independent per object point) on each end - the band of
+    the real road, as the vertices' CE90 is. A segment with an end that the conflation
+    predicted: the conflated vertices' covariance (:func:`vertex_covariance`, fully
+    correlated ends, :func:`_other_segments`); these exist only once the run is
+    conflated (before, e.g. in the command line's band processes started right after
+    the adjustment, only the measured segments get bands). A segment with an end
+    without any covariance (not measured, not conflated) or whose two vertices are one
+    object point gets none.
+
+    The ellipses are drawn at :func:`band_scale` (``confidence`` of the error across
+    the line: 1.645 sigma at 90 %).
 
     Parameters
     ----------
     run : AdjustmentRun
     db : DatabaseResult
     confidence : float
-        Probability of the error ellipses (0.9 = 90 %).
+        Probability that the band holds the true road at a point of it (0.9 = 90 %).
     part : (int, int)
         ``(i, n)``: only the segments of the features whose index is ``i`` modulo ``n``
         (``n`` processes share the work; default all).
     covariances : dict, optional
         :class:`SegmentCovariances` by database name (:func:`segment_covariances`):
         taken from there instead of the factorisation, which may then be let go.
+    segments : {"all", "measured", "other"}
+        Which segments: both (default), those with two measured ends, or the others.
     **kwargs
         ``n_pairs``, ``n_directions``, ``progress`` of :func:`g_band_batch`.
 
     Returns
     -------
     SegmentBands
+        Segments in the order of the layer (ascending first vertex).
     """
+    if segments not in ("all", "measured", "other"):
+        raise ValueError("segment_bands: segments must be 'all', 'measured' or 'other'")
+    starts, p1s, p2s, covs = [], [], [], []
+    if segments != "other":
+        a, p1, p2, cov = _measured_joint(run, db, part, covariances)
+        starts.append(a), p1s.append(p1), p2s.append(p2), covs.append(cov)
+    other = _other_segments(run, db, part) if segments != "measured" else None
+    if other is not None:
+        starts.append(other[0]), p1s.append(other[1]), p2s.append(other[2])
+        covs.append(other[3])
+    if not starts:
+        starts, p1s, p2s, covs = ([np.zeros(0, np.int64)], [np.zeros((0, 3))],
+                                  [np.zeros((0, 3))], [np.zeros((0, 6, 6))])
+    a = np.concatenate(starts)
+    order = np.argsort(a, kind="stable")
+    a, cov = a[order], np.concatenate(covs)[order]
+    p1, p2 = np.concatenate(p1s)[order], np.concatenate(p2s)[order]
+    sel = [0, 1, 3, 4]
+    xy, offsets = g_band_rings(p1, p2, cov[:, sel][:, :, sel], _ellipse_confidence(confidence),
+                               **kwargs)
+    return SegmentBands(db.shape.layer.vertex_feature[a], a, _Rings(xy, offsets), cov,
+                        confidence, xy, offsets)
+
+
+def band_scale(confidence: float) -> float:
+    """The factor of the sigmas that a road's G-band of ``confidence`` draws:
+    ``Phi^-1((1 + c) / 2)``, 1.645 at 90 %.
+
+    The band is a statement about the line: where the true road runs, i.e. its error
+    across the line, one dimension (an error along the line moves a point along it, still
+    on the line). The two-dimensional scale of a point's 90 % ellipse (2.146) made the
+    band hold the true road at 95-97 % of its vertices on real road geometry
+    (validation/bands_lengths.py), this one at 86-89 %.
+    """
+    if not 0.0 < confidence < 1.0:
+        raise ValueError("the band's confidence must lie between 0 and 1")
+    return float(ndtri(0.5 + 0.5 * confidence))
+
+
+def _ellipse_confidence(confidence: float) -> float:
+    """The probability of the 2-D ellipses :func:`g_band_rings` draws at
+    :func:`band_scale` (``1 - exp(-k^2 / 2)``)."""
+    k = band_scale(confidence)
+    return float(1.0 - np.exp(-0.5 * k * k))
+
+
+def band_segment_counts(run: AdjustmentRun, db: DatabaseResult) -> tuple[int, int]:
+    """How many segments of a database :func:`segment_bands` gives a band: with two
+    measured ends, and with a conflated end (0 before the conflation)."""
+    other = _other_segments(run, db, (0, 1))
+    return int(_measured_segments(db).size), 0 if other is None else int(other[0].size)
+
+
+def _measured_joint(run: AdjustmentRun, db: DatabaseResult, part: tuple,
+                    covariances: Optional[dict]):
+    """First vertices, end points and joint covariances (s, 6, 6) of the segments with
+    two measured ends, the identification error included (:func:`segment_bands`)."""
     res = run.result
     kept = None if covariances is None else covariances.get(db.name)
     if kept is None:  # from the factorisation now
@@ -991,12 +1454,8 @@ def segment_bands(run: AdjustmentRun, db: DatabaseResult, confidence: float = 0.
         cab = kept.cross[row]
         cov[:, :3, 3:] = cab
         cov[:, 3:, :3] = np.swapaxes(cab, 1, 2)
-    sel = [0, 1, 3, 4]
-    xy, offsets = g_band_rings(res.xyz[pa], res.xyz[pb], cov[:, sel][:, :, sel], confidence,
-                               **kwargs)
-    rings = _Rings(xy, offsets)
-    return SegmentBands(db.shape.layer.vertex_feature[a], a, rings, cov, confidence, xy,
-                        offsets)
+    cov = _identification_blocks(cov, _identification_variance(db))
+    return a, res.xyz[pa], res.xyz[pb], cov
 
 
 def uncertainty_bands(run: AdjustmentRun, db: DatabaseResult,
@@ -1113,11 +1572,32 @@ def resolve_points(run: AdjustmentRun, ids: Sequence[str]) -> np.ndarray:
     return out
 
 
+def _point_identification(run: AdjustmentRun, points: np.ndarray) -> np.ndarray:
+    """Identification variance (p, 3) of bundle points: their database's for shape
+    points (the real road vertex, as their CE90), zero for control and tie points."""
+    out = np.zeros((len(points), 3))
+    kind = np.asarray(getattr(run, "point_kind", []))
+    dbname = np.asarray(getattr(run, "point_database", []))
+    if len(kind) == 0 or len(points) == 0:
+        return out
+    for d in run.databases:
+        m = (kind[points] == "shape") & (dbname[points].astype(str) == d.name)
+        out[m] = _identification_variance(d)
+    return out
+
+
 def _joint(run: AdjustmentRun, points: np.ndarray) -> np.ndarray:
-    """Joint covariance ``(3p, 3p)`` of ``points``; a point may be repeated."""
+    """Joint covariance ``(3p, 3p)`` of ``points``; a point may be repeated.
+
+    The adjustment's covariance plus the identification error of each shape point
+    (independent from point to point, the same for a repeated point): that of the
+    points' CE90/LE90.
+    """
     pts = np.asarray(points, np.int64).reshape(-1)
     upts, inv = np.unique(pts, return_inverse=True)
     c = run.result.joint_covariance(upts).reshape(len(upts), 3, len(upts), 3)
+    idv = _point_identification(run, upts)
+    c[np.arange(len(upts)), :, np.arange(len(upts)), :] += idv[:, :, None] * np.eye(3)
     inv = np.asarray(inv).reshape(-1)
     return c[np.ix_(inv, [0, 1, 2], inv, [0, 1, 2])].reshape(3 * len(pts), 3 * len(pts))
 
@@ -1182,9 +1662,9 @@ class FeatureProfile:
     Per vertex (all vertices of the feature, in order): ``part``, ``chainage``
     (horizontal distance from the start of its part), ``z``, ``sigma_z``,
     ``sigma_chainage`` and ``sigma_chainage_no_cov``, ``adjusted`` (measured or not;
-    unmeasured vertices are fixed: zero sigma). Plus the mean height of the adjusted
-    vertices and the rise (last minus first adjusted vertex) with their sigmas with and
-    without covariances.
+    conflated vertices have their own sigma, vertices without a value are fixed).
+    Plus the mean height of the adjusted vertices and the rise (last minus first
+    adjusted vertex) with their sigmas with and without covariances.
     """
 
     database: str
@@ -1257,9 +1737,12 @@ def profile(run: AdjustmentRun, feature_id: str,
     """Height profile along a feature with the sigma of every vertex.
 
     Each part of the feature is profiled with
-    :func:`vectoradjust.accuracy.propagate.height_profile` on the joint covariance of its
-    measured vertices (unmeasured vertices fixed). Also the mean height of the
-    adjusted vertices and the rise between the first and last adjusted vertex.
+    :func:`vectoradjust.accuracy.propagate.height_profile` on the covariance of its
+    vertices' CE90/LE90: the joint covariance of the measured ones with their
+    identification error (:func:`_joint`), each conflated vertex's own covariance
+    (:func:`vertex_covariance`; no covariance between them or with the measured ones),
+    vertices without a value fixed. Also the mean height of the measured vertices and
+    the rise between the first and last measured vertex.
 
     Parameters
     ----------
@@ -1284,13 +1767,17 @@ def profile(run: AdjustmentRun, feature_id: str,
     vp = np.asarray(db.vertex_point, np.int64)[verts]
     meas = vp >= 0
     nv = verts.size
-    cov = np.zeros((3 * nv, 3 * nv))
+    full = np.zeros((nv, 3, nv, 3))
     if meas.any():
         mi = np.flatnonzero(meas)
-        full = np.zeros((nv, 3, nv, 3))
         full[np.ix_(mi, [0, 1, 2], mi, [0, 1, 2])] = \
             _joint(run, vp[mi]).reshape(mi.size, 3, mi.size, 3)
-        cov = full.reshape(3 * nv, 3 * nv)
+    vc = vertex_covariance(db)
+    conf = np.zeros(nv, bool) if vc is None else (~meas & np.isfinite(vc[verts, 0, 0]))
+    if conf.any():  # conflated vertices: their own covariance (as their CE90 / LE90)
+        ci = np.flatnonzero(conf)
+        full[ci, :, ci, :] = vc[verts[ci]]
+    cov = full.reshape(3 * nv, 3 * nv)
     part = layer.vertex_part[verts]
     chain = np.zeros(nv)
     sz = np.zeros(nv)
@@ -1302,7 +1789,7 @@ def profile(run: AdjustmentRun, feature_id: str,
         pr = prop.height_profile(adj[sel], cov[np.ix_(ci, ci)])
         chain[sel], sz[sel] = pr.chainage, pr.sigma_z
         sc[sel], scn[sel] = pr.sigma_chainage, pr.sigma_chainage_no_cov
-    sz = np.where(meas, sz, np.nan)
+    sz = np.where(meas | conf, sz, np.nan)
     out = FeatureProfile(db.name, str(feature_id), f, db.shape.vertex_ids[verts], part, chain,
                          adj[:, 2].copy(), sz, sc, scn, meas)
     if meas.any():

@@ -348,18 +348,24 @@ def offset_entry(rec: dict, name: str, alpha: float = 0.05) -> dict:
              "test": {"statistic": stat, "critical": crit, "alpha": alpha,
                       "significant": bool(stat > crit)},
              "converged": rec.get("converged", True), "newton_steps": rec.get("newton_steps")}
-    dx, dy = vals[axes.index("X")], vals[axes.index("Y")]
-    mag, az, direction = stats.bias_direction(dx, dy)
-    u = np.array([dx, dy]) / mag if mag > 0 else np.zeros(2)
-    sig_mag = float(np.sqrt(max(u @ cov[:2, :2] @ u, 0.0))) if mag > 0 else float(
-        np.sqrt(np.trace(cov[:2, :2]) / 2))
-    entry.update({"horizontal": float(mag), "horizontal_sigma": sig_mag,
-                  "azimuth": float_or_none(az), "direction": direction})
-    where = f"{direction} of" if direction not in ("", "none") else "on"
-    text = f"{name} is {mag:.2f} m {where} the images (+- {sig_mag:.2f} m)"
+    if "X" in axes:
+        dx, dy = vals[axes.index("X")], vals[axes.index("Y")]
+        mag, az, direction = stats.bias_direction(dx, dy)
+        u = np.array([dx, dy]) / mag if mag > 0 else np.zeros(2)
+        sig_mag = float(np.sqrt(max(u @ cov[:2, :2] @ u, 0.0))) if mag > 0 else float(
+            np.sqrt(np.trace(cov[:2, :2]) / 2))
+        entry.update({"horizontal": float(mag), "horizontal_sigma": sig_mag,
+                      "azimuth": float_or_none(az), "direction": direction})
+        where = f"{direction} of" if direction not in ("", "none") else "on"
+        text = f"{name} is {mag:.2f} m {where} the images (+- {sig_mag:.2f} m)"
+    else:  # a height offset alone (heights from a DEM, offset = "none")
+        text = f"{name}'s heights are"
     if "Z" in axes:
         dz, sz = vals[axes.index("Z")], rec["sigma"][axes.index("Z")]
-        text += f", {abs(dz):.2f} m {'above' if dz > 0 else 'below'} (+- {sz:.2f} m)"
+        text += (f"{',' if 'X' in axes else ''} {abs(dz):.2f} m "
+                 f"{'above' if dz > 0 else 'below'} (+- {sz:.2f} m)")
+        if rec.get("dem_height"):
+            text += " (its DEM's height bias)"
     if "rotation" in axes:
         i, j = axes.index("rotation"), axes.index("scale")
         text += (f", rotated {vals[i] * 1e3:+.3f} mrad (+- {rec['sigma'][i] * 1e3:.3f}) and "

@@ -29,7 +29,7 @@ _MIN_OFFSET_POINTS = {"none": 0, "shift": 1, "shift3d": 1, "height": 1, "similar
                       "affine": 4}
 #: heights from a DEM: its systematic height error is estimated too (issue 30: a biased
 #: DEM must not pull the stereo model), the offset kind becomes this
-_WITH_DEM_HEIGHT = {"shift": "shift3d", "none": "height"}
+_WITH_DEM_HEIGHT = {"shift": "shift3d"}
 
 #: variance components of the well-known groups may move at most this factor from the
 #: stated sigma; beyond it they are held and a finding is reported (issue: a biased
@@ -336,10 +336,10 @@ def _scale_covariances(sol: Solution, setup: BundleSetup, settings, kept: list) 
 def _offset_model(setup: BundleSetup, warnings: list) -> Optional[off.OffsetModel]:
     """The databases whose systematic offset is estimated (None: none is).
 
-    Heights from a DEM add a height offset (``shift`` -> ``shift3d``, ``none`` ->
-    ``height``): the DEM's systematic height error, estimated with the adjustment, so that
-    a biased DEM does not pull the stereo model. A control database (``role =
-    "control"``) is never offset freely: with a stated
+    Heights from a DEM add a height offset (``shift`` -> ``shift3d``; ``none`` says the
+    database, DEM included, has no systematic error): the DEM's systematic height error,
+    estimated with the adjustment, so that a biased DEM does not pull the stereo model.
+    A control database (``role = "control"``) is never offset freely: with a stated
     ``systematic_sigma`` it gets a 3D shift whose prior is that systematic part (an
     error common to its vertices, carried into the covariances, not estimated from
     the data); without one, no offset.

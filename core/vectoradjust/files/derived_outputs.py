@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 
-from vectoradjust.accuracy.derived import EqualErrorGrid, segment_bands
+from vectoradjust.accuracy.derived import EqualErrorGrid, band_segment_counts, segment_bands
 from vectoradjust.errors import CancelledError, InputFileError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -47,9 +47,11 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
                             is_cancelled=None, part: tuple = (0, 1), **kwargs):
     """GeoDataFrame of the uncertainty bands: one (Multi)Polygon per road feature.
 
-    Each feature's band is the union of the G-bands of its segments whose two end points
-    were measured (segments with an unmeasured end have no band); features without such
-    a segment are left out.
+    Each feature's band is the union of the G-bands of its segments
+    (:func:`vectoradjust.accuracy.derived.segment_bands`: measured segments from their
+    joint covariance and the identification error, segments with a conflated end from
+    the conflation's covariance once the run is conflated); features without a segment
+    with a covariance at both ends are left out.
 
     Parameters
     ----------
@@ -66,7 +68,9 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
         index in a column ``_feature`` (:func:`merge_band_parts` puts ``n`` parts
         together in the order of one whole frame); default all, no extra column.
     **kwargs
-        ``n_pairs``, ``n_directions`` of :func:`vectoradjust.accuracy.derived.g_band_batch`.
+        ``n_pairs``, ``n_directions`` of :func:`vectoradjust.accuracy.derived.g_band_batch`;
+        ``segments`` (``"all"``, ``"measured"``, ``"other"``) and ``only`` (database
+        names) of :func:`_band_chunks`.
 
     Returns
     -------
@@ -98,34 +102,82 @@ def uncertainty_bands_frame(run: AdjustmentRun, confidence: float = 0.9, progres
 
 
 def _band_chunks(run: AdjustmentRun, confidence: float, progress, is_cancelled,
-                 part: tuple, **kwargs):
+                 part: tuple, segments: str = "all", only=None, **kwargs):
     """The bands of every database a chunk of whole features at a time.
 
     Yields ``(database, feature indices, feature ids, segment counts, polygons)`` per
     chunk of :func:`_union_chunks`, in the order of the layer (database, then feature):
     a consumer that writes each chunk at once holds one chunk's polygons only.
-    """
-    dbs = list(run.databases)
-    for i, d in enumerate(dbs):
-        def step(fraction, i=i, name=d.name, what="segments"):
-            if is_cancelled is not None and is_cancelled():
-                raise CancelledError("Building the uncertainty bands was cancelled",
-                                     "Run again, or leave the bands out (--no-bands)")
-            if progress is not None:  # the bands of the segments, then their union
-                done = 0.5 * fraction if what == "segments" else 0.5 + 0.5 * fraction
-                progress((i + done) / len(dbs),
-                         f"uncertainty bands: {name} {what} {100 * fraction:3.0f} %")
+    ``segments`` as :func:`segment_bands`; ``only``: these databases (default all).
 
-        step(0.0)
-        sb = segment_bands(run, d, confidence, part=part, progress=step, **kwargs)
-        if not sb.rings:
+    A conflated database's bands (``segments = "all"``) are those of its measured
+    segments united with those of its conflated ones, feature by feature: the same
+    polygons as when the measured ones were built before the conflation, in another
+    process, and the conflated ones added afterwards (:func:`merge_band_parts`,
+    :func:`merge_band_files`).
+    """
+    dbs = [d for d in run.databases if only is None or d.name in only]
+    for i, d in enumerate(dbs):
+        lo, hi = i / len(dbs), (i + 1) / len(dbs)
+        if segments != "all" or band_segment_counts(run, d)[1] == 0:
+            yield from _segment_chunks(run, d, confidence, progress, is_cancelled, part,
+                                       segments, (lo, hi), **kwargs)
             continue
-        feats, counts = np.unique(sb.feature, return_counts=True)
-        fids = d.shape.layer.feature_ids
-        for g0, g1, chunk in _union_chunks(sb, np.searchsorted(feats, sb.feature), len(feats),
-                                           lambda f, step=step: step(f, what="union")):
-            yield d.name, feats[g0:g1], fids[feats[g0:g1]], counts[g0:g1], chunk
-        del sb
+        mid = 0.5 * (lo + hi)
+        rows = [list(_segment_chunks(run, d, confidence, progress, is_cancelled, part,
+                                     which, where, **kwargs))
+                for which, where in (("measured", (lo, mid)), ("other", (mid, hi)))]
+        yield from _joined(d.name, [r for rs in rows for r in rs])
+
+
+def _joined(name: str, rows: list, chunk: int = 5_000):
+    """Rows of :func:`_segment_chunks` of the measured and then the conflated segments of
+    one database as one row per feature (the two bands united, in that order), in
+    chunks of ``chunk`` features."""
+    if not rows:
+        return
+    f_all = np.concatenate([np.asarray(r[1], np.int64) for r in rows])
+    fid = np.concatenate([np.asarray(r[2], dtype=object) for r in rows])
+    cnt = np.concatenate([np.asarray(r[3], np.int64) for r in rows])
+    geo = np.empty(len(f_all), dtype=object)
+    geo[:] = [g for r in rows for g in r[4]]
+    order = np.argsort(f_all, kind="stable")  # a feature's measured band first
+    f_all, fid, cnt, geo = f_all[order], fid[order], cnt[order], geo[order]
+    dup = np.flatnonzero(f_all[1:] == f_all[:-1]) + 1
+    if dup.size:
+        geo[dup - 1] = _united(geo[dup - 1], geo[dup])
+        cnt[dup - 1] += cnt[dup]
+    keep = np.ones(len(f_all), bool)
+    keep[dup] = False
+    f_all, fid, cnt, geo = f_all[keep], fid[keep], cnt[keep], geo[keep]
+    for i in range(0, len(f_all), chunk):
+        yield name, f_all[i:i + chunk], fid[i:i + chunk], cnt[i:i + chunk], \
+            list(geo[i:i + chunk])
+
+
+def _segment_chunks(run: AdjustmentRun, d, confidence: float, progress, is_cancelled,
+                    part: tuple, segments: str, where: tuple, **kwargs):
+    """:func:`_band_chunks` of one database and kind of segment (:func:`segment_bands`);
+    ``where = (lo, hi)``: the share of the progress it reports in."""
+    def step(fraction, what="segments"):
+        if is_cancelled is not None and is_cancelled():
+            raise CancelledError("Building the uncertainty bands was cancelled",
+                                 "Run again, or leave the bands out (--no-bands)")
+        if progress is not None:  # the bands of the segments, then their union
+            done = 0.5 * fraction if what == "segments" else 0.5 + 0.5 * fraction
+            progress(where[0] + done * (where[1] - where[0]),
+                     f"uncertainty bands: {d.name} {what} {100 * fraction:3.0f} %")
+
+    step(0.0)
+    sb = segment_bands(run, d, confidence, part=part, progress=step, segments=segments,
+                       **kwargs)
+    if not sb.rings:
+        return
+    feats, counts = np.unique(sb.feature, return_counts=True)
+    fids = d.shape.layer.feature_ids
+    for g0, g1, chunk in _union_chunks(sb, np.searchsorted(feats, sb.feature), len(feats),
+                                       lambda f: step(f, what="union")):
+        yield d.name, feats[g0:g1], fids[feats[g0:g1]], counts[g0:g1], chunk
 
 
 def _layer_key(run: AdjustmentRun, databases: list, features: np.ndarray) -> np.ndarray:
@@ -150,9 +202,63 @@ def merge_band_parts(run: AdjustmentRun, parts: list):
     if len(parts) == 1 and "_feature" not in parts[0].columns:
         return parts[0]
     frame = pd.concat(parts, ignore_index=True)
+    need = _unbanded_conflation(run, frame["database"].tolist(), frame["NSeg"].to_numpy())
+    if need:  # the parts were built before the conflation: its segments' bands here
+        conf = float(frame["confidence"].iloc[0]) if len(frame) else 0.9
+        extra = uncertainty_bands_frame(run, conf, part=(0, 1), segments="other", only=need)
+        extra["_feature"] = _feature_index(run, extra)
+        frame = pd.concat([frame, extra], ignore_index=True)
     order = _layer_order(run, frame["database"].tolist(), frame["_feature"].to_numpy())
     frame = frame.iloc[order].reset_index(drop=True)
+    key = _layer_key(run, frame["database"].tolist(), frame["_feature"].to_numpy())
+    dup = np.flatnonzero(key[1:] == key[:-1]) + 1  # a feature in a part and in the extra
+    if dup.size:
+        geo = frame.geometry.to_numpy()
+        geo[dup - 1] = _united(geo[dup - 1], geo[dup])
+        frame = frame.set_geometry(geo, crs=frame.crs)
+        frame.loc[dup - 1, "NSeg"] = frame["NSeg"].to_numpy()[dup - 1] + \
+            frame["NSeg"].to_numpy()[dup]
+        frame = frame.drop(index=dup).reset_index(drop=True)
     return frame.drop(columns="_feature")
+
+
+def _feature_index(run: AdjustmentRun, frame) -> np.ndarray:
+    """Feature index of each row of a band frame without ``_feature``."""
+    idx = np.zeros(len(frame), np.int64)
+    for d in run.databases:
+        m = (frame["database"] == d.name).to_numpy()
+        if m.any():
+            fids = np.asarray(d.shape.layer.feature_ids).astype(str)
+            order = np.argsort(fids, kind="stable")
+            pos = np.searchsorted(fids[order], frame["feature_id"].to_numpy()[m].astype(str))
+            idx[m] = order[pos]
+    return idx
+
+
+def _unbanded_conflation(run: AdjustmentRun, databases: list, nseg: np.ndarray) -> list:
+    """The databases whose bands were built before the conflation (the command line's
+    band processes start right after the adjustment): their rows hold the measured
+    segments only although the conflated ones have a covariance now."""
+    got: dict = {}
+    for name, n in zip(databases, np.asarray(nseg, np.int64)):
+        got[name] = got.get(name, 0) + int(n)
+    need = []
+    for d in run.databases:
+        n_meas, n_other = band_segment_counts(run, d)
+        if n_other and got.get(d.name, 0) == n_meas:
+            need.append(d.name)
+    return need
+
+
+def _united(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pairwise union of two arrays of (Multi)Polygons, as MultiPolygons."""
+    import shapely
+
+    u = shapely.union(a, b)
+    one = shapely.get_type_id(u) == 3
+    if one.any():
+        u[one] = shapely.multipolygons(u[one], indices=np.arange(int(one.sum())))
+    return u
 
 
 def _feature_unions(sb, group: np.ndarray, n: int, step, chunk: int = 50_000) -> list:
@@ -352,19 +458,20 @@ def _band_schema():
 
 def uncertainty_bands_file(run: AdjustmentRun, folder, confidence: float = 0.9,
                            progress=None, is_cancelled=None, part: tuple = (0, 1),
-                           **kwargs) -> str:
+                           name: Optional[str] = None, **kwargs) -> str:
     """:func:`uncertainty_bands_frame` written to an Arrow IPC file in ``folder`` (a band
     process's result: the main process maps the file instead of receiving polygons),
     a chunk of features at a time as they are united.
 
     Columns :data:`BAND_FIELDS`, ``_feature`` (the feature's index) and ``geometry``
-    (WKB). Returns the file's path.
+    (WKB); ``name`` the file's name (default ``bands_<i>_of_<n>.arrow``). Returns the
+    file's path.
     """
     import pyarrow as pa
     import shapely
 
     schema = _band_schema()
-    path = Path(folder) / f"bands_{part[0]}_of_{part[1]}.arrow"
+    path = Path(folder) / (name or f"bands_{part[0]}_of_{part[1]}.arrow")
     with pa.OSFile(str(path), "wb") as sink, pa.ipc.new_file(sink, schema) as w:
         # a chunk of features written as soon as it is united: the polygons of one chunk
         # are held at a time, not those of the whole share
@@ -394,16 +501,17 @@ def merge_band_files(run: AdjustmentRun, paths: list) -> LayerTable:
     import pyarrow as pa
 
     paths = [str(p) for p in paths if p]
-    keys, bounds = [], []
+    keys, bounds, names, nseg, conf = [], [], [], [], []
     for p in paths:
-        with pa.memory_map(p) as src:  # the pages of the key columns only
-            reader = pa.ipc.open_file(src)
-            sizes = [reader.get_batch(j).num_rows for j in range(reader.num_record_batches)]
-            table = reader.read_all()
-            keys.append(_layer_key(run, table.column("database").to_pylist(),
-                                   np.array(table.column("_feature").to_numpy(), np.int64)))
-            del table, reader
-        bounds.append(np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)]))
+        k, b, nm, ns, c = _file_keys(run, p)
+        keys.append(k), bounds.append(b), names.extend(nm), nseg.append(ns), conf.extend(c)
+    need = _unbanded_conflation(run, names, np.concatenate(nseg) if nseg else np.zeros(0))
+    if need and paths:  # built before the conflation: its segments' bands here
+        extra = uncertainty_bands_file(run, Path(paths[0]).parent, conf[0] if conf else 0.9,
+                                       segments="other", only=need,
+                                       name="bands_conflated.arrow")
+        k, b, *_ = _file_keys(run, extra)
+        paths.append(extra), keys.append(k), bounds.append(b)
     key = np.concatenate(keys) if keys else np.zeros(0, np.int64)
     order = np.argsort(key, kind="stable")
     first = np.concatenate([[0], np.cumsum([len(k) for k in keys], dtype=np.int64)])
@@ -412,6 +520,11 @@ def merge_band_files(run: AdjustmentRun, paths: list) -> LayerTable:
         if np.any(np.diff(keys[f]) <= 0):
             raise ValueError(f"{paths[f]}: the band rows are not in layer order")
     schema = _band_schema().remove(_band_schema().get_field_index("_feature"))
+    skey = key[order]
+    cuts = np.arange(0, len(order), BAND_BATCH)
+    cuts = np.unique(np.r_[cuts[(cuts == 0) | (skey[cuts] != skey[cuts - 1])],
+                           len(order)])  # a feature's two rows in one batch
+    dup = np.r_[False, skey[1:] == skey[:-1]]
 
     def batches():
         files = [pa.OSFile(p) for p in paths]
@@ -442,8 +555,8 @@ def merge_band_files(run: AdjustmentRun, paths: list) -> LayerTable:
                     f.close()
 
         def ordered():
-            for i in range(0, len(order), BAND_BATCH):
-                o = order[i:i + BAND_BATCH]
+            for i, j in zip(cuts[:-1], cuts[1:]):
+                o = order[i:j]
                 src = source[o]
                 n = np.bincount(src, minlength=len(paths))
                 pieces, base = [], np.zeros(len(paths), np.int64)
@@ -455,11 +568,50 @@ def merge_band_files(run: AdjustmentRun, paths: list) -> LayerTable:
                 local = base[src] + (o - first[src] - done[src])
                 done[:] += n
                 batch = pa.Table.from_batches(pieces, schema=_band_schema()).drop(["_feature"])
-                yield from batch.take(pa.array(local)).combine_chunks().to_batches()
+                batch = batch.take(pa.array(local)).combine_chunks()
+                yield from _merged_rows(batch, dup[i:j]).to_batches()
 
         return pa.RecordBatchReader.from_batches(schema, gen())
 
-    return LayerTable(batches, str(run.data.crs), "MultiPolygon", int(len(order)))
+    return LayerTable(batches, str(run.data.crs), "MultiPolygon", int((~dup).sum()))
+
+
+def _file_keys(run: AdjustmentRun, path: str):
+    """Layer keys, record batch bounds, databases, ``NSeg`` and confidences of the rows
+    of a band file (the pages of those columns only)."""
+    import pyarrow as pa
+
+    with pa.memory_map(path) as src:
+        reader = pa.ipc.open_file(src)
+        sizes = [reader.get_batch(j).num_rows for j in range(reader.num_record_batches)]
+        table = reader.read_all()
+        names = table.column("database").to_pylist()
+        key = _layer_key(run, names, np.array(table.column("_feature").to_numpy(), np.int64))
+        nseg = np.array(table.column("NSeg").to_numpy(), np.int64)
+        conf = table.column("confidence").to_pylist()[:1]
+        del table, reader
+    return key, np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)]), names, nseg, conf
+
+
+def _merged_rows(batch, dup: np.ndarray):
+    """Rows of a batch with a feature's second row (``dup``: the conflated segments' band
+    of a feature whose measured segments' band came before it) united into the first."""
+    import pyarrow as pa
+    import shapely
+
+    if not dup.any():
+        return batch
+    d = np.flatnonzero(dup)
+    geo = shapely.from_wkb(np.asarray(batch.column("geometry").to_pylist(), dtype=object))
+    geo[d - 1] = _united(geo[d - 1], geo[d])
+    nseg = np.array(batch.column("NSeg").to_numpy(), np.int64)
+    nseg[d - 1] += nseg[d]
+    keep = pa.array(~dup)
+    batch = batch.set_column(batch.schema.get_field_index("NSeg"), "NSeg", pa.array(nseg))
+    wkb = shapely.to_wkb(geo, output_dimension=2)
+    batch = batch.set_column(batch.schema.get_field_index("geometry"), "geometry",
+                             pa.array(wkb, type=pa.binary()))
+    return batch.filter(keep)
 
 
 def write_uncertainty_bands(run: AdjustmentRun, path, layer: str = "uncertainty_bands",

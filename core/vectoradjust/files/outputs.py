@@ -38,7 +38,8 @@ __all__ = ["write_outputs", "shape_points_frame", "features_frame", "control_poi
 SHAPE_FIELDS = ["point_id", "feature_id", "X", "Y", "Z", "Vx", "Vy", "Vz", "AdjX", "AdjY", "AdjZ",
                 "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "CE90_meas", "LE90_meas",
                 "NImages", "Adjusted", "Database", "Source"]
-FEATURE_FIELDS = ["NPts", "NAdj", "RMSE_X", "RMSE_Y", "RMSE_Z", "RMSE", "Length", "LengthSD",
+FEATURE_FIELDS = ["NPts", "NAdj", "RMSE_X", "RMSE_Y", "RMSE_Z", "RMSE", "CE90", "LE90",
+                  "Length", "LengthSD",
                   "LengthSDnc", "LengthSDOf", "FirstX",
                   "FirstY", "LastX", "LastY", "Images", "ImgDate", "Database", "Problem"]
 CONTROL_FIELDS = ["point_id", "role", "X", "Y", "Z", "AdjX", "AdjY", "AdjZ", "Vx", "Vy", "Vz",
@@ -222,6 +223,12 @@ def _point_z_wkb(xyz: np.ndarray):
 
 
 def _feature_geometries(d) -> list:
+    """The adjusted line of every feature, of the input's geometry type: a layer of
+    MultiLineStrings only gives MultiLineStrings (one part too), any other a
+    LineString for a feature of one part and a MultiLineString for one of several (as
+    read: a shapefile's arcs, a mixed layer); None for a feature without a line (its
+    ``Problem`` says why). A vertex without a height (NaN, flagged in ``Problem``) is
+    written with Z = 0."""
     import shapely
 
     layer = d.shape.layer
@@ -229,6 +236,7 @@ def _feature_geometries(d) -> list:
     out = [None] * nf
     if len(layer.coords) == 0:
         return out
+    multi_only = set(str(layer.geometry_type).split(",")) == {"MultiLineString"}
     adj = d.adjusted_coords
     z = np.nan_to_num(adj[:, 2], nan=0.0)
     xyz = np.column_stack([adj[:, :2], z])
@@ -241,13 +249,13 @@ def _feature_geometries(d) -> list:
     for s, e in zip(starts, ends):
         parts_by_feature.setdefault(int(fi[s]), []).append(xyz[s:e])
     for f, parts in parts_by_feature.items():
-        parts = [p for p in parts if len(p) >= 2] or parts
-        if len(parts) == 1:
-            out[f] = shapely.linestrings(parts[0]) if len(parts[0]) >= 2 else shapely.points(
-                parts[0][0])
+        parts = [p for p in parts if len(p) >= 2]
+        if not parts:  # a single vertex is no line: no geometry in a line layer
+            continue
+        if len(parts) == 1 and not multi_only:
+            out[f] = shapely.linestrings(parts[0])
         else:
-            out[f] = shapely.multilinestrings(
-                [shapely.linestrings(p) for p in parts if len(p) >= 2])
+            out[f] = shapely.multilinestrings([shapely.linestrings(p) for p in parts])
     return out
 
 
@@ -362,10 +370,17 @@ def features_frame(run: AdjustmentRun):
 
     Every input field of the run is a column of its type (:func:`input_field_types`;
     NULL in the databases without it), values exact: int64 beyond 2^53, dates, booleans,
-    unicode text.
+    unicode text. The geometry is of the input's type (:func:`_feature_geometries`; the
+    GeoPackage layer is written without promoting LineStrings to MultiLineStrings).
+    ``CE90`` / ``LE90`` are the largest of the feature's vertices'
+    (:func:`vectoradjust.accuracy.derived.feature_vertex_accuracy`), ``LengthSD`` that of
+    all its vertices with a covariance, measured and conflated
+    (:func:`vectoradjust.accuracy.derived.feature_accuracy`).
     """
     import geopandas as gpd
     import pandas as pd
+
+    from vectoradjust.accuracy.derived import feature_accuracy
 
     names = run_input_fields(run)
     renamed = renamed_input_fields(names)
@@ -373,6 +388,8 @@ def features_frame(run: AdjustmentRun):
     frames = []
     for d in run.databases:
         layer = d.shape.layer
+        if run.result is not None and "LengthSD" in d.features:
+            feature_accuracy(run, d)  # CE90 / LE90, the conflated vertices' LengthSD
         cols: dict = {}
         for name in names:
             values = layer.attributes.get(name, [None] * layer.n_features)
@@ -382,7 +399,7 @@ def features_frame(run: AdjustmentRun):
             if f == "Database":
                 cols[f] = [d.name] * layer.n_features
             else:
-                cols[f] = _nullable(d.features[f])
+                cols[f] = _nullable(d.features.get(f, np.full(layer.n_features, np.nan)))
         geoms = _feature_geometries(d)
         frames.append(gpd.GeoDataFrame(pd.DataFrame(cols), geometry=gpd.GeoSeries(
             geoms, crs=run.data.crs), crs=run.data.crs))
@@ -477,8 +494,10 @@ def _write_layer(gdf, path: Path, layer: Optional[str], fmt: str) -> list:
         warnings.simplefilter("always")
         if hasattr(gdf, "write"):  # a LayerTable (Arrow, WKB): straight to GDAL
             gdf.write(path, layer, "GPKG" if fmt == "gpkg" else "ESRI Shapefile")
-        elif fmt == "gpkg":
-            gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio", **_arrow_writing())
+        elif fmt == "gpkg":  # the features keep their LineString / MultiLineString
+            keep = {"promote_to_multi": False} if layer == "features" else {}
+            gdf.to_file(path, layer=layer, driver="GPKG", engine="pyogrio", **_arrow_writing(),
+                        **keep)
         else:  # through Arrow too: int64, dates and booleans keep their DBF types
             gdf.to_file(path, driver="ESRI Shapefile", engine="pyogrio", encoding="UTF-8",
                         **_arrow_writing())
