@@ -9,6 +9,7 @@ from .algorithms.accuracy_control import AccuracyControl
 from .algorithms.adjust import AdjustRoadVectors
 from .algorithms.buffer_test import BufferAccuracyTest
 from .algorithms.compare import CompareRoadDatabases
+from .algorithms.dtm_accuracy import DtmAccuracy
 from .algorithms.equal_error_map import EqualErrorMap
 from .algorithms.extract_shape_points import ExtractShapePoints
 from .algorithms.gcp_study import GcpStudy
@@ -36,5 +37,5 @@ class VectorAdjustProvider(QgsProcessingProvider):
     def loadAlgorithms(self):
         for alg in (ExtractShapePoints(), AdjustRoadVectors(), CompareRoadDatabases(),
                     BufferAccuracyTest(), AccuracyControl(), UncertaintyBands(),
-                    EqualErrorMap(), GcpStudy(), MeasureOnImages()):
+                    EqualErrorMap(), GcpStudy(), MeasureOnImages(), DtmAccuracy()):
             self.addAlgorithm(alg)

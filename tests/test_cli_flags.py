@@ -383,6 +383,71 @@ def test_two_step_images_and_method(strip, tmp_path, adjusted):
 
 
 # ------------------------------------------------------------------------ buffer-test
+# ------------------------------------------------------------------------------- dtm
+def _dtm(argv: list) -> tuple:
+    out = _ok(argv)
+    return _json(out / "dtm.json"), out
+
+
+def test_dtm_cell_interpolation_contour_interval(work, tmp_path, fast_run):
+    import geopandas as gpd
+    import rasterio
+
+    proj = work / "fast.toml"
+    a, out_a = _dtm(["dtm", proj, "-o", tmp_path / "a", "-q", "--cell", "10",
+                     "--interpolation", "tin", "--contour-interval", "2"])
+    b, out_b = _dtm(["dtm", proj, "-o", tmp_path / "b", "--quiet", "--cell", "20",
+                     "--interpolation", "bicubic", "--contour-interval", "0.5"])
+    assert (a["summary"]["method"], b["summary"]["method"]) == ("tin", "bicubic")
+    with rasterio.open(out_a / "dtm_accuracy.tif") as ra, \
+            rasterio.open(out_b / "dtm_accuracy.tif") as rb:
+        assert ra.res == (10.0, 10.0) and rb.res == (20.0, 20.0) and ra.count == 5
+        sig = ra.read(2, masked=True)
+        assert float(np.ma.median(sig)) == pytest.approx(a["summary"]["sigma"]["median"],
+                                                         rel=1e-5)
+    lv = {k: gpd.read_file(o / "dtm_contours.gpkg", layer="contours")["level"]
+          for k, o in (("a", out_a), ("b", out_b))}
+    assert np.allclose(np.mod(lv["a"], 2.0), 0.0) and a["contours"]["interval"] == 2.0
+    assert np.any(~np.isclose(np.mod(lv["b"], 1.0), 0.0))  # the half-metre levels
+    # --cell: the terrain term uses max(cell, mean TIN edge); the cells count falls 4 x
+    assert a["summary"]["cells"] > 3 * b["summary"]["cells"]
+
+
+def test_dtm_source_dem_node_sigma_correlation_length(work, tmp_path, fast_run):
+    proj = work / "fast.toml"
+    ind, _ = _dtm(["dtm", proj, "-o", tmp_path / "i", "-q", "--source", "dem",
+                   "--interpolation", "bilinear", "--node-sigma", "0.3"])
+    cor, _ = _dtm(["dtm", proj, "-o", tmp_path / "c", "-q", "--source", "dem",
+                   "--interpolation", "bilinear", "--node-sigma", "0.3",
+                   "--correlation-length", "1000"])
+    assert ind["summary"]["source"] == "dem" and ind["summary"]["node_sigma"] == 0.3
+    # 5 m cells centred between four 5 m DEM nodes: independent nodes give sigma / 2,
+    # nodes correlated over 1000 m nearly sigma itself
+    assert ind["summary"]["sigma_interpolation"]["median"] == pytest.approx(0.15, rel=1e-6)
+    assert cor["summary"]["correlation_length"] == 1000.0
+    assert cor["summary"]["sigma_interpolation"]["median"] == pytest.approx(0.3, rel=0.01)
+
+
+def test_dtm_profile_volume_reference_height(work, tmp_path, fast_run):
+    proj = work / "fast.toml"
+    poly = ["506300", "4474900", "506400", "4474900", "506400", "4475000"]
+    low, _ = _dtm(["dtm", proj, "-o", tmp_path / "l", "-q", "--cell", "10", "--volume", *poly,
+                   "--profile", "506200", "4475000", "506500", "4475100"])
+    high, _ = _dtm(["dtm", proj, "-o", tmp_path / "h", "-q", "--cell", "10", "--volume", *poly,
+                    "--reference-height", "190"])
+    prof = low["profile"]
+    assert prof["chainage"][-1] == pytest.approx(math.hypot(300, 100))
+    assert prof["x"][0] == 506200 and prof["y"][-1] == 4475100
+    assert all(s > 0 for s in prof["sigma"]) and len(prof["sigma_step"]) == len(prof["x"]) - 1
+    v_low, v_high = low["volume"], high["volume"]
+    assert v_high["reference"] == 190.0 and v_high["cells"] == v_low["cells"] > 10
+    # the volume is linear in the reference plane; its sigma does not depend on it
+    assert v_low["volume"] - v_high["volume"] == pytest.approx(
+        v_low["area"] * (190.0 - v_low["reference"]), rel=1e-9)
+    assert v_high["sigma"] == pytest.approx(v_low["sigma"], rel=1e-12)
+    assert "profile" not in high
+
+
 def test_buffer_test_layers_and_exact(tmp_path):
     """A tested line crossing the reference's round end cap at distance 1 from its end:
     the exact share inside a buffer of width 2 is 2 sqrt(2^2 - 1^2) / 10."""
@@ -775,3 +840,29 @@ def test_import_images_flags(tmp_path, capsys):
     assert b.camera.calibration.distortion_model == "brown"  # --camera-json
     assert b.camera.calibration.brown_coefficients[0] == -0.26
     assert a.images[1].attitude[2] == 0.0  # flown north: kappa 0
+
+
+def test_measure_transfer_anisotropy_and_back_tolerance(pair_project, tmp_path):
+    """--max-anisotropy (issue 28, on by default at 5) and --back-tolerance (the match
+    matched back to the reference image)."""
+    p, m = pair_project, pair_project.parent / "measured.csv"
+    loose = _transfer(["measure", "transfer", p, "-q", "--measured", m, "-o", tmp_path / "a",
+                       "--max-sigma", "0.03", "--max-anisotropy", "inf"])
+    tight = _transfer(["measure", "transfer", p, "-q", "--measured", m, "-o", tmp_path / "b",
+                       "--max-sigma", "0.03", "--max-anisotropy", "1.0"])
+    ok = [r["flag_text"] == "" for r in loose]
+    assert sum(ok) >= 8
+    # a ratio of 1 flags every match whose sigmas differ (above max_sigma / 3)
+    assert sum(r["flag_text"] == "" for r in tight) < sum(ok)
+    assert all("poor_precision" in r["flag_text"] for r, o in zip(tight, ok)
+               if o and r["flag_text"] != "")
+    base = _transfer(["measure", "transfer", p, "-q", "--measured", m, "-o", tmp_path / "c"])
+    err = [float(r["back_error"]) for r in base if r["flag_text"] == ""]
+    assert len(err) >= 8 and max(err) <= 0.5  # accepted: back within 0.5 px
+    strict = _transfer(["measure", "transfer", p, "-q", "--measured", m, "-o",
+                        tmp_path / "d", "--back-tolerance", "1e-6"])
+    assert all("back_mismatch" in r["flag_text"] for r, b in zip(strict, base)
+               if b["flag_text"] == "")
+    off = _transfer(["measure", "transfer", p, "-q", "--measured", m, "-o", tmp_path / "e",
+                     "--back-tolerance", "inf"])
+    assert all(r["back_error"] == "" for r in off)

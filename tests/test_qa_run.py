@@ -131,7 +131,8 @@ def test_orthophoto_heights_use_dh_dtm_over_3(clean_run):
     # XY at the orthophoto scale: 0.2 / 0.3 mm
     assert stages["block: GCP XY"].tolerance == pytest.approx(2.0)
     assert stages["block: check XY"].tolerance == pytest.approx(3.0)
-    assert stages["orthophoto: DTM heights"].status == "n/a"
+    # the scenario has a DEM: its heights are checked against dh_DTM (tests/test_dtm_qa.py)
+    assert stages["DTM heights"].tolerance == pytest.approx(dh)
     # an explicit working radius wins
     rep2 = accuracy_control(clean_run, spec, working_radius=134.0)
     assert rep2.tolerances["orthophoto"]["dh_dtm_m"] == pytest.approx(0.3e-3 * 1e4 * 152.4 / 134)

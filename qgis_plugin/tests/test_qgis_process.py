@@ -32,6 +32,7 @@ ALGORITHM_LINES = [
     "vectoradjust:adjustroadvectors\tAdjust road vectors",
     "vectoradjust:bufferaccuracytest\tBuffer accuracy test",
     "vectoradjust:compareroaddatabases\tCompare road databases",
+    "vectoradjust:dtmaccuracy\tDTM accuracy",
     "vectoradjust:equalerrormap\tEqual-error map",
     "vectoradjust:extractshapepoints\tExtract shape points",
     "vectoradjust:gcpstudy\tGCP study (number and location of control points)",

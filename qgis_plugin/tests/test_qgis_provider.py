@@ -23,6 +23,7 @@ ALGORITHMS = {
     "vectoradjust:equalerrormap": "Equal-error map",
     "vectoradjust:gcpstudy": "GCP study (number and location of control points)",
     "vectoradjust:measureonimages": "Measure on the images",
+    "vectoradjust:dtmaccuracy": "DTM accuracy",
 }
 
 

@@ -21,6 +21,7 @@ from typing import Optional
 from vectoradjust import __version__
 from vectoradjust.cli import buffer as cli_buffer
 from vectoradjust.cli import drone as cli_drone
+from vectoradjust.cli import dtm as cli_dtm
 from vectoradjust.cli import many as cli_many
 from vectoradjust.cli import measure as cli_measure
 from vectoradjust.cli import propagate as cli_propagate
@@ -731,6 +732,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_many.add_parser(sub)
     cli_measure.add_parser(sub)
     cli_drone.add_parser(sub)
+    cli_dtm.add_parser(sub)
     return p
 
 

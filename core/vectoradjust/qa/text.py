@@ -28,8 +28,8 @@ def format_report(report: dict) -> str:
     """A readable text rendering of a QA report (``QAReport.as_dict()``).
 
     Verdict first, then the non-conformities with the ids to re-measure, the stage
-    table, the vertical parallax per stereo pair, the triplets, the control points and
-    the notes.
+    table, the vertical parallax per stereo pair, the triplets, the control points, the
+    DTM heights at them and the notes.
     """
     spec = report["specification"]
     lines = []
@@ -89,6 +89,12 @@ def format_report(report: dict) -> str:
         rows = [[c["id"], c["role"], _f(c["e_xy"]), _f(c["tolerance_xy"]), _f(c["e_z"]),
                  _f(c["tolerance_z"]), c["qa"].upper()] for c in report["control_points"]]
         lines += _table(["point", "role", "e_xy", "limit", "e_z", "limit", "QA"], rows, "    ")
+    if report.get("dtm_points"):
+        lines.append("  DTM heights at control and check points (m, DEM minus surveyed):")
+        rows = [[d["id"], d["role"], _f(d["z"]), _f(d["z_dem"]), _f(d["dz"]),
+                 _f(d.get("tolerance")), str(d.get("qa", "n/a")).upper()]
+                for d in report["dtm_points"]]
+        lines += _table(["point", "role", "Z", "Z DEM", "dz", "limit", "QA"], rows, "    ")
     for n in report["notes"]:
         lines.append(f"  note: {n}")
     return "\n".join(lines)

@@ -15,6 +15,8 @@ triplets              E_xy <= sqrt(2) * 0.5 pixel, E_z = (f / b) E_xy (image sca
 block (map)           GCP mean 0.2 mm at map scale (XY), 0.15 h (Z); check points
                       0.3 mm (XY) and 0.2 / 0.25 / 0.35 h (Z) for h = 1 / 2.5 / 5-10 m
 block (orthophoto)    dh_DTM = 0.3 mm * f * M / r; block Z tolerance dh_DTM / 3
+DTM heights           at control and check points: dh_DTM (orthophoto), the check
+                      point height rule (map); mean, a point at twice
 orthomosaic           0.5 mm (flat, hilly) / 0.7 mm (mountainous) at orthophoto scale;
                       seamlines 0.7 / 1.0 mm
 ===================== ==================================================================
@@ -61,6 +63,7 @@ __all__ = [
     "check_z_factor",
     "block_tolerances",
     "orthophoto_dtm_tolerance",
+    "dtm_height_tolerance",
     "orthomosaic_tolerance",
     "max_from_mean",
     "rms_from_mean",
@@ -515,6 +518,39 @@ def orthophoto_dtm_tolerance(f_mm, scale, r_mm) -> tuple:
     if dh.ndim == 0:
         return float(dh), float(dh) / 3.0
     return dh, dh / 3.0
+
+
+def dtm_height_tolerance(spec: QASpec, f_mm: float | None = None,
+                         r_mm: float | None = None) -> tuple:
+    """Mean-error tolerance of DTM heights at control and check points (m).
+
+    * topographic map: the check points' height rule (:func:`check_z_factor` x h):
+      the contours are drawn from the DTM, so its heights must hold what the map's
+      heights must hold (our reading; the manual states no separate DTM rule for maps);
+    * orthophoto / orthomosaic: ``dh_DTM = 0.3 mm f M / r``
+      (:func:`orthophoto_dtm_tolerance`), which needs ``f`` and ``r``.
+
+    A single point is judged against twice the tolerance (``E_max ~ 2 E_mean``).
+
+    Parameters
+    ----------
+    spec : QASpec
+    f_mm, r_mm : float, optional
+        Focal length and working-area radius (mm) for orthophotos.
+
+    Returns
+    -------
+    (tolerance, rule) : (float or None, str)
+        None when it cannot be derived (no focal length); ``rule`` says which rule.
+    """
+    if spec.product == "topographic map":
+        h = float(spec.contour_interval)  # type: ignore[arg-type]
+        factor, _ = check_z_factor(h)
+        return factor * h, f"{factor:g} h (check point heights, h = {h:g} m)"
+    if f_mm is None or r_mm is None or not np.isfinite(f_mm):
+        return None, "dh_DTM needs a frame camera's focal length"
+    dh = orthophoto_dtm_tolerance(f_mm, spec.product_scale, r_mm)[0]
+    return dh, f"dh_DTM = 0.3 mm x f x M / r (f = {f_mm:g} mm, r = {r_mm:.1f} mm)"
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,9 @@ triplets              per three consecutive images, the discrepancies of the poi
                       intersected in the two adjacent models (E_xy, E_z, image scale)
 block adjustment      control (GCP) and check point residuals, XY and Z
 orthophoto            the height tolerance dh_DTM / 3 on the block; dh_DTM reported
+DTM heights           with a DEM in the project: the DEM's bilinear height at every
+                      control and check point against its surveyed Z (dh_DTM for
+                      orthophotos, the check point height rule for maps)
 orthomosaic           0.5 / 0.7 mm on GCP and check points; seamlines not measured here
 ===================== ====================================================================
 
@@ -61,6 +64,7 @@ from typing import Any, Optional
 import numpy as np
 
 from vectoradjust.adjust.bundle import intersect
+from vectoradjust.adjust.dem import bilinear
 from vectoradjust.errors import ProjectError
 from vectoradjust.formatting import float_or_none as _num
 from vectoradjust.formatting import fmt_number
@@ -72,7 +76,9 @@ from vectoradjust.qa.tolerances import (
     StageResult,
     check_stage,
     control_point_qa,
+    dtm_height_tolerance,
     interior_orientation_tolerance,
+    max_from_mean,
     model_discrepancies,
     orthomosaic_tolerance,
     orthophoto_dtm_tolerance,
@@ -573,6 +579,9 @@ class QAReport:
     control_rows : numpy.ndarray of int
         Row of ``run.control_points`` of each entry of ``control``.
     notes : list of str
+    dtm_points : list of dict
+        Per control / check point: surveyed Z, the DEM's height there and the
+        difference (empty without a DEM).
     """
 
     verdict: QAVerdict
@@ -585,6 +594,7 @@ class QAReport:
     control: Optional[ControlPointQA]
     control_rows: np.ndarray
     notes: list = field(default_factory=list)
+    dtm_points: list = field(default_factory=list)
 
     @property
     def passed(self) -> bool:
@@ -637,6 +647,7 @@ class QAReport:
             "stereo_pairs": self.stereo_pairs,
             "triplets": self.triplets,
             "control_points": ctrl,
+            "dtm_points": list(self.dtm_points),
             "stages": v["stages"],
             "notes": list(self.notes),
         }
@@ -776,9 +787,10 @@ def _block_stages(run, spec: QASpec, f: float, r_mm: float, point_rule: str,
         tolerances["orthophoto"] = {"focal_length_mm": f, "scale": spec.product_scale,
                                     "working_radius_mm": r_mm, "dh_dtm_m": dh,
                                     "block_z_m": dh3}
-        stages.append(_na_stage("orthophoto: DTM heights", unit="m", tolerance=dh))
-        notes.append(f"orthophoto: the DTM must hold dh_DTM = {dh:.3f} m (0.3 mm x f x M / r, "
-                     f"r = {r_mm:.1f} mm); DTM heights are not checked by vectoradjust")
+        if _project_dem(run) is None:
+            stages.append(_na_stage("orthophoto: DTM heights", unit="m", tolerance=dh))
+            notes.append(f"orthophoto: the DTM must hold dh_DTM = {dh:.3f} m (0.3 mm x f x M "
+                         f"/ r, r = {r_mm:.1f} mm); the project has no DEM in its CRS to check")
     if spec.product == "orthomosaic":
         om = orthomosaic_tolerance(spec)
         tolerances["orthomosaic"] = om.as_dict()
@@ -790,6 +802,50 @@ def _block_stages(run, spec: QASpec, f: float, r_mm: float, point_rule: str,
     if not any(r == "check" for r in roles):
         notes.append("block: no check points were intersected; only control points are judged")
     return cqa, used, stages, notes
+
+
+def _project_dem(run):
+    """The first DEM of the project's road databases held in the project CRS, or None."""
+    for _spec, layer in getattr(run.data, "vectors", []) or []:
+        if getattr(layer, "dem", None) is not None:
+            return layer.dem
+    return None
+
+
+def _dtm_stage(run, spec: QASpec, f: float, r_mm: float, point_rule: str,
+               tolerances: dict) -> tuple:
+    """DTM heights at the control and check points: ``(stages, notes, rows)``."""
+    dem = _project_dem(run)
+    if dem is None:
+        return [], [], []
+    ctrl = run.data.control
+    xyz = np.asarray(ctrl.xyz, float).reshape(-1, 3)
+    ids = np.asarray(ctrl.point_id).astype(str)
+    roles = np.asarray(ctrl.role).astype(str)
+    z_dem = bilinear(dem.grid, dem.transform, xyz[:, :2], nodata=dem.nodata)
+    ok = np.isfinite(z_dem) & np.isfinite(xyz[:, 2])
+    dz = z_dem - xyz[:, 2]
+    tol, rule = dtm_height_tolerance(spec, f, r_mm)
+    notes = []
+    if (~ok).any():
+        notes.append(f"DTM heights: {int((~ok).sum())} control/check point(s) outside the DEM "
+                     f"or without Z: {', '.join(ids[~ok][:10])}")
+    rows = [{"id": str(ids[j]), "role": str(roles[j]), "z": _num(xyz[j, 2]),
+             "z_dem": _num(z_dem[j]), "dz": _num(dz[j])} for j in np.flatnonzero(ok)]
+    name = "DTM heights"
+    if tol is None or not ok.any():
+        notes.append(f"DTM heights: not evaluated ({rule if tol is None else 'no point'})")
+        return [_na_stage(name, dz[ok], ids[ok].tolist(), unit="m")], notes, rows
+    limit = max_from_mean(tol) if point_rule == "limit" else tol
+    stage = check_stage(name, dz[ok], ids[ok].tolist(), tol, "mean", point_tolerance=limit,
+                        unit="m")
+    for r, row in zip(rows, stage.rows):
+        r["tolerance"], r["qa"] = limit, "pass" if row["passed"] else "fail"
+    tolerances["dtm"] = {"mean_m": tol, "point_m": limit, "rule": rule,
+                         "points": int(ok.sum()), "source": "the project's DEM, bilinear"}
+    notes.append(f"DTM heights: the DEM's bilinear height at {int(ok.sum())} control/check "
+                 f"point(s) against their surveyed Z; mean |dz| tolerance {tol:.3f} m ({rule})")
+    return [stage], notes, rows
 
 
 def accuracy_control(
@@ -853,11 +909,14 @@ def accuracy_control(
     cqa, used, bl_stages, bl_notes = _block_stages(run, spec, f, r_mm, point_rule, tolerances)
     stages += bl_stages
     notes += bl_notes
+    dtm_stages, dtm_notes, dtm_rows = _dtm_stage(run, spec, f, r_mm, point_rule, tolerances)
+    stages += dtm_stages
+    notes += dtm_notes
 
     verdict = qa_verdict(stages)
     return QAReport(verdict=verdict, spec=spec, pixel_size=pixel, pixel_size_source=pixel_src,
                     tolerances=tolerances, stereo_pairs=pair_stats, triplets=trip_stats,
-                    control=cqa, control_rows=used, notes=notes)
+                    control=cqa, control_rows=used, notes=notes, dtm_points=dtm_rows)
 
 
 def control_qa_field(run, spec: QASpec, *, point_rule: str = "limit",
