@@ -422,17 +422,22 @@ def test_a_common_height_error_of_a_strained_adjustment_does_not_move_dem_height
 
 
 def test_length_sd_says_which_vertices_it_covers():
-    """LengthSD treats conflated vertices as fixed: the features layer says so."""
+    """LengthSD includes the conflated vertices' covariance (issue 30); only vertices left
+    at their database position count as fixed, and the features layer says so."""
     _, out, _ = _runs("helsinki")
     d = out.databases[0]
     f = d.features
     scope = np.asarray(f["LengthSDOf"])
     fi = d.shape.layer.vertex_feature
+    valued = np.asarray(d.vertices["Source"]) != "unchanged"  # measured or conflated
+    val = np.bincount(fi, weights=valued, minlength=len(scope))
     meas = np.bincount(fi, weights=d.vertices["Adjusted"] == 1, minlength=len(scope))
     total = np.bincount(fi, minlength=len(scope))
-    assert np.array_equal(scope == "all vertices", (meas == total) & (meas > 0))
-    assert np.array_equal(scope == "measured vertices", (meas > 0) & (meas < total))
-    assert np.array_equal(scope == "", meas == 0)
-    assert (scope == "measured vertices").any() and np.all(np.isnan(f["LengthSD"][scope == ""]))
+    assert np.array_equal(scope == "all vertices", (val == total) & (val > 0))
+    assert np.array_equal(scope == "measured vertices", (val > 0) & (val < total))
+    assert np.array_equal(scope == "", val == 0)
+    assert np.all(np.isfinite(f["LengthSD"][scope != ""]))
+    assert np.all(np.isnan(f["LengthSD"][scope == ""]))
+    assert ((meas < total) & (val == total) & (meas > 0)).any()  # conflated vertices count
     e = out.summary["conflation"]["databases"][0]["length_sd"]
-    assert e["features_with_unmeasured_vertices"] == int((scope == "measured vertices").sum())
+    assert e["features_with_unmeasured_vertices"] == int(((meas > 0) & (meas < total)).sum())

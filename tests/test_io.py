@@ -361,9 +361,10 @@ def test_osm_pbf_input_gives_the_same_adjustment(sample_dir, tmp_path):
     assert np.abs(a["X"][ia] - b["X"][jb]).max() < 0.02
     # the multi-part feature is not in the PBF (its measurements become tie points, without
     # the 0.15 m height prior of its shape points), and the two-pass sigmas differ a little:
-    # adjusted positions agree well within their 6 cm photogrammetric sigma (max 1.9 cm)
+    # adjusted positions agree well within their 6 cm photogrammetric sigma (max 2.2 cm;
+    # each run estimates its own offsets, the DEM heights' height offset included)
     assert np.abs(a["AdjX"][ia][m] - b["AdjX"][jb][m]).max() < 0.03
-    assert np.abs(a["Vx"][ia][m] - b["Vx"][jb][m]).max() < 0.02
+    assert np.abs(a["Vx"][ia][m] - b["Vx"][jb][m]).max() < 0.03
     out = write_outputs(got, tmp_path / "o", bands=False)
     feats = gpd.read_file(out["adjusted.gpkg"], layer="features")
     assert len(feats) == 25 and "osm_id" in feats.columns

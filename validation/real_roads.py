@@ -103,7 +103,9 @@ def _rows(seed, case, mode, data, out):
         ti = lookup(tid, d.shape.vertex_ids)
         sel = (d.vertices["Adjusted"] == 1) & (ti >= 0)
         mean = (d.shape.layer.coords[sel] - txyz[ti[sel]]).mean(axis=0)[:2]
-        est, sig = np.asarray(entry["offset"]["values"]), np.asarray(entry["offset"]["sigma"])
+        # (X, Y; the DEM heights' own height offset, where estimated, is not the database's)
+        est = np.asarray(entry["offset"]["values"][:2])
+        sig = np.asarray(entry["offset"]["sigma"][:2])
         z = float(np.max(np.abs(est - mean) / sig))
         off_ok = bool(np.all(np.abs(est - mean) < 4.0 * sig + 0.02))
         t = d.truth

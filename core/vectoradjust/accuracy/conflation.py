@@ -1570,7 +1570,8 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
     entry: dict = {"name": d.name, "measured_points": n_meas}
     scope = np.asarray(d.features.get("LengthSDOf", []), object)
     entry["length_sd"] = {
-        "covers": "measured vertices; the others count as fixed (features: LengthSDOf)",
+        "covers": "measured and conflated vertices; those left at their database position "
+                  "count as fixed (features: LengthSDOf)",
         "features_with_unmeasured_vertices": int((scope == "measured vertices").sum())}
     if not s.enabled or n_meas < s.min_points or meas_v.all():
         d.vertices["Source"] = source

@@ -348,7 +348,9 @@ def length_sd_scope(npts: np.ndarray, nadj: np.ndarray) -> np.ndarray:
     ``"all vertices"`` when every vertex of the feature was measured; ``"measured
     vertices"`` when some were not: they count as fixed (their conflated position's
     uncertainty, correlated from vertex to vertex, is not in the sigma), so the sigma is
-    a lower bound; ``""`` without a measured vertex (no sigma).
+    a lower bound; ``""`` without a measured vertex (no sigma). After the conflation
+    :func:`vectoradjust.accuracy.derived.conflated_length_sigma` adds the conflated
+    vertices and updates it (``"all vertices"``: every vertex measured or conflated).
     """
     npts, nadj = np.asarray(npts), np.asarray(nadj)
     return np.where(nadj <= 0, "", np.where(nadj >= npts, "all vertices",

@@ -1696,8 +1696,9 @@ def _conflation_body(run) -> str:
         "LOO: each measured point predicted from the others (horizontal RMSE of the "
         "held-out displacement and the share inside its predicted 90 % radius); the "
         "covariance function and the database's own white noise are those whose held-out "
-        "predictions score best. The features' LengthSD counts the predicted vertices as "
-        "fixed (LengthSDOf)."))
+        "predictions score best. The features' LengthSD includes the predicted vertices' "
+        "covariance; only vertices left at their database position count as fixed "
+        "(LengthSDOf)."))
     parts.append(_img(conflation_figure(run), "conflation field",
                       "Displacement (adjusted \u2212 database) at measured and predicted "
                       "points over the CE90 of the predicted position."))
