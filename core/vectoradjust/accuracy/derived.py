@@ -227,6 +227,22 @@ def _identification_variance(db) -> np.ndarray:
     return np.zeros(3) if spec is None else np.asarray(spec.identification_variance, float)
 
 
+def _segment_gradients(run: AdjustmentRun, db: DatabaseResult, a: np.ndarray, dims: int):
+    """For the segments starting at vertices ``a``: their end vertices ``b``, unit
+    directions ``u``, lengths, the gradient of each length by its two vertices
+    (``2 a.size`` rows: the starts' ``-u``, then the ends' ``u``) and those vertices."""
+    adj = _adjusted_coords(run, db)
+    b = a + 1
+    d = adj[b, :dims] - adj[a, :dims]
+    length = np.sqrt(np.sum(d ** 2, axis=1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.where(length[:, None] > 0, d / length[:, None], 0.0)
+    grad = np.zeros((2 * a.size, 3))
+    grad[: a.size, :dims] = -u
+    grad[a.size:, :dims] = u
+    return b, u, length, grad, np.concatenate([a, b])
+
+
 def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult, dims: int = 2,
                          lengthening: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Standard deviation of the length of every feature of a road database.
@@ -291,16 +307,7 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult, dims: int = 2,
     a = _segments(db)
     if a.size == 0 or not has.any():
         return sd, sd_nc
-    adj = _adjusted_coords(run, db)
-    b = a + 1
-    d = adj[b, :dims] - adj[a, :dims]
-    length = np.sqrt(np.sum(d**2, axis=1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = np.where(length[:, None] > 0, d / length[:, None], 0.0)
-    grad = np.zeros((2 * a.size, 3))
-    grad[: a.size, :dims] = -u
-    grad[a.size:, :dims] = u
-    vert = np.concatenate([a, b])
+    b, u, length, grad, vert = _segment_gradients(run, db, a, dims)
     keep = vp[vert] >= 0
     ent_f = fi[vert][keep]
     ent_p = vp[vert][keep]
@@ -415,16 +422,7 @@ def _conflated_gradients(run: AdjustmentRun, db: DatabaseResult, vc: np.ndarray,
     conf = (np.asarray(db.vertex_point) < 0) & np.isfinite(vc[:, 0, 0])
     a = _segments(db)
     a = a[conf[a] | conf[a + 1]] if a.size else a
-    b = a + 1
-    adj = _adjusted_coords(run, db)
-    d = adj[b, :dims] - adj[a, :dims]
-    length = np.sqrt(np.sum(d ** 2, axis=1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = np.where(length[:, None] > 0, d / length[:, None], 0.0)
-    grad = np.zeros((2 * a.size, 3))
-    grad[: a.size, :dims] = -u
-    grad[a.size:, :dims] = u
-    vert = np.concatenate([a, b])
+    b, u, length, grad, vert = _segment_gradients(run, db, a, dims)
     keep = conf[vert]
     vert, grad = vert[keep], grad[keep]
     nobj = max(int(db.shape.n_objects), 1)

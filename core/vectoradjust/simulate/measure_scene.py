@@ -13,26 +13,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from vectoradjust.measure.geometry import ImageGeometry
+from vectoradjust.measure.ties import ArrayReader
 from vectoradjust.simulate.render import Scene, camera, make_scene, render
 
 __all__ = ["ArrayImage", "StereoPair", "stereo_pair"]
 
 
-class ArrayImage:
-    """A reader (``size``, ``read``) over an image array (NaN outside)."""
-
-    def __init__(self, a: np.ndarray) -> None:
-        self.a = np.asarray(a, float)
-        self.size = (self.a.shape[1], self.a.shape[0])
-
-    def read(self, col0: int, row0: int, width: int, height: int) -> np.ndarray:
-        """The window with top-left pixel ``(col0, row0)``."""
-        out = np.full((height, width), np.nan)
-        c0, r0 = max(col0, 0), max(row0, 0)
-        c1, r1 = min(col0 + width, self.size[0]), min(row0 + height, self.size[1])
-        if c1 > c0 and r1 > r0:
-            out[r0 - row0:r1 - row0, c0 - col0:c1 - col0] = self.a[r0:r1, c0:c1]
-        return out
+#: a reader (``size``, ``read``) over an image array (NaN outside): the measuring
+#: module's own (:class:`vectoradjust.measure.ties.ArrayReader`)
+ArrayImage = ArrayReader
 
 
 @dataclass
