@@ -1,7 +1,25 @@
 """On-demand validation of vectoradjust.measure on rendered stereo pairs with known truth.
 
 Run:  PYTHONPATH=core python validation/measure.py [--size 1500] [--points 1000]
-      [--seeds 1 2] [--textures hopper fractal] [--draws 50] [--fast] [--json FILE]
+      [--seeds 1 2] [--textures hopper fractal] [--draws 50] [--fast] [--jpeg 30]
+      [--json FILE]
+
+``--timing N`` (issue 28) instead times the windows of a transfer read from an N x N
+JPEG (quality 40, the rendered photograph tiled): read directly (GDAL decodes the JPEG
+from its start for each window) and from the decoded cache of
+:class:`vectoradjust.files.images.RasterioImage` (one decoding, then slices).
+
+``--aerial Q`` (issue 28) instead transfers a 24 px grid of points between the four real
+DMC frames of ``../shared/data/aerial/ngi_dmc`` (see validation/aerial_gnss.py),
+compressed as JPEG of quality ``Q`` into a temporary folder, from an orientation
+perturbed by 1 m and 0.01 degrees, with the matching as it was before issue 28 (every
+new check off) and as it is; the reference of each transfer is its prediction from the
+survey's orientation over the 24 m DEM (good to about a pixel). Printed: accepted share,
+distances of the accepted from the reference, flags, time.
+
+``--jpeg Q`` (issue 28): both rendered images are compressed as JPEG of quality ``Q``
+(8 bit, GDAL's encoder) and decoded again before anything is measured on them, so that
+flat 8 x 8 blocks and block edges are in the images the matching sees.
 
 ``--fast`` (the fast tier of tests/test_validation.py): one 800 x 800 ``hopper`` pair
 (seed 1), 200 points, 10 draws of the windows.
@@ -65,6 +83,151 @@ from vectoradjust.measure.geometry import (  # noqa: E402
     pixel_covariance,
 )
 from vectoradjust.simulate.measure_scene import ArrayImage, stereo_pair  # noqa: E402
+
+
+def _jpeg(img: np.ndarray, quality: int) -> np.ndarray:
+    """The image compressed as an 8-bit JPEG of ``quality`` and decoded again."""
+    import warnings
+
+    from rasterio.io import MemoryFile
+
+    a = np.clip(np.round(np.asarray(img, float)), 0, 255).astype(np.uint8)
+    with warnings.catch_warnings(), MemoryFile() as mem:
+        warnings.simplefilter("ignore")  # a rendering has no georeferencing
+        with mem.open(driver="JPEG", width=a.shape[1], height=a.shape[0], count=1,
+                      dtype="uint8", QUALITY=int(quality)) as ds:
+            ds.write(a, 1)
+        with mem.open() as ds:
+            return ds.read(1).astype(float)
+
+
+def timing(n: int, windows: int = 100) -> dict:
+    """Seconds to decode an ``n`` x ``n`` JPEG once and per transfer's two windows (a
+    47 px reference chip, a 189 px target chip) read directly and from the cache."""
+    import tempfile
+    import warnings
+
+    import rasterio
+
+    from vectoradjust.files.images import RasterioImage
+    from vectoradjust.files.measuring import read_chips
+
+    tile = stereo_pair(600, seed=1, supersample=1).images["L"]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "big.jpg"
+        reps = (n // tile.shape[0] + 1, n // tile.shape[1] + 1)
+        big = np.tile(tile, reps)[:n, :n].astype(np.uint8)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with rasterio.open(path, "w", driver="JPEG", width=n, height=n, count=1,
+                               dtype="uint8", QUALITY=40) as ds:
+                ds.write(big, 1)
+        rng = np.random.default_rng(0)
+        cent = rng.uniform(100, n - 100, size=(windows, 2))
+        out = {}
+        for label, cache, k in (("direct", False, max(windows // 20, 3)),
+                                ("cached", True, windows)):
+            img = RasterioImage(path, "big", cache=cache)
+            t0 = time.perf_counter()
+            img.read(0, 0, 1, 1)
+            out[f"{label}_first_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            for c in cent[:k]:
+                read_chips(img, c[None], 23)
+                read_chips(img, c[None], 94)
+            out[f"{label}_ms_per_transfer"] = (time.perf_counter() - t0) / k * 1000.0
+            img.close()
+    return out
+
+
+#: every check of issue 28 off: the matching as it was before
+BEFORE_28 = {"max_anisotropy": np.inf, "min_grey_levels": 0, "min_entropy": 0.0,
+             "max_blockiness": np.inf, "min_roundness": 0.0, "grey_step": 0.0,
+             "min_sigma": 0.0, "back_tolerance": np.inf, "max_ray_misfit": np.inf}
+
+
+def _aerial_jpegs(folder: Path, quality: int, out: Path) -> dict:
+    """JPEG copies of the DMC frames (id -> path)."""
+    import warnings
+
+    import rasterio
+
+    paths = {}
+    for src in sorted(folder.glob("*_RGB.tif")):
+        dst = out / f"{src.stem.split('_')[-2]}.jpg"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # raw frames: the CRS is only a label
+            with rasterio.open(src) as ds:
+                a = ds.read()
+            with rasterio.open(dst, "w", driver="JPEG", width=a.shape[2], height=a.shape[1],
+                               count=a.shape[0], dtype="uint8", QUALITY=int(quality)) as o:
+                o.write(a)
+        paths[dst.stem] = dst
+    return paths
+
+
+def aerial_study(quality: int, data: Path) -> list:
+    """Before/after transfers on the JPEG-compressed DMC frames (``--aerial``)."""
+    import tempfile
+
+    from aerial_gnss import PAIRS, read_block
+
+    from vectoradjust.files.images import RasterioImage
+    from vectoradjust.measure.transfer import MatchSettings
+
+    block = read_block(data)
+    sw = {"earth_curvature": True, "refraction": True}
+    sig = np.r_[np.full(3, 1.0), np.radians(np.full(3, 0.01))]
+    rng = np.random.default_rng(1)
+    true = {i: ImageGeometry(i, e, block.camera, sw, block.terrain_height, sigma_eo=sig)
+            for i, e in zip(block.ids, block.eo)}
+    approx = {i: ImageGeometry(i, e + rng.normal(size=6) * sig, block.camera, sw,
+                               block.terrain_height, sigma_eo=sig)
+              for i, e in zip(block.ids, block.eo)}
+    pid, iid, cr = [], [], []
+    gx, gy = np.meshgrid(np.arange(40, 600, 24.0), np.arange(40, 1112, 24.0))
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    for a, b in PAIRS:
+        pb = true[b].to_pixel(true[a].to_ground(grid, block.height))
+        ok = np.all((pb > 40) & (pb < [600, 1112]), axis=1)
+        pid += [f"{a}{b}_{k}" for k in np.flatnonzero(ok)]
+        iid += [a] * int(ok.sum())
+        cr.append(grid[ok])
+    cr = np.vstack(cr)
+    meas = {"point_id": np.array(pid), "image_id": np.array(iid), "col": cr[:, 0],
+            "row": cr[:, 1]}
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        readers = {k: RasterioImage(v, k) for k, v in
+                   _aerial_jpegs(data, quality, Path(tmp)).items()}
+        for label, st in (("before", MatchSettings(**BEFORE_28)), ("after", MatchSettings())):
+            t0 = time.perf_counter()
+            r = transfer(approx, readers, meas, block.height, st, sigma_height=5.0)
+            dt = time.perf_counter() - t0
+            k = np.array([pid.index(p) for p in r["point_id"]])
+            ref = np.array([true[d].to_pixel(true[s_].to_ground(cr[j:j + 1], block.height))[0]
+                            for j, s_, d in zip(k, r["ref_image"], r["image_id"])])
+            err = np.hypot(r["col"] - ref[:, 0], r["row"] - ref[:, 1])
+            rows.append((label, r, err, dt))
+        for rd in readers.values():
+            rd.close()
+    return rows
+
+
+def _print_aerial(quality: int, rows: list) -> None:
+    from collections import Counter
+
+    for label, r, err, dt in rows:
+        acc = r["accepted"]
+        e = err[acc]
+        n = len(acc)
+        flags = Counter(f for t in r["flag_text"] for f in str(t).split("|") if f)
+        print(f"DMC frames, JPEG quality {quality}, {label} issue 28: {n} transfers, accepted "
+              f"{acc.sum()} ({acc.mean():.1%}); of those within 0.5 px {np.mean(e <= 0.5):.1%}, "
+              f"within 2 px {np.mean(e <= 2):.1%}, beyond 2 px {int(np.sum(e > 2))}, beyond 5 "
+              f"px {int(np.sum(e > 5))}, worst {e.max() if e.size else np.nan:.2f} px; "
+              f"{1000 * dt / max(n, 1):.0f} ms per transfer")
+        print(f"  flags: {dict(flags.most_common())}")
 
 
 def _points(pair, n, seed, margin=40):
@@ -188,8 +351,29 @@ def main(argv=None) -> int:
                     help="default both (--fast: hopper)")
     ap.add_argument("--draws", type=int, default=None, help="default 50 (--fast 10)")
     ap.add_argument("--fast", action="store_true", help="the fast tier")
+    ap.add_argument("--timing", type=int, default=None, metavar="N",
+                    help="only time the windows of an N x N JPEG, direct and cached")
+    ap.add_argument("--aerial", type=int, default=None, metavar="Q",
+                    help="only the before/after study on the DMC frames as JPEG of quality Q")
+    ap.add_argument("--aerial-data", type=Path,
+                    default=Path(__file__).resolve().parents[1].parent / "shared" / "data"
+                    / "aerial" / "ngi_dmc", help="the ngi_dmc folder")
+    ap.add_argument("--jpeg", type=int, default=None,
+                    help="compress both images as JPEG of this quality first")
     ap.add_argument("--json", help="write the criteria to this file")
     args = ap.parse_args(argv)
+    if args.aerial:
+        if not (args.aerial_data / "camera_pos_ori.txt").is_file():
+            print(f"the DMC frames are not found: {args.aerial_data}")
+            return 1
+        _print_aerial(args.aerial, aerial_study(args.aerial, args.aerial_data))
+        return 0
+    if args.timing:
+        t = timing(args.timing)
+        print(f"{args.timing} x {args.timing} JPEG: direct {t['direct_ms_per_transfer']:.1f} "
+              f"ms per transfer's windows; cached: decoded once in {t['cached_first_s']:.1f} s, "
+              f"then {t['cached_ms_per_transfer']:.2f} ms per transfer's windows")
+        return 0
     fast = args.fast
     size = args.size or (800 if fast else 1500)
     points = args.points or (200 if fast else 1000)
@@ -200,11 +384,14 @@ def main(argv=None) -> int:
             pair = stereo_pair(size, seed=seed, texture=texture, sigma_position=0.5,
                                sigma_attitude=0.02)
             tr = time.perf_counter() - t0
+            if args.jpeg:
+                pair.images = {k: _jpeg(v, args.jpeg) for k, v in pair.images.items()}
             a = transfer_study(pair, points, seed)
             b = window_study(pair, seed, draws=args.draws or (10 if fast else 50))
             c = road_study(pair, seed)
             pairs.append((f"{texture} {seed}", a, b, c))
-            print(f"{texture} seed {seed} ({size} px, rendered in {tr:.0f} s)")
+            jq = f", JPEG quality {args.jpeg}" if args.jpeg else ""
+            print(f"{texture} seed {seed} ({size} px{jq}, rendered in {tr:.0f} s)")
             print(f"  A transfer: {a['n']} points, accepted {a['accepted']:.1%}, well-textured "
                   f"{a['well_textured']:.1%} of which within 0.3 px {a['wt_within_0.3']:.1%}; "
                   f"accepted within 0.3 px {a['acc_within_0.3']:.1%}, median "

@@ -8,7 +8,8 @@ and, with ``--roads``, the junction and corner shape points located automaticall
 (``DIR/automatic_points.csv``, all attempts with their flags).
 
 ``vectoradjust measure transfer PROJECT.toml --measured FILE --out DIR [--automatic
-DIR/automatic_points.csv]`` finds every point measured on one image (``FILE``:
+DIR/automatic_points.csv] [--max-anisotropy 5] [--back-tolerance 0.5]`` finds every
+point measured on one image (``FILE``:
 ``point_id,image_id,col,row`` in pixels, e.g. the filled-in template) on the other
 images, writes every attempt with its quality to ``DIR/transfer.csv`` and the accepted
 measurements to ``DIR/image_points.csv`` in the contract format (photo mm) - ready for
@@ -68,6 +69,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--min-ncc", type=float, default=0.8, help="correlation threshold")
     t.add_argument("--max-sigma", type=float, default=0.07, help="largest LSM sigma (px)")
     t.add_argument("--max-radius", type=float, default=40.0, help="largest search radius (px)")
+    t.add_argument("--max-anisotropy", type=float, default=5.0,
+                   help="largest ratio of the LSM sigmas of the two axes: a patch textured "
+                        "in one direction only (an edge) slides along it (default 5; "
+                        "inf = off)")
+    t.add_argument("--back-tolerance", type=float, default=0.5,
+                   help="largest distance (px) of a match matched back to the reference "
+                        "image from the reference point (default 0.5; inf = no "
+                        "back-matching)")
     t.add_argument("--sigma-height", type=float, default=2.0,
                    help="uncertainty of the terrain height (m) for the search window")
     t.set_defaults(func=cmd_transfer)
@@ -258,7 +267,8 @@ def cmd_transfer(args) -> int:
     spec, geoms, readers, points, height = _load(args)
     measured = read_pixel_table(args.measured)
     st = MatchSettings(min_ncc=args.min_ncc, max_sigma=args.max_sigma,
-                       max_radius=args.max_radius)
+                       max_radius=args.max_radius, max_anisotropy=args.max_anisotropy,
+                       back_tolerance=args.back_tolerance)
     res = transfer(geoms, readers, measured, height, st, sigma_height=args.sigma_height,
                    progress=bar)
     out = Path(args.out)

@@ -25,14 +25,24 @@ __all__ = ["RasterioImage", "write_chip", "write_table", "read_pixel_table"]
 class RasterioImage:
     """Windowed reading of one image (grey value: the mean of its bands).
 
+    A tiled or uncompressed TIFF is read window by window. Any other image (a JPEG, a
+    PNG, a striped compressed TIFF: formats that GDAL decodes from the first line or
+    strip to reach a window) is decoded once, strip by strip, at the first read into a
+    cache of grey values - a temporary file mapped into memory, removed on
+    :meth:`close` - so that every later window costs a slice (milliseconds) instead of a
+    decoding.
+
     Parameters
     ----------
     path : str or os.PathLike
     image_id : str
         For messages.
+    cache : bool or None
+        ``True``: always decode into the cache; ``False``: never; ``None`` (default):
+        as above, by the format.
     """
 
-    def __init__(self, path, image_id: str = "") -> None:
+    def __init__(self, path, image_id: str = "", cache: Optional[bool] = None) -> None:
         import rasterio
         import rasterio.errors
 
@@ -51,6 +61,9 @@ class RasterioImage:
         self.path = str(p)
         self.image_id = image_id
         self.size = (self._ds.width, self._ds.height)
+        self.cached = _needs_cache(self._ds) if cache is None else bool(cache)
+        self._cache = None
+        self._cache_file = None
 
     def read(self, col0: int, row0: int, width: int, height: int) -> np.ndarray:
         """Grey values of the window (float, NaN outside the image)."""
@@ -61,13 +74,47 @@ class RasterioImage:
         c1, r1 = min(col0 + width, self.size[0]), min(row0 + height, self.size[1])
         if c1 <= c0 or r1 <= r0:
             return out
+        if self.cached:
+            if self._cache is None:
+                self._decode()
+            out[r0 - row0:r1 - row0, c0 - col0:c1 - col0] = self._cache[r0:r1, c0:c1]
+            return out
         a = self._ds.read(window=Window(c0, r0, c1 - c0, r1 - r0)).astype(float)
         out[r0 - row0:r1 - row0, c0 - col0:c1 - col0] = a.mean(axis=0)
         return out
 
+    def _decode(self, strip: int = 512) -> None:
+        """Decode the whole image once, strip by strip, into the grey-value cache."""
+        import tempfile
+
+        from rasterio.windows import Window
+
+        w, h = self.size
+        self._cache_file = tempfile.TemporaryFile(prefix="vectoradjust_image_")
+        cache = np.memmap(self._cache_file, dtype=np.float32, mode="w+", shape=(h, w))
+        for r in range(0, h, strip):  # I/O: sequential strips, one decoding
+            n = min(strip, h - r)
+            cache[r:r + n] = self._ds.read(window=Window(0, r, w, n)).astype(
+                np.float32).mean(axis=0)
+        self._cache = cache
+
     def close(self) -> None:
-        """Close the dataset."""
+        """Close the dataset and remove the cache."""
         self._ds.close()
+        self._cache = None
+        if self._cache_file is not None:
+            self._cache_file.close()
+            self._cache_file = None
+
+
+def _needs_cache(ds) -> bool:
+    """Whether windows of a dataset cost a decoding from its start: anything but a
+    tiled or uncompressed GeoTIFF (JPEG, PNG, striped compressed TIFF ...)."""
+    if ds.driver != "GTiff":
+        return ds.driver not in ("MEM", "VRT")
+    if ds.profile.get("tiled"):
+        return False
+    return ds.compression is not None
 
 
 def write_chip(path, chip: np.ndarray, col0: int, row0: int, mark=None) -> Path:

@@ -12,7 +12,9 @@ no raster library.
   covariances and, for shape points, the road arms;
 * :func:`predict` - pixel and mm position and search ellipse of every point on every
   image it falls on (the measurement template);
-* :func:`transfer` - points measured on one image found on the others (NCC + LSM);
+* :func:`transfer` - points measured on one image found on the others (NCC + LSM),
+  matched back onto the reference image and, on three or more frame images, checked
+  against the forward intersection of all their rays;
 * :func:`measure_roads` - junctions and corners located on every image;
 * :func:`image_points` - the accepted measurements in the contract format.
 
@@ -48,7 +50,7 @@ from vectoradjust.measure.geometry import (
     transfer_covariance,
     window_axes,
 )
-from vectoradjust.measure.matching import flag_names
+from vectoradjust.measure.matching import FLAGS, flag_names
 from vectoradjust.measure.roads import ROAD_FLAGS, RoadSettings, centreline_crossing, measurable
 from vectoradjust.measure.roads import vertex_arms as _vertex_arms
 from vectoradjust.measure.transfer import MatchSettings, match_batch
@@ -150,6 +152,7 @@ def image_geometries(spec, orientation: Optional[Mapping] = None,
         sa = _sigma3(sa, default_sigma[1])
         eo = np.r_[pos, np.radians(att)]
         sig = np.r_[sp, np.radians(sa)]
+        cov_eo = _eo_covariance(adjusted.get(im.id), sig)
         fit = None
         measured = fiducials.of_image(im.id) if fiducials is not None else {}
         if measured:
@@ -157,8 +160,32 @@ def image_geometries(spec, orientation: Optional[Mapping] = None,
         size = (image_sizes or {}).get(im.id)
         cam = _sized(cal, size) if fit is None else (
             cal if size is None else dataclasses.replace(cal, image_size=tuple(size)))
-        out[im.id] = ImageGeometry(im.id, eo, cam, switches, terrain, fit, sig)
+        out[im.id] = ImageGeometry(im.id, eo, cam, switches, terrain, fit, sig, cov_eo)
     return out
+
+
+#: names of the exterior orientation parameters in a summary's ``correlation``
+EO_PARAMETERS = ("X", "Y", "Z", "omega", "phi", "kappa")
+
+
+def _eo_covariance(entry: Optional[Mapping], sig: np.ndarray) -> Optional[np.ndarray]:
+    """The joint ``(6, 6)`` covariance (m, radians) of a frame image's orientation from a
+    ``summary.json`` entry's ``correlation`` (``parameters`` named as
+    :data:`EO_PARAMETERS`, ``matrix``) and the sigmas ``sig``; None without one."""
+    c = (entry or {}).get("correlation")
+    if not c or not c.get("parameters"):
+        return None
+    names = [str(n) for n in c["parameters"]]
+    unknown = sorted(set(names) - set(EO_PARAMETERS))
+    if unknown:
+        raise MeasurementError(
+            f"image {entry.get('id')!r}: the orientation's correlation names "
+            f"{', '.join(unknown)}", f"Name its parameters among {', '.join(EO_PARAMETERS)}",
+            details={"image_id": entry.get("id")})
+    idx = [EO_PARAMETERS.index(n) for n in names]
+    corr = np.eye(6)
+    corr[np.ix_(idx, idx)] = np.nan_to_num(np.asarray(c["matrix"], float))
+    return corr * np.outer(sig, sig)
 
 
 def _rpc_geometry(im, entry: Optional[Mapping], frame, size, terrain) -> RpcGeometry:
@@ -285,8 +312,9 @@ def predict(geoms: Mapping[str, ImageGeometry], points: PointSet, k: float = WIN
         else:
             w, h = g.camera.image_size if g.camera.image_size is not None else (np.inf,
                                                                                  np.inf)
-            inside = (px[:, 0] >= -0.5) & (px[:, 1] >= -0.5) & (px[:, 0] <= w - 0.5) & \
-                     (px[:, 1] <= h - 0.5)
+            e = g.index_offset - 0.5  # the image's outer edge: -0.5 (centre), 0 (corner)
+            inside = (px[:, 0] >= e) & (px[:, 1] >= e) & (px[:, 0] <= w + e) & \
+                     (px[:, 1] <= h + e)
         ax = window_axes(cov[inside], k)
         mm = g.pixel_to_measured_mm(px[inside])
         cols["point_id"].append(points.ids[inside])
@@ -334,7 +362,27 @@ def _heights(height, g_src: ImageGeometry):
 
 def _transfer_pair(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float,
                    sigma_ref_px: float, st: MatchSettings) -> dict:
-    """Match the reference pixels of ``src`` on ``dst`` (batched).
+    """Match the reference pixels of ``src`` on ``dst`` and, where that is accepted, the
+    matches back on ``src`` (:func:`_one_way`): a back-match whose least-squares matching
+    fails, or lands farther than ``st.back_tolerance`` px from the reference pixel, flags
+    ``back_mismatch`` (the back-match's own quality flags do not count: the distance is
+    the test).
+    ``back_error`` (px) is NaN where no back-match was tried."""
+    fwd = _one_way(src, dst, rd_src, rd_dst, ref_px, height, sigma_height, sigma_ref_px, st)
+    err = np.full(len(ref_px), np.nan)
+    ok = np.flatnonzero((fwd["flags"] == 0) & ~fwd["off_image"])
+    if np.isfinite(st.back_tolerance) and ok.size:
+        back = _one_way(dst, src, rd_dst, rd_src, fwd["px"][ok], height, sigma_height,
+                        sigma_ref_px, st)
+        err[ok] = np.hypot(*(back["px"] - np.asarray(ref_px, float)[ok]).T)
+        fwd["flags"][ok[~(err[ok] <= st.back_tolerance)]] |= FLAGS["back_mismatch"]
+    fwd["back_error"] = err
+    return fwd
+
+
+def _one_way(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float,
+             sigma_ref_px: float, st: MatchSettings) -> dict:
+    """Match the reference pixels of ``src`` on ``dst`` (batched, no back-matching).
 
     Pixels are the images' own (``px``, ``pred``); chips are read and matched at array
     indices (``pixel - index_offset``: 0.5 for GDAL's pixels of an RPC image).
@@ -343,8 +391,10 @@ def _transfer_pair(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float
     ground = src.to_ground(ref_px, height)
     if isinstance(src, ImageGeometry) and isinstance(dst, ImageGeometry):
         cov = _frame_transfer_cov(src, dst, ground, a, sigma_height, sigma_ref_px)
+        cov_rays = _frame_transfer_cov(src, dst, ground, a, 0.0, sigma_ref_px)
     else:
         cov = transfer_covariance(src, dst, ref_px, ground, a, sigma_height, sigma_ref_px)
+        cov_rays = cov
     o_src, o_dst = src.index_offset, dst.index_offset
     ref_i = ref_px - o_src if o_src else ref_px
     pred_i = pred - o_dst if o_dst else pred
@@ -359,7 +409,8 @@ def _transfer_pair(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float
         (pred_i[:, 0] > w - 1) | (pred_i[:, 1] > hh - 1)
     px = res.px + o_dst if o_dst else res.px
     return {"pred": pred, "px": px, "ncc": res.ncc, "rho": res.rho, "sigma": res.sigma,
-            "flags": res.flags, "off_image": off}
+            "flags": res.flags, "off_image": off, "texture": res.texture,
+            "cov_rays": cov_rays}
 
 
 def _frame_transfer_cov(src: ImageGeometry, dst: ImageGeometry, ground, a, sigma_height,
@@ -367,12 +418,12 @@ def _frame_transfer_cov(src: ImageGeometry, dst: ImageGeometry, ground, a, sigma
     """The search covariance of a transfer between two frame images (their orientation,
     the reference pointing and the terrain height's uncertainty in the target's Z)."""
     src_only = ImageGeometry(src.image_id, src.eo, src.camera, src.corrections,
-                             src.terrain_height, src.affine, src.sigma_eo)
+                             src.terrain_height, src.affine, src.sigma_eo, src.cov_eo)
     c_src = pixel_covariance(src_only, ground, np.zeros((len(ground), 3)))
     c_src += sigma_ref_px**2 * np.eye(2)
     cov = a @ c_src @ np.swapaxes(a, 1, 2)
     dst_only = ImageGeometry(dst.image_id, dst.eo, dst.camera, dst.corrections,
-                             dst.terrain_height, dst.affine, dst.sigma_eo)
+                             dst.terrain_height, dst.affine, dst.sigma_eo, dst.cov_eo)
     cov += pixel_covariance(dst_only, ground, np.c_[np.zeros((len(ground), 2)),
                                                    np.full(len(ground), sigma_height)])
     return cov
@@ -398,6 +449,7 @@ def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Map
     height : callable or float, optional
         Terrain height ``(n, 2) -> (n,)`` (a DEM), default the mean terrain height.
     settings : MatchSettings, optional
+        Thresholds; ``back_tolerance`` (default 0.5 px) sets the back-matching.
     sigma_height : float
         Uncertainty of the terrain height (m) for the search window.
     sigma_ref_px : float
@@ -407,8 +459,11 @@ def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Map
     -------
     dict of numpy.ndarray
         One row per point and target image: ``point_id, image_id, ref_image, col, row``
-        (NaN when failed), ``pred_col, pred_row, ncc, rho, sigma_col, sigma_row, flags``
-        (int bits), ``flag_text`` and ``accepted``.
+        (NaN when failed), ``pred_col, pred_row, ncc, rho, sigma_col, sigma_row``,
+        ``back_error`` (px, the match matched back to the reference image; NaN where
+        not tried), the reference template's ``entropy, blockiness, roundness``
+        (:func:`measure.matching.texture_measures`), ``flags`` (int bits), ``flag_text``
+        and ``accepted``.
     """
     st = settings or MatchSettings()
     pid = np.asarray(measured["point_id"]).astype(str)
@@ -421,7 +476,9 @@ def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Map
     ref_rows = np.sort(first)
     have = np.char.add(np.char.add(pid, "\x1f"), iid)
     rows: dict = {k: [] for k in ("point_id", "image_id", "ref_image", "col", "row", "pred_col",
-                                  "pred_row", "ncc", "rho", "sigma_col", "sigma_row", "flags")}
+                                  "pred_row", "ncc", "rho", "sigma_col", "sigma_row",
+                                  "back_error", "entropy", "blockiness", "roundness",
+                                  "flags", "_cov")}
     pairs = [(s, d) for s in geoms for d in geoms if s != d]
     for n_pair, (s_id, d_id) in enumerate(pairs):
         sel = ref_rows[(iid[ref_rows] == s_id)]
@@ -438,14 +495,67 @@ def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Map
                              ("row", r["px"][:, 1]), ("pred_col", r["pred"][:, 0]),
                              ("pred_row", r["pred"][:, 1]), ("ncc", r["ncc"]),
                              ("rho", r["rho"]), ("sigma_col", r["sigma"][:, 0]),
-                             ("sigma_row", r["sigma"][:, 1]), ("flags", r["flags"])):
+                             ("sigma_row", r["sigma"][:, 1]), ("back_error", r["back_error"]),
+                             ("entropy", r["texture"]["entropy"]),
+                             ("blockiness", r["texture"]["blockiness"]),
+                             ("roundness", r["texture"]["roundness"]), ("flags", r["flags"]),
+                             ("_cov", r["cov_rays"])):
                 rows[key].append(np.asarray(val)[keep])
     out = {k: np.concatenate(v) if v else np.zeros(0) for k, v in rows.items()}
     out["flags"] = out["flags"].astype(np.int64)
+    cov = out.pop("_cov").reshape(-1, 2, 2)
+    if np.isfinite(st.max_ray_misfit):
+        bad = _inconsistent(geoms, out, pid, iid, px, cov, sigma_ref_px, st)
+        out["flags"][bad] |= FLAGS["inconsistent"]
     out["flag_text"] = np.array([flag_names(f) for f in out["flags"]], dtype=object)
     out["accepted"] = out["flags"] == 0
     _tick(progress, is_cancelled, 1.0, "transferred")
     return out
+
+
+def _inconsistent(geoms, out: dict, pid, iid, px, cov, sigma_ref_px: float,
+                  st: MatchSettings) -> np.ndarray:
+    """Accepted transfers of points seen on three or more frame images (the reference and
+    at least two accepted matches) whose forward intersection misses them.
+
+    All rays of a point are intersected (least squares); a match is inconsistent when its
+    misfit ``r`` (px) fails ``r' (C + (t / k)^2 I)^-1 r <= k^2`` (``k`` = WINDOW_K,
+    ``t`` = ``st.max_ray_misfit`` px): ``C`` is the transfer's covariance without the
+    terrain height's part (the orientations' uncertainty moves the rays; the height is
+    what the intersection determines), so with a good orientation a match more than
+    about ``t`` px off its intersection - e.g. one at the wrong place along the
+    epipolar line - is refused. RPC images are left out.
+    """
+    bad = np.zeros(len(out["flags"]), bool)
+    acc = np.flatnonzero(out["flags"] == 0)
+    frame = {k for k, g in geoms.items() if isinstance(g, ImageGeometry)}
+    acc = acc[np.isin(out["image_id"][acc], list(frame))]
+    ids, counts = np.unique(out["point_id"][acc], return_counts=True)
+    ref_of = {p: k for k, p in reversed(list(enumerate(pid)))}
+    for p in ids[counts >= 2]:  # loop over the few points seen on 3+ images
+        k = ref_of[p]
+        if iid[k] not in frame:
+            continue
+        rows = acc[out["point_id"][acc] == p]
+        imgs = [iid[k]] + list(out["image_id"][rows])
+        obs = np.vstack([px[k][None], np.column_stack([out["col"][rows], out["row"][rows]])])
+        x = _intersect([geoms[i] for i in imgs], obs)
+        for j, r in enumerate(rows, start=1):
+            d = geoms[imgs[j]].to_pixel(x[None])[0] - obs[j]
+            c = cov[r] + (st.max_ray_misfit / WINDOW_K) ** 2 * np.eye(2)
+            bad[r] = not float(d @ np.linalg.solve(c, d)) <= WINDOW_K**2
+    return bad
+
+
+def _intersect(geoms: list, obs: np.ndarray) -> np.ndarray:
+    """Least-squares intersection ``(3,)`` of the rays of pixels ``obs`` of frame images."""
+    m, b = np.zeros((3, 3)), np.zeros(3)
+    for g, o in zip(geoms, obs):
+        d = g.ray(o[None])[0]
+        p = np.eye(3) - np.outer(d, d)
+        m += p
+        b += p @ g.eo[:3]
+    return np.linalg.solve(m, b)
 
 
 def measure_roads(geoms: Mapping[str, ImageGeometry], readers: Mapping, points: PointSet,

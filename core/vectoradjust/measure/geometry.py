@@ -92,6 +92,19 @@ class ImageGeometry:
         Fiducial affine pixel -> mm of a scanned photograph.
     sigma_eo : numpy.ndarray, shape (6,)
         Standard deviations of the exterior orientation (m, radians); 0 = known.
+    cov_eo : numpy.ndarray, shape (6, 6), optional
+        Full covariance of the exterior orientation (m, radians), with the correlations
+        between position and attitude (an adjustment's estimate); when given it
+        replaces ``sigma_eo`` (which becomes the square root of its diagonal).
+        Position and attitude errors that are strongly correlated largely cancel on
+        the ground, so the search windows shrink.
+
+    Notes
+    -----
+    ``index_offset`` is the pixel coordinate of the centre of the array element 0: 0
+    for the default ``pixel_origin = "center"`` and 0.5 for a camera whose
+    ``pixel_origin`` is ``"corner"`` (and for none with a fiducial affine: its pixels
+    are the array indices the fiducials were measured in).
     """
 
     image_id: str
@@ -101,13 +114,21 @@ class ImageGeometry:
     terrain_height: Optional[float] = None
     affine: Optional[AffineFit] = None
     sigma_eo: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    cov_eo: Optional[np.ndarray] = None
     #: pixel coordinate of the centre of the image array's element 0 (pixel
-    #: coordinates are array indices)
+    #: coordinates are array indices); an instance whose camera's ``pixel_origin`` is
+    #: ``"corner"`` has 0.5
     index_offset: ClassVar[float] = 0.0
 
     def __post_init__(self) -> None:
         self.eo = np.asarray(self.eo, float).reshape(6)
         self.sigma_eo = np.asarray(self.sigma_eo, float).reshape(6)
+        if self.cov_eo is not None:
+            self.cov_eo = np.asarray(self.cov_eo, float).reshape(6, 6)
+            self.sigma_eo = np.sqrt(np.clip(np.diag(self.cov_eo), 0.0, None))
+        if self.affine is None and str(getattr(self.camera, "pixel_origin", "center")
+                                       ).lower() == "corner":
+            self.index_offset = 0.5  # type: ignore[misc]  # element [r, c] at c + 0.5
         if self.affine is None and (self.camera.pixel_size is None
                                     or self.camera.image_size is None):
             raise CameraError(
@@ -171,6 +192,13 @@ class ImageGeometry:
         xy = project(self.eo, xyz, self.camera.focal_length, self._pp)
         return self.photo_to_pixel(xy)
 
+    def eo_covariance(self) -> np.ndarray:
+        """Covariance ``(6, 6)`` of the exterior orientation (``cov_eo``, else the
+        diagonal of ``sigma_eo``)."""
+        if self.cov_eo is not None:
+            return self.cov_eo
+        return np.diag(self.sigma_eo**2)
+
     def pixel_jacobian(self, xy: np.ndarray, h: float = 1e-3) -> np.ndarray:
         """``d(column, row) / d(x, y)`` at refined photo coordinates, ``(n, 2, 2)``."""
         xy = np.asarray(xy, float).reshape(-1, 2)
@@ -229,22 +257,31 @@ class ImageGeometry:
         return np.column_stack([c[:2] + t[:, None] * d[:, :2], z])
 
 
-def pixel_covariance(geom: ImageGeometry, xyz: np.ndarray, cov_xyz: np.ndarray) -> np.ndarray:
+def pixel_covariance(geom: ImageGeometry, xyz: np.ndarray, cov_xyz: np.ndarray,
+                     cov_eo_xyz: Optional[np.ndarray] = None) -> np.ndarray:
     """Covariance ``(n, 2, 2)`` (pixels^2) of the predicted pixel positions of ``xyz``.
+
+    The joint covariance of the image's orientation and the point, propagated to the
+    image: ``J [A_eo A_pt] [[C_eo, C_eo,pt], [C_pt,eo, C_pt]] [A_eo A_pt]' J'``.
 
     Parameters
     ----------
     geom : ImageGeometry or RpcGeometry
-        Its ``sigma_eo`` is the orientation's uncertainty (independent parameters); an
-        RPC image's ``bias_cov`` that of its bias (:meth:`RpcGeometry.pixel_covariance`).
+        Its :meth:`ImageGeometry.eo_covariance` (``cov_eo`` with the correlations
+        between position and attitude, else the independent ``sigma_eo``) is the
+        orientation's uncertainty; an RPC image's ``bias_cov`` that of its bias
+        (:meth:`RpcGeometry.pixel_covariance`).
     xyz : array_like, shape (n, 3)
     cov_xyz : array_like, shape (n, 3, 3) or (n, 3)
         Covariance of each object point (or its standard deviations per axis).
+    cov_eo_xyz : array_like, shape (n, 6, 3), optional
+        Cross-covariance of the orientation and each point (e.g. both from one
+        adjustment); default none.
 
     Returns
     -------
     numpy.ndarray, shape (n, 2, 2)
-        ``J (A_pt C_xyz A_pt' + A_eo C_eo A_eo') J'``.
+        ``J (A_pt C_xyz A_pt' + A_eo C_eo A_eo' + A_eo C_eo,pt A_pt' + ...') J'``.
     """
     if isinstance(geom, RpcGeometry):
         return geom.pixel_covariance(xyz, cov_xyz)
@@ -255,7 +292,10 @@ def pixel_covariance(geom: ImageGeometry, xyz: np.ndarray, cov_xyz: np.ndarray) 
     a_eo, a_pt = partials(np.broadcast_to(geom.eo, (len(xyz), 6)), xyz,
                           geom.camera.focal_length)
     c_mm = a_pt @ c @ np.swapaxes(a_pt, 1, 2)
-    c_mm += (a_eo * geom.sigma_eo**2) @ np.swapaxes(a_eo, 1, 2)
+    c_mm += a_eo @ geom.eo_covariance() @ np.swapaxes(a_eo, 1, 2)
+    if cov_eo_xyz is not None:
+        cross = a_eo @ np.asarray(cov_eo_xyz, float) @ np.swapaxes(a_pt, 1, 2)
+        c_mm += cross + np.swapaxes(cross, 1, 2)
     xy = project(geom.eo, xyz, geom.camera.focal_length, geom._pp)
     jac = geom.pixel_jacobian(xy)
     return jac @ c_mm @ np.swapaxes(jac, 1, 2)

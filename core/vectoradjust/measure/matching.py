@@ -32,6 +32,7 @@ __all__ = [
     "sample",
     "lsm",
     "FLAGS",
+    "texture_measures",
 ]
 
 #: Failure flags of a match (bits of ``flags``): a match with any flag is not accepted.
@@ -44,6 +45,8 @@ FLAGS = {
     "no_texture": 32,          # template without contrast (NCC undefined)
     "ambiguous": 64,           # second NCC peak nearly as high as the first
     "window_clipped": 128,     # the search window was larger than the largest radius
+    "back_mismatch": 256,      # matching back to the reference missed it (or failed)
+    "inconsistent": 1024,      # the forward intersection of all its images misses it
 }
 
 
@@ -276,7 +279,8 @@ def _lsm_design(chips, grads, p, u, v, scale, idx=None):
 
 def lsm(templates: np.ndarray, chips: np.ndarray, start: np.ndarray,
         affine0: np.ndarray | None = None, max_iterations: int = 40,
-        tol: float = 0.005, quadratic: bool = False) -> LSMResult:
+        tol: float = 0.005, quadratic: bool = False,
+        sigma0_floor: float = 0.0) -> LSMResult:
     """Least-squares matching with an affine patch and linear radiometry (Gruen 1985).
 
     Parameters
@@ -295,12 +299,19 @@ def lsm(templates: np.ndarray, chips: np.ndarray, start: np.ndarray,
     quadratic : bool
         Add a quadratic radiometric term ``r2 g2^2`` (a gamma difference between the
         images); 9 parameters instead of 8.
+    sigma0_floor : float
+        Smallest grey-value residual RMS used for the precision (e.g. the quantisation
+        ``step / sqrt(12)`` of the grey values): two identical patches (a flat JPEG
+        block on both images) fit without residuals, which does not make their
+        position exact.
 
     Returns
     -------
     LSMResult
-        Points whose patch leaves the chip, whose normal matrix is singular or that
-        have not converged in ``max_iterations`` have ``converged = False``.
+        ``sigma`` is ``max(sigma0, sigma0_floor)^2 N^-1`` (scaled by the residuals,
+        never 0 when ``sigma0_floor > 0``). Points whose patch leaves the chip, whose
+        normal matrix is singular or that have not converged in ``max_iterations``
+        have ``converged = False``.
     """
     t = np.asarray(templates, float)
     s = np.asarray(chips, float)
@@ -337,7 +348,7 @@ def lsm(templates: np.ndarray, chips: np.ndarray, start: np.ndarray,
         fin = move < tol
         done[ia[fin]] = True
         active[ia[fin | ~np.isfinite(move)]] = False
-    return _lsm_result(s, grads, p, u, v, g1, done, its, scale)
+    return _lsm_result(s, grads, p, u, v, g1, done, its, scale, sigma0_floor)
 
 
 def _linear_fit(x: np.ndarray, y: np.ndarray):
@@ -400,7 +411,7 @@ def batched_solve(m: np.ndarray, b: np.ndarray, rcond: float = 1e-13) -> np.ndar
     return x
 
 
-def _lsm_result(s, grads, p, u, v, g1, done, its, scale) -> LSMResult:
+def _lsm_result(s, grads, p, u, v, g1, done, its, scale, floor=0.0) -> LSMResult:
     """Precision and correlation coefficient at the final parameters."""
     n, k = p.shape
     model, g2, a = _lsm_design(s, grads, p, u, v, scale)
@@ -410,6 +421,7 @@ def _lsm_result(s, grads, p, u, v, g1, done, its, scale) -> LSMResult:
     res = np.where(finite[:, None], g1 - model, 0.0)
     m = g1.shape[1]
     s0sq = np.sum(res * res, axis=1) / max(m - k, 1)
+    s0_used = np.maximum(s0sq, float(floor) ** 2)
     nn = np.einsum("nmi,nmj->nij", a, a) + np.eye(k) * 1e-12
     e4 = np.zeros((n, k))
     e4[:, 4] = 1.0
@@ -418,7 +430,8 @@ def _lsm_result(s, grads, p, u, v, g1, done, its, scale) -> LSMResult:
     q = np.zeros((n, k, k))
     q[:, 4, 4] = batched_solve(nn, e4)[:, 4]
     q[:, 5, 5] = batched_solve(nn, e5)[:, 5]
-    sig = np.sqrt(np.clip(s0sq[:, None] * np.stack([q[:, 4, 4], q[:, 5, 5]], axis=1), 0, None))
+    qq = np.stack([q[:, 4, 4], q[:, 5, 5]], axis=1)
+    sig = np.sqrt(np.clip(s0_used[:, None] * qq, 0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
         rho = np.array([np.nan] * n) if n == 0 else _rowcorr(g1, g2)
     conv = done & finite
@@ -431,3 +444,87 @@ def _rowcorr(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     xz = x - x.mean(axis=1, keepdims=True)
     yz = y - y.mean(axis=1, keepdims=True)
     return np.sum(xz * yz, axis=1) / np.sqrt(np.sum(xz * xz, axis=1) * np.sum(yz * yz, axis=1))
+
+
+def texture_measures(chips: np.ndarray, origin: np.ndarray, centre: np.ndarray, half: int,
+                     block: int = 8) -> dict:
+    """How much real texture the ``2 half + 1`` square around each centre holds.
+
+    Computed on the image's own pixels (no resampling), so that the block structure of
+    a JPEG image lines up with the image's 8 x 8 grid.
+
+    Parameters
+    ----------
+    chips : numpy.ndarray, shape (n, H, W)
+        Image chips (NaN outside the image).
+    origin : numpy.ndarray, shape (n, 2)
+        Image array (column, row) of each chip's element ``[0, 0]`` (integers).
+    centre : numpy.ndarray, shape (n, 2)
+        Image array (column, row) of each template centre (rounded here).
+    half : int
+        Template half size.
+    block : int
+        Side of the compression blocks (8 for JPEG).
+
+    Returns
+    -------
+    dict of numpy.ndarray, shape (n,)
+        ``levels``: distinct grey values (to 0.01); ``entropy``: Shannon entropy (bits)
+        of the grey values in 32 bins between their 1st and 99th percentiles;
+        ``blockiness``: mean absolute grey difference across the ``block`` grid's lines
+        over that inside the blocks (about 1 for natural texture, large for flat JPEG
+        blocks); ``roundness``: Foerstner's ``q = 4 det N / trace(N)^2`` of the whole
+        window's structure tensor ``N`` (0 for a straight edge or stripe, 1 isotropic);
+        ``weight``: ``det N / trace N`` per pixel (grey^2 / px^2).
+    """
+    a = np.asarray(chips, float)
+    n = len(a)
+    size = 2 * half + 1
+    loc = np.round(np.asarray(centre, float) - np.asarray(origin, float)).astype(np.int64)
+    off = np.arange(size) - half
+    rr = np.clip(loc[:, 1, None] + off, 0, a.shape[1] - 1)
+    cc = np.clip(loc[:, 0, None] + off, 0, a.shape[2] - 1)
+    w = a[np.arange(n)[:, None, None], rr[:, :, None], cc[:, None, :]]
+    w = np.where(np.isfinite(w), w, np.nanmean(w) if np.isfinite(w).any() else 0.0)
+    flat = w.reshape(n, -1)
+    levels = np.array([np.unique(np.round(f, 2)).size for f in flat])
+    lo, hi = np.percentile(flat, [1, 99], axis=1)
+    span = np.where(hi > lo, hi - lo, 1.0)
+    idx = np.clip(((flat - lo[:, None]) / span[:, None] * 32).astype(np.int64), 0, 31)
+    counts = np.zeros((n, 32))
+    np.add.at(counts, (np.arange(n)[:, None], idx), 1.0)
+    pr = counts / flat.shape[1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        entropy = -np.sum(np.where(pr > 0, pr * np.log2(pr), 0.0), axis=1)
+    entropy = np.where(hi > lo, entropy, 0.0)
+    img0 = np.asarray(origin, np.int64) + loc - half  # image index of w[:, 0, 0]
+    blockiness = _blockiness(w, img0, block)
+    gy, gx = np.gradient(w, axis=(1, 2))
+    nxx, nyy, nxy = (np.mean(v, axis=(1, 2)) for v in (gx * gx, gy * gy, gx * gy))
+    det, tr = nxx * nyy - nxy * nxy, nxx + nyy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        roundness = np.where(tr > 0, 4.0 * det / (tr * tr), 0.0)
+        weight = np.where(tr > 0, det / tr, 0.0)
+    return {"levels": levels, "entropy": entropy, "blockiness": blockiness,
+            "roundness": roundness, "weight": weight}
+
+
+def _blockiness(w: np.ndarray, img0: np.ndarray, block: int) -> np.ndarray:
+    """Mean |difference| across the block grid's lines / inside the blocks, per window."""
+    n, size = w.shape[0], w.shape[1]
+    dx = np.abs(np.diff(w, axis=2))  # between columns j and j + 1
+    dy = np.abs(np.diff(w, axis=1))
+    j = np.arange(size - 1)
+    on_c = (img0[:, 0, None] + j + 1) % block == 0  # (n, size - 1)
+    on_r = (img0[:, 1, None] + j + 1) % block == 0
+    mx = dx.mean(axis=1)  # (n, size - 1) mean over rows
+    my = dy.mean(axis=2)
+    cross = np.sum(mx * on_c, axis=1) + np.sum(my * on_r, axis=1)
+    n_cross = on_c.sum(axis=1) + on_r.sum(axis=1)
+    inner = np.sum(mx * ~on_c, axis=1) + np.sum(my * ~on_r, axis=1)
+    n_inner = (~on_c).sum(axis=1) + (~on_r).sum(axis=1)
+    ci = cross / np.maximum(n_cross, 1)
+    ii = inner / np.maximum(n_inner, 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(ii > 0, ci / ii, np.where(ci > 0, np.inf, 1.0))
+    return out if n else np.zeros(0)

@@ -13,12 +13,12 @@ match is never accepted.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from vectoradjust.measure.geometry import WINDOW_K, inv2, window_axes
-from vectoradjust.measure.matching import FLAGS, lsm, ncc_search, sample
+from vectoradjust.measure.matching import FLAGS, lsm, ncc_search, sample, texture_measures
 
 __all__ = ["MatchSettings", "MatchResult", "match_batch"]
 
@@ -49,7 +49,34 @@ class MatchSettings:
         LSM with a quadratic radiometric term (images with different gamma).
     max_anisotropy : float
         Largest ratio of the LSM sigmas of the two axes (above ``max_sigma / 3``): a
-        patch textured in one direction only (an edge, a road) slides along it.
+        patch textured in one direction only (an edge, a road) slides along it
+        (``inf``: off).
+    min_grey_levels : int
+        Fewest distinct grey values in the reference template (a flat JPEG block holds
+        two or three).
+    min_entropy : float
+        Smallest entropy (bits, 32 bins) of the template's grey values.
+    max_blockiness : float
+        Largest ratio of the grey differences across the 8 x 8 JPEG block lines to
+        those inside the blocks (natural texture about 1, flat JPEG blocks far above).
+    min_roundness : float
+        Smallest Foerstner roundness of the template (0: a straight edge or stripe).
+        These four reject the template as ``no_texture``
+        (:func:`~vectoradjust.measure.matching.texture_measures`).
+    grey_step : float
+        Resolution of the grey values (1 for 8-bit images): the LSM residual RMS is
+        taken as at least ``grey_step / sqrt(12)`` (quantisation).
+    min_sigma : float
+        Floor of the reported LSM sigma (px): a precision is never 0.
+    back_tolerance : float
+        Largest distance (px) between the reference point and the target match
+        matched back to the reference image (``inf``: no back-matching); used by
+        :func:`vectoradjust.files.measuring.transfer`.
+    max_ray_misfit : float
+        A point accepted on three or more frame images: the forward intersection of
+        all its rays must reproduce each match within about this many pixels (more
+        where the orientations are uncertain; ``inf``: no check; the flag
+        ``inconsistent``, :func:`vectoradjust.files.measuring.transfer`).
     """
 
     half_template: int = 20
@@ -60,7 +87,15 @@ class MatchSettings:
     ambiguity: float = 0.02
     k: float = WINDOW_K
     quadratic: bool = True
-    max_anisotropy: float = float("inf")
+    max_anisotropy: float = 5.0
+    min_grey_levels: int = 8
+    min_entropy: float = 2.5
+    max_blockiness: float = 5.0
+    min_roundness: float = 0.1
+    grey_step: float = 1.0
+    min_sigma: float = 0.01
+    back_tolerance: float = 0.5
+    max_ray_misfit: float = 1.0
 
 
 @dataclass
@@ -79,6 +114,9 @@ class MatchResult:
         LSM standard deviations (target pixels).
     flags : numpy.ndarray of int, shape (n,)
         Bits of :data:`matching.FLAGS`; 0 = accepted.
+    texture : dict of numpy.ndarray, shape (n,)
+        The reference templates' texture measures
+        (:func:`~vectoradjust.measure.matching.texture_measures`).
     """
 
     px: np.ndarray
@@ -86,6 +124,7 @@ class MatchResult:
     rho: np.ndarray
     sigma: np.ndarray
     flags: np.ndarray
+    texture: dict = field(default_factory=dict)
 
     @property
     def accepted(self) -> np.ndarray:
@@ -135,6 +174,8 @@ def match_batch(ref_chips: np.ndarray, ref_origin: np.ndarray, ref_px: np.ndarra
                      else 0.0)
     spread = templ.std(axis=(1, 2))
     flags[spread < 1e-6 * (np.abs(templ).max(axis=(1, 2)) + 1e-12)] |= FLAGS["no_texture"]
+    tex = texture_measures(ref_chips, ref_origin, ref_px, h)
+    flags[_poor_texture(tex, st)] |= FLAGS["no_texture"]
 
     rad = int(np.ceil(st.max_radius))
     soff = np.arange(-(h + rad), h + rad + 1, dtype=float)
@@ -154,14 +195,22 @@ def match_batch(ref_chips: np.ndarray, ref_origin: np.ndarray, ref_px: np.ndarra
     d = nc.pos - (h + rad)
     approx = np.asarray(pred_px, float) + np.einsum("nij,nj->ni", a, d)
     res = lsm(templ, tgt_chips, approx - np.asarray(tgt_origin, float), a,
-              quadratic=st.quadratic)
+              quadratic=st.quadratic, sigma0_floor=st.grey_step / np.sqrt(12.0))
+    res.sigma = np.maximum(res.sigma, st.min_sigma)
     px = res.pos + np.asarray(tgt_origin, float)
     flags |= _quality_flags(nc, res, px, approx, np.asarray(pred_px, float), cov, st)
     ai = inv2(a)
     cov_ref = ai @ np.asarray(cov, float) @ np.swapaxes(ai, 1, 2)
     flags[window_axes(cov_ref, st.k)[:, 0] > st.max_radius] |= FLAGS["window_clipped"]
     px = np.where(res.converged[:, None], px, np.nan)
-    return MatchResult(px, nc.ncc, res.rho, res.sigma, flags)
+    return MatchResult(px, nc.ncc, res.rho, res.sigma, flags, tex)
+
+
+def _poor_texture(tex: dict, st: MatchSettings) -> np.ndarray:
+    """Templates without real texture: few grey levels, low entropy, JPEG blocks, a
+    straight edge or stripe."""
+    return ((tex["levels"] < st.min_grey_levels) | (tex["entropy"] < st.min_entropy)
+            | (tex["blockiness"] > st.max_blockiness) | (tex["roundness"] < st.min_roundness))
 
 
 def _in_ellipse(a, cov, du, dv, k):
