@@ -119,8 +119,10 @@ def test_shifted_problem_takes_heights_at_the_shifted_position():
 
 def test_a_shifted_database_gets_unbiased_heights():
     """18 m off on the simulator's sloping ground, heights from the DEM: with the DEM kept
-    in memory the adjusted heights are unbiased; without it (as for a DEM in another CRS)
-    they carry the slope times the shift."""
+    in memory the adjusted heights are unbiased (within the sigma of the DEM heights' own
+    height offset, which frees their level); without it (as for a DEM in another CRS) they
+    carry the slope times the shift, which varies over the ground and which no constant
+    height offset absorbs."""
     db = DatabaseModel("FAR", "far_id", "far", 30.0, 0.5, (12.0, -14.0), 0.0, 0.0, 1.0)
     sc = make_scenario(2, databases=(db,), n_shape_points=800,
                        shape_sigma=(3.0, 3.0, 0.15))
@@ -135,10 +137,12 @@ def test_a_shifted_database_gets_unbiased_heights():
         sel = (np.asarray(d.vertices["Adjusted"]) == 1) & (ti >= 0)
         return np.asarray(d.vertices["AdjZ"], float)[sel] - txyz[ti[sel], 2]
 
-    with_dem, without = z_error(run(data)), z_error(run(no_dem))
-    assert abs(with_dem.mean()) < 0.02
-    assert abs(without.mean()) > 0.05
-    assert np.sqrt(np.mean(with_dem**2)) < 0.8 * np.sqrt(np.mean(without**2))
+    out = run(data)
+    with_dem, without = z_error(out), z_error(run(no_dem))
+    off = out.summary["databases"][0]["offset"]
+    assert off["axes"] == ["X", "Y", "Z"]
+    assert abs(with_dem.mean()) < 2.0 * off["sigma"][2] + 0.01  # measured: 0.046, sigma 0.055
+    assert np.sqrt(np.mean(with_dem**2)) < 0.8 * np.sqrt(np.mean(without**2))  # 0.108, 0.181
 
 
 def test_offset_kind_without_enough_points_is_a_warning():

@@ -1079,6 +1079,28 @@ def is_disk_full(exc: BaseException) -> bool:
     return False
 
 
+#: a write error (GDAL, SQLite, OS) with less than this free on the disk is a full disk:
+#: SQLite's own message can be lost ("cannot rollback - no transaction is active")
+NEARLY_FULL_BYTES = 4 * 1024 * 1024
+
+
+def _write_error_on_a_full_disk(exc: BaseException, folder: Path) -> bool:
+    """A GDAL/OGR, SQLite or OS write error while the disk of ``folder`` is (nearly)
+    full."""
+    names = {type(e).__name__ for e in (exc, exc.__cause__, exc.__context__) if e is not None}
+    if not (names & {"DataLayerError", "DataSourceError", "FieldError", "GeometryError",
+                     "CPLE_AppDefinedError", "CPLE_FileIOError", "OperationalError"}
+            or isinstance(exc, OSError)):
+        return False
+    try:
+        probe = Path(folder)
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        return shutil.disk_usage(probe).free < NEARLY_FULL_BYTES
+    except OSError:
+        return False
+
+
 def _disk_full_error(folder: Path, exc: BaseException) -> InputFileError:
     import errno
 
@@ -1259,7 +1281,7 @@ class RunFolder:
         self._lock.release()
         self._drop_made()
         if exc is not None and not isinstance(exc, (CancelledError, KeyboardInterrupt)) \
-                and is_disk_full(exc):
+                and (is_disk_full(exc) or _write_error_on_a_full_disk(exc, self.path)):
             raise _disk_full_error(self.path, exc) from exc
         return False
 
