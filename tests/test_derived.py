@@ -376,7 +376,9 @@ def test_segment_bands_from_kept_covariances_once_the_factorisation_is_let_go(ad
         for given in (kept, share):
             got = derived.segment_bands(run2, db, 0.9, part=(1, 2), covariances=given)
             assert np.array_equal(got.start_vertex, want.start_vertex)
-            assert np.allclose(got.cov_joint, want.cov_joint, rtol=1e-12, atol=1e-18)
+            # (the same numbers by another summation order: 1e-12 holds with numpy 2,
+            # numpy 1.24 differs in the last digits)
+            assert np.allclose(got.cov_joint, want.cov_joint, rtol=1e-9, atol=1e-18)
             if with_point_cov:  # the same numbers, so the same rings
                 assert np.array_equal(got.xy, want.xy)
                 assert np.array_equal(got.offsets, want.offsets)

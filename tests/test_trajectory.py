@@ -13,6 +13,8 @@ from vectoradjust.errors import CSVError, DatumError
 from vectoradjust.files.readers import load_project_data
 from vectoradjust.pipeline import run
 
+pytestmark = pytest.mark.io  # reads project files (pyogrio, rasterio, pyproj)
+
 SAMPLE = Path(__file__).resolve().parents[1] / "resources" / "sample"
 POS = {"L": (506303.0, 4475003.0, 799.0), "R": (506497.0, 4475000.0, 799.0)}
 

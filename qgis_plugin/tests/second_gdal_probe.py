@@ -114,6 +114,8 @@ def runs(s, w):
             "INPUT": f"{s}/osm_roads.shp", "PROJECT": f"{s}/project.toml", "OUTPUT": tmp}),
         ("vectoradjust:equalerrormap", {
             "PROJECT": f"{s}/project.toml", "OUTPUT": f"{w}/ee.tif"}),
+        ("vectoradjust:dtmaccuracy", {
+            "PROJECT": f"{s}/project.toml", "OUTPUT": f"{w}/dtm.tif", "CONTOURS": tmp}),
         ("vectoradjust:gcpstudy", {
             "PROJECT": f"{s}/project.toml", "NUMBERS": "24,6", "OUTPUT": tmp,
             "CONFIG_POINTS": tmp, "OUTPUT_FOLDER": f"{w}/study"}),

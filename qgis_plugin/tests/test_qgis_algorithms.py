@@ -599,7 +599,8 @@ def test_adjust_with_identification_sigma_and_offset_from_the_dialog(qgis_app, s
     assert a["identification_sigma"] == [0.5, 0.0]  # the sample project's
     assert "offset" not in a
     assert b["identification_sigma"] == [2.0, 0.0]
-    assert b["offset"]["axes"] == ["X", "Y"] and "of the images" in b["offset"]["statement"]
+    # a shift (and, the heights coming from the DEM, the DEM's own height offset)
+    assert b["offset"]["axes"] == ["X", "Y", "Z"] and "of the images" in b["offset"]["statement"]
     assert b["mean_ce90"] > a["mean_ce90"] + 2.0
 
 

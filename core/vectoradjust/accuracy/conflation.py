@@ -311,12 +311,13 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     setup = _loo_setup(xy, k, max_targets, corr=corr)
     scale = max(total, float(gam.max()), 1e-12)
     best = None
+    fits = {}
     for kd in (("exponential", "gaussian") if kind == "auto" else (kind,)):
         nug, sill, length = _fit_grid(lag, gam, cnt, kd, floor)
         start = (max(nug - noise, 0.05 * scale), max(sill, 0.05 * scale),
                  length if sill > 0 else float(np.median(lag)))
         theta, score = _fit_loo(kd, setup, resid, noise_pt, start, scale, lag)
-        wls = {"nugget": nug, "sill": sill, "length": length}
+        wls = fits[kd] = {"nugget": nug, "sill": sill, "length": length}
         if best is None or score < best[2]:
             best = (kd, theta, score, wls)
     kd, theta, score, wls = best
@@ -324,6 +325,10 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     status = "fitted"
     if white[1] <= score + 4.0:  # a signal must earn its two parameters (AIC)
         theta, score, status = np.array([white[0], 0.0, 0.0]), white[1], "white noise (AIC)"
+        # no signal: its shape does not matter, and the near-tie between the two shapes'
+        # scores must not make the label depend on the platform's rounding
+        kd = "exponential" if kind == "auto" else kd
+        wls = fits[kd]
     nug, post = _nugget_posterior(theta, kd, setup, resid, noise_pt)
     model = CovarianceModel(kd, float(theta[1]), float(theta[2]), nug, noise,
                             {**fit, "status": status, "fitted_nugget": wls["nugget"],
