@@ -315,3 +315,37 @@ def test_contour_buffer_rings_reach_sigma_xy_across(product):
     np.testing.assert_allclose(np.hypot(*(rings[:, 1] - rings[:, 2]).T), 2 * c.sigma_xy[:, 1])
     np.testing.assert_allclose(np.einsum("mi,mi->m", rings[:, 0] - c.xy[:, 0], u), 0.0,
                                atol=1e-9)
+
+
+@pytest.mark.parametrize("slope, printed", [(0.05, 0.003), (0.25, 0.08)])
+def test_paper_slope_examples_with_corner_and_point_planimetric_errors(slope, printed):
+    """Filin & Doytsher's slope examples (0.003 sigma^2 at 5 %, 0.08 sigma^2 at 25 %) at
+    their printed precision: sigma_xy = sigma at the four corners (independent) and at the
+    query point, a cell centre on a plane: (1 + sum w_i^2) tan^2 a = 1.25 tan^2 a."""
+    heights = np.array([0.0, 10 * slope, 0.0, 10 * slope])
+    s2 = 0.3**2
+    res = dtm_bilinear(heights, np.eye(4) * s2, (0, 0), 10.0, (5.0, 5.0),
+                       cov_point=np.eye(2) * s2, cov_corners_xy=np.eye(2) * s2)
+    extra = (res.sigma**2 - res.sigma_heights_only**2) / s2
+    assert extra == pytest.approx(1.25 * slope**2, rel=1e-12)
+    digits = 3 if slope < 0.1 else 2  # the paper prints one significant figure
+    assert round(extra, digits) == printed
+
+
+def test_corner_planimetric_errors_match_monte_carlo():
+    """Corners sampled off their nominal positions on a sloped bilinear surface."""
+    def surface(x, y):
+        return 2.0 + 0.2 * x - 0.1 * y + 0.004 * x * y
+
+    cell = 10.0
+    nodes = np.array([[0.0, 0.0], [cell, 0.0], [0.0, cell], [cell, cell]])
+    q = np.array([[2.0, 3.0], [7.5, 6.0]])
+    cov_c = np.array([[0.09, 0.02], [0.02, 0.04]])
+    res = dtm_bilinear(surface(*nodes.T), np.zeros((4, 4)), (0, 0), cell, q,
+                       cov_corners_xy=cov_c)
+    rng = np.random.default_rng(11)
+    e = rng.multivariate_normal([0, 0], cov_c, size=(40000, 4))
+    h_corners = surface(nodes[:, 0] + e[..., 0], nodes[:, 1] + e[..., 1])
+    h_mc = h_corners @ res.jacobian[:, :4].T
+    np.testing.assert_allclose(res.covariance, np.cov(h_mc.T), rtol=0.04, atol=1e-5)
+    assert res.sigma_heights_only == pytest.approx([0.0, 0.0])
