@@ -290,3 +290,22 @@ def test_summary_correlation_gives_the_joint_orientation_covariance():
     with pytest.raises(MeasurementError, match="correlation names bias_a0"):
         _eo_covariance({"id": "A", "correlation": {"parameters": ["bias_a0"],
                                                    "matrix": [[1.0]]}}, sig)
+
+
+def test_adjusted_summary_carries_each_frame_images_joint_orientation_covariance():
+    """summary.json -> measure: the windows get the adjustment's own joint EO covariance."""
+    from vectoradjust.accuracy.summary import run_summary
+    from vectoradjust.files.measuring import _eo_covariance
+    from vectoradjust.pipeline import run
+    from vectoradjust.simulate import make_scenario
+
+    out = run(make_scenario(0, n_images=3, sigma_image=0.003).to_project_data())
+    images = {str(e["id"]): e for e in run_summary(out)["images"]}
+    for j, iid in enumerate(out.image_ids):
+        e = images[str(iid)]
+        sig = np.r_[e["sigma_position"], np.radians(e["sigma_attitude"])]
+        c = _eo_covariance(e, sig)
+        np.testing.assert_allclose(c, out.result.eo_cov[j], rtol=1e-6,
+                                   atol=1e-8 * np.abs(out.result.eo_cov[j]).max())
+        corr = np.asarray(e["correlation"]["matrix"])
+        assert np.abs(corr - np.eye(6)).max() > 0.05  # the correlations are really there

@@ -16,7 +16,7 @@ from vectoradjust.accuracy import stats
 from vectoradjust.accuracy.tables import one_vertex_per_point
 from vectoradjust.formatting import float_or_none
 from vectoradjust.results import AdjustmentRun
-from vectoradjust.sensor.models import corrected_rpc_names
+from vectoradjust.sensor.models import EO_PARAMETERS, corrected_rpc_names
 
 __all__ = ["MAX_FLAGGED_IN_SUMMARY", "float_or_none", "rmse_dict", "run_summary",
            "reliability_summary", "COMPARE_COLUMNS", "compare_row", "compare_columns"]
@@ -71,6 +71,17 @@ def _chi_square(res, alpha: float) -> dict:
                 (float_or_none(v) if v is not None else None)) for k, v in chi.items()}
 
 
+def _eo_correlation(cov: np.ndarray, sd: np.ndarray) -> dict:
+    """The correlation matrix of one image's exterior orientation (``parameters`` named
+    as :data:`~vectoradjust.sensor.models.EO_PARAMETERS`): what ``vectoradjust measure``
+    needs for search windows from the joint orientation covariance."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = np.asarray(cov, float) / np.outer(sd, sd)
+    corr = np.where(np.outer(sd, sd) > 0, corr, np.eye(6))
+    return {"parameters": list(EO_PARAMETERS),
+            "matrix": np.round(np.clip(corr, -1.0, 1.0), 9).tolist()}
+
+
 def _images(out: AdjustmentRun) -> list:
     """Adjusted EO and its sigmas per image (unused images with their approximations)."""
     res = out.result
@@ -87,6 +98,7 @@ def _images(out: AdjustmentRun) -> list:
                 "id": im.id, "position": res.eo[j, :3].tolist(),
                 "attitude": np.degrees(res.eo[j, 3:]).tolist(),
                 "sigma_position": sd[:3].tolist(), "sigma_attitude": np.degrees(sd[3:]).tolist(),
+                "correlation": _eo_correlation(res.eo_cov[j], sd),
                 "date": im.date, "used": True,
             })
         else:

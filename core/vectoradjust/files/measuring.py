@@ -55,6 +55,7 @@ from vectoradjust.measure.roads import ROAD_FLAGS, RoadSettings, centreline_cros
 from vectoradjust.measure.roads import vertex_arms as _vertex_arms
 from vectoradjust.measure.transfer import MatchSettings, match_batch
 from vectoradjust.sensor.interior import parse_corrections, terrain_height_for
+from vectoradjust.sensor.models import EO_PARAMETERS
 from vectoradjust.sensor.refine import fit_fiducial_affine
 
 __all__ = ["PointSet", "image_geometries", "project_points", "predict", "transfer",
@@ -164,8 +165,6 @@ def image_geometries(spec, orientation: Optional[Mapping] = None,
     return out
 
 
-#: names of the exterior orientation parameters in a summary's ``correlation``
-EO_PARAMETERS = ("X", "Y", "Z", "omega", "phi", "kappa")
 
 
 def _eo_covariance(entry: Optional[Mapping], sig: np.ndarray) -> Optional[np.ndarray]:

@@ -26,6 +26,7 @@ from vectoradjust.errors import ProjectError
 
 __all__ = [
     "BIAS_PARAMETERS",
+    "EO_PARAMETERS",
     "RpcImage",
     "SensorSet",
     "bias_free_mask",
@@ -35,6 +36,8 @@ __all__ = [
 
 #: names of the six bias parameters of an RPC image, in the parameter vector's order
 BIAS_PARAMETERS = ("a0", "a1", "a2", "b0", "b1", "b2")
+#: names of a frame image's exterior orientation parameters (summary.json ``correlation``)
+EO_PARAMETERS = ("X", "Y", "Z", "omega", "phi", "kappa")
 
 
 def bias_free_mask(model: str) -> np.ndarray:
