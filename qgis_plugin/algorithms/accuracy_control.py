@@ -30,7 +30,11 @@ HELP = """
 <p>Runs the adjustment and judges every stage against the tolerances that follow from the
 product specification (as <code>vectoradjust qa</code>): the interior orientation (fiducial
 residuals), the relative orientation of every stereo pair (vertical parallax left after the
-adjustment), the triplets (discrepancies between adjacent models), and the control and check
+adjustment), the triplets (discrepancies between adjacent models), the tie-point zones of
+every overlap (3 rows x 2 columns, at least 3 points per zone, 2 a warning) and of every
+triple overlap, the ties between adjacent strips (points and vertical parallax; n/a with one
+strip), the free model (image measurements alone before control: sigma0 and image residual
+RMS; blocks of up to 200 images), and the control and check
 points of the block (mean error, a single point against twice the tolerance). The verdict is
 PASS when no evaluated stage failed; the non-conformities name the points to re-measure.</p>
 <h3>Needs</h3>
@@ -54,7 +58,8 @@ passed) and one row per point of the stage (id, value, point tolerance, passed);
 stage, id, value, tolerance, passed, status (pass, fail, n/a), statistic, unit.</li>
 <li><b>QA report (JSON)</b> (optional): the <code>qa.json</code> of the command line
 (verdict, non-conformities, points to re-measure, tolerances, stereo pairs, triplets,
-control points, stages, notes).</li>
+tie-point zones, triplet zones, strips, inter-strip ties, free model, control points,
+stages, notes).</li>
 <li><b>Control and check points</b> with the <code>QA</code> field (pass / fail; empty for
 points not used).</li>
 <li><b>PASSED</b> (boolean) and <b>VERDICT</b> (pass or fail).</li>
@@ -184,7 +189,7 @@ class AccuracyControl(VectorAdjustAlgorithm):
 
     def run_algorithm(self, parameters, context, feedback):
         from vectoradjust.qa.text import format_report
-        from vectoradjust.qa.verdict import accuracy_control
+        from vectoradjust.qa.verdict import accuracy_control, strips_from_project
 
         t0 = time.perf_counter()
         # the specification is checked before the (possibly long) adjustment, as the
@@ -204,7 +209,8 @@ class AccuracyControl(VectorAdjustAlgorithm):
             run, spec, pixel_size=pixel,
             pairs=PAIR_OPTIONS[self.parameterAsEnum(parameters, self.PAIRS, context)],
             point_rule=POINT_RULE_OPTIONS[self.parameterAsEnum(parameters, self.POINT_RULE,
-                                                               context)])
+                                                               context)],
+            strips=strips_from_project(adj.prj.spec.raw))
         doc = report.as_dict()
         feedback.setProgress(85)
         outputs = self._write(parameters, context, feedback, run, report, doc, adj.prj)

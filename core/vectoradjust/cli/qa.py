@@ -1,10 +1,12 @@
 """``vectoradjust qa``: accuracy control of a project's adjustment (``DESIGN.md`` section 7).
 
 ``vectoradjust qa PROJECT.toml --out DIR [--product P] [--scale M] [--contour-interval H]
-[--terrain T] [--pixel-size MM]`` adjusts the project, judges every stage against the
-tolerances of the product specification (``[qa]`` in the project; the options override
-it), writes ``DIR/qa.json`` and prints the verdict, the non-conformities with the point
-ids to re-measure, and a table of the stages.
+[--terrain T] [--pixel-size MM] [--free-model | --no-free-model]`` adjusts the project,
+judges every stage against the tolerances of the product specification (``[qa]`` in the
+project; the options override it), writes ``DIR/qa.json`` and prints the verdict, the
+non-conformities with the point ids to re-measure (or the zones short of tie points), a
+table of the stages and the production checks (tie-point zones, inter-strip ties, free
+model). ``[[images]] strip`` labels, when given, define the strips.
 
 The console script registers the subcommand with :func:`add_parser`; ``python -m
 vectoradjust.cli.qa`` runs it alone.
@@ -20,6 +22,7 @@ from typing import Optional
 
 from vectoradjust.cli.tools import run_command, write_json
 from vectoradjust.errors import VectorAdjustError
+from vectoradjust.qa.free_model import FREE_MODEL_MAX_IMAGES
 from vectoradjust.qa.text import format_report
 
 __all__ = ["add_parser", "cmd_qa", "format_report", "write_qa_json", "main"]
@@ -42,7 +45,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     q = subparsers.add_parser(
         "qa", help="accuracy control: judge the adjustment against production tolerances",
         description="Adjust the project and judge every stage (interior and relative "
-                    "orientation, triplets, control and check points) against the tolerances "
+                    "orientation, triplets, tie-point zones, inter-strip ties, the free model, "
+                    "control and check points) against the tolerances "
                     "that follow from the product specification ([qa] in the project; the "
                     "options below override it). Writes qa.json.")
     q.add_argument("project", help="project file (TOML)")
@@ -62,6 +66,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     q.add_argument("--point-rule", choices=("limit", "mean"), default="limit",
                    help="a control/check point fails over twice the mean tolerance (limit, "
                         "default) or over the mean tolerance itself")
+    q.add_argument("--free-model", action=argparse.BooleanOptionalAction, default=None,
+                   help="adjust the free model (image measurements only, inner constraints) "
+                        "as a QA stage: its sigma0 and image residuals before control. "
+                        f"Default: on for frame blocks of at most {FREE_MODEL_MAX_IMAGES} "
+                        "images (it is a second bundle adjustment)")
     q.add_argument("--vectors", action="append", metavar="NAME",
                    help="adjust only this [[vectors]] entry (repeatable)")
     q.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -103,7 +112,7 @@ def cmd_qa(args) -> int:
     from vectoradjust.files.project import load_project
     from vectoradjust.files.readers import load_project_data
     from vectoradjust.pipeline import run
-    from vectoradjust.qa.verdict import accuracy_control, spec_from_table
+    from vectoradjust.qa.verdict import accuracy_control, spec_from_table, strips_from_project
 
     project = load_project(args.project)
     # the specification is checked before the (possibly long) adjustment
@@ -118,7 +127,8 @@ def cmd_qa(args) -> int:
     data = load_project_data(project)
     result = run(data, vectors=args.vectors, progress=bar)
     report = accuracy_control(result, spec, pixel_size=args.pixel_size, pairs=args.pairs,
-                              point_rule=args.point_rule)
+                              point_rule=args.point_rule, strips=strips_from_project(project.raw),
+                              free_model=args.free_model)
     doc = report.as_dict()
     path = write_qa_json(doc, args.out, extra={"project": str(args.project)})
     from vectoradjust.files.report import write_report

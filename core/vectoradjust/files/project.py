@@ -52,7 +52,7 @@ PROJECT_SCHEMA: dict = {
     "[camera]": tuple(_CAMERA_KEYS),
     "[corrections]": tuple(CORRECTION_KEYS),
     "[[images]]": ("id", "position", "attitude", "sigma_position", "sigma_attitude", "date",
-                   "path", "model", "rpc", "bias", "bias_sigma"),
+                   "path", "model", "rpc", "bias", "bias_sigma", "strip"),
     "[measurements]": ("path", "unit", "sigma", "fiducials"),
     "[control]": ("path", "crs", "vertical_crs"),
     "[trajectory]": ("path", "crs", "vertical_crs"),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from vectoradjust.formatting import fmt_number
 
-__all__ = ["format_report"]
+__all__ = ["format_report", "production_lines"]
 
 _MAX_IDS = 20  # failing point ids printed per stage (all are in qa.json)
 
@@ -59,13 +59,17 @@ def format_report(report: dict) -> str:
             shown = ", ".join(str(i) for i in ids[:_MAX_IDS])
             if len(ids) > _MAX_IDS:
                 shown += f", ... ({len(ids) - _MAX_IDS} more in qa.json)"
+            action = n.get("action", "re-measure")
+            what = ("point(s) over the limit" if action == "re-measure"
+                    else f"under the limit ({action})")
             lines.append(f"    {n['stage']}: {n['statistic']} {_f(n['measured'])} {n['unit']} "
                          f"(tolerance {_f(n['tolerance'])}, point limit "
                          f"{_f(n['point_tolerance'])}); "
-                         f"{len(ids)} point(s) over the limit" + (f": {shown}" if ids else ""))
+                         f"{len(ids)} {what}" + (f": {shown}" if ids else ""))
     lines.append("  Stages:")
     rows = [[s["name"], s["statistic"], _f(s["measured"]), _f(s["tolerance"]),
-             _f(s["point_tolerance"]), s["unit"], str(len(s["points"])), s["status"].upper()]
+             _f(s["point_tolerance"]), s["unit"], str(len(s["points"])),
+             "WARN" if s["status"] == "pass" and s.get("warnings") else s["status"].upper()]
             for s in report["stages"]]
     lines += _table(["stage", "stat", "measured", "tolerance", "pt limit", "unit", "n",
                      "status"], rows, "    ")
@@ -95,6 +99,64 @@ def format_report(report: dict) -> str:
                  _f(d.get("tolerance")), str(d.get("qa", "n/a")).upper()]
                 for d in report["dtm_points"]]
         lines += _table(["point", "role", "Z", "Z DEM", "dz", "limit", "QA"], rows, "    ")
+    lines += production_lines(report)
     for n in report["notes"]:
         lines.append(f"  note: {n}")
     return "\n".join(lines)
+
+
+def _zone_table(title: str, entries: list) -> list:
+    """Per overlap one row: counted points per zone (top row first) and the status."""
+    if not entries:
+        return []
+    names = [z["zone"] for z in entries[0]["zones"]]
+    lines = [f"  {title}:"]
+    rows = []
+    for e in entries:
+        counts = {z["zone"]: z for z in e["zones"]}
+        rows.append(["-".join(e["images"]), str(e["points"])]
+                    + [f"{counts[n]['count']}" + ("" if counts[n]["status"] == "pass" else
+                                                  f" {counts[n]['status']}")
+                       if n in counts else "-" for n in names]
+                    + [str(sum(z["road"] for z in e["zones"])), e["status"].upper()])
+    return lines + _table(["overlap", "points", *names, "road", "status"], rows, "    ")
+
+
+def production_lines(report: dict) -> list:
+    """Text lines of the production checks: tie-point zones, inter-strip ties, free model.
+
+    Parameters
+    ----------
+    report : dict
+        ``QAReport.as_dict()`` (keys ``tie_zones``, ``triplet_zones``, ``strips``,
+        ``inter_strip``, ``free_model``; absent keys are skipped).
+
+    Returns
+    -------
+    list of str
+    """
+    lines = _zone_table("Tie-point zones per stereo pair (counted points per zone; road "
+                        "vertices separately)", report.get("tie_zones") or [])
+    lines += _zone_table("Triplet zones (points on three consecutive images, triple overlap)",
+                         report.get("triplet_zones") or [])
+    strips = report.get("strips") or {}
+    if strips.get("strips"):
+        lines.append(f"  Strips ({strips.get('source')}): "
+                     + "; ".join(f"{s['strip']}: {', '.join(s['images'])}"
+                                 for s in strips["strips"]))
+    inter = report.get("inter_strip") or []
+    if inter:
+        lines.append("  Inter-strip ties (points measured in both strips, vertical parallax):")
+        rows = [[f"{t['strips'][0]}-{t['strips'][1]}", str(t["n_points"]), str(t["n_counted"]),
+                 str(t["min_per_image"]), str(t["ray_pairs"]),
+                 _f(t["parallax"].get("mean_px"), 2), _f(t["parallax"].get("max_px"), 2),
+                 _f(t["parallax"].get("mean_um"), 2)] for t in inter]
+        lines += _table(["strips", "points", "counted", "min/image", "rays", "mean px",
+                         "max px", "mean um"], rows, "    ")
+    fm = report.get("free_model") or {}
+    if fm.get("sigma0") is not None:
+        lines.append(f"  Free model (image measurements only, inner constraints): sigma0 "
+                     f"{_f(fm['sigma0'])} (limit {_f(fm.get('sigma0_bound'))}, r = {fm['dof']}),"
+                     f" residual RMS x {_f(fm.get('rms_x_um'), 2)} um, y "
+                     f"{_f(fm.get('rms_y_um'), 2)} um, pooled {_f(fm.get('rms_px'), 2)} px")
+    return lines

@@ -833,6 +833,11 @@ class StageResult:
     unit : str
     rows : list of dict
         Per point ``{id, value, tolerance, passed}``.
+    warnings : list
+        Ids of rows that pass with a warning (a tie-point zone with 2 points).
+    action : str
+        What a failed row asks for: ``"re-measure"`` (its ids are points, listed in
+        ``remeasure``) or e.g. ``"add tie points"`` (its ids are zones).
     """
 
     name: str
@@ -843,6 +848,8 @@ class StageResult:
     passed: bool | None
     unit: str = ""
     rows: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    action: str = "re-measure"
 
     @property
     def status(self) -> str:
@@ -866,6 +873,8 @@ class StageResult:
             "point_tolerance": _json_number(self.point_tolerance),
             "unit": self.unit,
             "failed_ids": list(self.failed_ids),
+            "warnings": list(self.warnings),
+            "action": self.action,
             "points": [
                 {"id": r["id"], "value": _json_number(r["value"]),
                  "tolerance": _json_number(r["tolerance"]), "passed": r["passed"]}
@@ -981,6 +990,8 @@ class QAVerdict:
         """Ids of all points to re-measure, worst stage first, each once."""
         seen: dict = {}
         for n in self.nonconformities:
+            if n.get("action", "re-measure") != "re-measure":
+                continue  # zone names, not points
             for i in n["ids"]:
                 seen.setdefault(i, None)
         return list(seen)
@@ -1019,7 +1030,8 @@ def qa_verdict(stages: Sequence[StageResult]) -> QAVerdict:
         if s.status != "fail":
             continue
         bad = [r for r in s.rows if r["passed"] is False]
-        bad.sort(key=lambda r: -r["value"])
+        sign = 1.0 if s.statistic == "min" else -1.0  # counts: the fewest first
+        bad.sort(key=lambda r: sign * r["value"])
         nonconf.append({
             "stage": s.name,
             "statistic": s.statistic,
@@ -1027,6 +1039,7 @@ def qa_verdict(stages: Sequence[StageResult]) -> QAVerdict:
             "tolerance": _json_number(s.tolerance),
             "point_tolerance": _json_number(s.point_tolerance),
             "unit": s.unit,
+            "action": s.action,
             "ids": [r["id"] for r in bad],
         })
     passed = not any(s.status == "fail" for s in ordered)

@@ -68,6 +68,8 @@ from vectoradjust.adjust.dem import bilinear
 from vectoradjust.errors import ProjectError
 from vectoradjust.formatting import float_or_none as _num
 from vectoradjust.formatting import fmt_number
+from vectoradjust.qa import zones as _zones
+from vectoradjust.qa.free_model import FREE_MODEL_MAX_IMAGES, free_model, free_model_stages
 from vectoradjust.qa.tolerances import (
     PRODUCTS,
     ControlPointQA,
@@ -98,9 +100,14 @@ __all__ = [
     "pair_parallax",
     "triplet_discrepancies",
     "interior_stages",
+    "block_view",
+    "zone_stages",
+    "inter_strip_stages",
+    "strips_from_project",
     "accuracy_control",
     "control_qa_field",
     "html_section",
+    "production_rows",
 ]
 
 PAIR_MODES = ("consecutive", "all")
@@ -555,6 +562,232 @@ def _interior_pixel(interior: Any) -> Optional[float]:
     return float(np.mean(ps)) if ps else None
 
 
+# ------------------------------------------------------- zones, strips, free model
+def block_view(run, frame: Optional[tuple] = None) -> _zones.BlockView:
+    """The adjusted block of a run as a :class:`vectoradjust.qa.zones.BlockView`.
+
+    Parameters
+    ----------
+    run : AdjustmentRun
+    frame : (float, float), optional
+        Frame width and height (mm); default from the camera
+        (:func:`vectoradjust.qa.zones.frame_size`).
+    """
+    prob = _problem(run)
+    w, h, _src = _zones.frame_size(run.data.camera, prob.obs_xy, prob.principal_point, frame)
+    return _zones.BlockView(
+        image_ids=list(run.image_ids), eo=np.asarray(run.result.eo, float),
+        xyz=np.asarray(run.result.xyz, float),
+        point_ids=np.asarray(run.point_ids).astype(str),
+        point_kind=np.asarray(run.point_kind).astype(str), obs_point=prob.obs_point,
+        obs_image=prob.obs_image, obs_xy=prob.obs_xy, focal_length=float(prob.focal_length),
+        principal_point=np.asarray(prob.principal_point, float), frame=(w, h))
+
+
+def _count_stage(name: str, counts: dict, action: str) -> StageResult:
+    """A coverage stage: every zone (or image) needs 2 points, 3 for a clean pass."""
+    ids = list(counts)
+    vals = [float(counts[i]) for i in ids]
+    rows = [{"id": i, "value": v, "tolerance": float(_zones.ZONE_WARN),
+             "passed": bool(v >= _zones.ZONE_WARN)} for i, v in zip(ids, vals)]
+    warn = [i for i, v in zip(ids, vals) if _zones.ZONE_WARN <= v < _zones.ZONE_PASS]
+    measured = min(vals) if vals else float("nan")
+    return StageResult(name=name, tolerance=float(_zones.ZONE_PASS), measured=measured,
+                       statistic="min", point_tolerance=float(_zones.ZONE_WARN),
+                       passed=(bool(measured >= _zones.ZONE_WARN) if vals else None),
+                       unit="points", rows=rows, warnings=warn, action=action)
+
+
+def _zone_json(entry: dict) -> dict:
+    """A zone entry for ``qa.json`` (floats rounded to what is meaningful)."""
+    out = dict(entry)
+    out["overlap_mm"] = [[round(x, 3), round(y, 3)] for x, y in entry["overlap_mm"]]
+    if "zone_corners_mm" in entry:
+        out["zone_corners_mm"] = [[[round(v, 3) for v in c] for c in z]
+                                  for z in entry["zone_corners_mm"]]
+    out["reference_height_m"] = _num(entry["reference_height_m"])
+    if "overlap_area_mm2" in entry:
+        out["overlap_area_mm2"] = _num(entry["overlap_area_mm2"])
+    return out
+
+
+def zone_stages(view: _zones.BlockView, strips, columns: int = 2) -> tuple:
+    """Tie-point zone stages of every stereo pair and triplet of consecutive images.
+
+    Parameters
+    ----------
+    view : vectoradjust.qa.zones.BlockView
+    strips : array_like of int, shape (n,)
+        Strip of every image: pairs and triplets never cross a strip change.
+    columns : {2, 3}
+        Zone columns along the base (2: the 6 von Gruber zones).
+
+    Returns
+    -------
+    (stages, notes, pairs, triplets)
+        ``pairs`` / ``triplets``: the zone entries
+        (:func:`vectoradjust.qa.zones.pair_zones`) for ``qa.json``.
+    """
+    strips = np.asarray(strips, np.int64)
+    counted, label = _zones.counted_kinds(view.point_kind)
+    stages, pairs, trips = [], [], []
+    n = len(view.image_ids)
+    for j in range(n - 1):
+        if strips[j + 1] != strips[j]:
+            continue
+        e = _zones.pair_zones(view, j, j + 1, columns, counted)
+        name = "-".join(e["images"])
+        stages.append(_count_stage(f"tie-point zones {name}",
+                                   {f"{name}:{z['zone']}": z["count"] for z in e["zones"]}
+                                   or {f"{name}:overlap": 0}, "add tie points"))
+        pairs.append(_zone_json(e))
+        if j + 2 < n and strips[j + 2] == strips[j]:
+            t = _zones.triplet_zones(view, j, counted)
+            tname = "-".join(t["images"])
+            stages.append(_count_stage(f"triplet zones {tname}",
+                                       {f"{tname}:{z['zone']}": z["count"] for z in t["zones"]}
+                                       or {f"{tname}:overlap": 0}, "add tie points"))
+            trips.append(_zone_json(t))
+    notes = [f"tie-point zones: {label} counted per zone of each overlap (3 rows x {columns} "
+             f"columns, frame {view.frame[0]:.1f} x {view.frame[1]:.1f} mm); at least "
+             f"{_zones.ZONE_PASS} per zone pass, {_zones.ZONE_WARN} is a warning"]
+    warned = [w for s in stages for w in s.warnings]
+    if warned:
+        notes.append(f"tie-point zones with only {_zones.ZONE_WARN} points (warning): "
+                     + ", ".join(warned[:20]) + (" ..." if len(warned) > 20 else ""))
+    if not pairs:
+        stages.append(_na_stage("tie-point zones", unit="points"))
+    return stages, notes, pairs, trips
+
+
+def _strip_names(strips: np.ndarray, labels: Optional[Sequence]) -> list:
+    """Display name of every strip number: the given label, else its number from 1."""
+    if labels is None:
+        return [str(k + 1) for k in range(int(strips.max(initial=-1)) + 1)]
+    names: dict = {}
+    for k, lab in zip(strips.tolist(), labels):
+        names.setdefault(k, str(lab))
+    return [names[k] for k in sorted(names)]
+
+
+def inter_strip_stages(view: _zones.BlockView, strips, pixel: Optional[float],
+                       labels: Optional[Sequence] = None) -> tuple:
+    """Inter-strip tie counts and vertical parallax per pair of adjacent strips.
+
+    Parameters
+    ----------
+    view : vectoradjust.qa.zones.BlockView
+    strips : array_like of int, shape (n,)
+    pixel : float or None
+        Pixel size (mm): the parallax is judged with the relative orientation tolerance.
+    labels : sequence, optional
+        Given strip labels per image (for names).
+
+    Returns
+    -------
+    (stages, notes, entries)
+        With one strip: one ``n/a`` stage ("n/a: one strip"), never a pass.
+    """
+    strips = np.asarray(strips, np.int64)
+    names = _strip_names(strips, labels)
+    if len(names) < 2:
+        return ([_na_stage("inter-strip ties", unit="points")],
+                ["inter-strip ties: n/a: one strip"], [])
+    stages, entries = [], []
+    for t in _zones.inter_strip_ties(view, strips):
+        a, b = (names[k] for k in t["strips"])
+        name = f"inter-strip {a}-{b}"
+        stages.append(_count_stage(f"{name}: tie points per image", t["per_image"],
+                                   "add tie points between the strips"))
+        rp = t["ray_pairs"]
+        py = np.asarray(rp["py_mm"], float)
+        if pixel is not None and py.size:
+            tol = relative_orientation_tolerance(pixel)
+            stages.append(check_stage(f"{name}: mean |py|", py / pixel, rp["point_ids"],
+                                      tol.mean_px, "mean", point_tolerance=tol.max_px, unit="px"))
+            stages.append(check_stage(f"{name}: max |py|", py / pixel, rp["point_ids"],
+                                      tol.max_px, "max", unit="px"))
+        else:
+            stages.append(_na_stage(f"{name}: mean |py|", py * 1e3, rp["point_ids"], "mean",
+                                    "um"))
+        entries.append({"strips": [a, b], "images": t["images"], "n_points": t["n_points"],
+                        "n_counted": t["n_counted"], "per_image": t["per_image"],
+                        "min_per_image": t["min_per_image"], "ray_pairs": int(py.size),
+                        "parallax": _stats_um(py, pixel), "point_ids": t["point_ids"]})
+    return stages, [], entries
+
+
+def _strips_of(run, view: _zones.BlockView, strips: Optional[Sequence]) -> tuple:
+    """Strip numbers, their labels (or None) and where they came from."""
+    if strips is not None:
+        if isinstance(strips, dict):
+            labels = [strips.get(i) for i in view.image_ids]
+        else:
+            labels = list(strips)
+        if len(labels) != len(view.image_ids) or any(x is None for x in labels):
+            raise ProjectError(
+                f"{getattr(run.data, 'source', '<project>')}: strip labels are given for "
+                f"{sum(x is not None for x in labels)} of {len(view.image_ids)} images",
+                "Give strip = ... in every [[images]] entry, or in none (the strips are then "
+                "found from the flight)")
+        return _zones.image_strips(view.eo, labels), labels, "[[images]] strip"
+    return _zones.image_strips(view.eo), None, "flight (positions and heading)"
+
+
+def strips_from_project(raw: dict) -> Optional[dict]:
+    """``{image id: strip}`` from the project's ``[[images]] strip`` keys, or None.
+
+    Parameters
+    ----------
+    raw : dict
+        The parsed project file (``ProjectSpec.raw``).
+
+    Returns
+    -------
+    dict or None
+        None when no image gives a strip (the strips are then found from the flight).
+    """
+    images = raw.get("images") or []
+    found = {str(im.get("id")): im["strip"] for im in images
+             if isinstance(im, dict) and im.get("strip") is not None}
+    return found or None
+
+
+def _free_model_part(run, pixel: Optional[float], mode) -> tuple:
+    """``(stages, entry, notes)`` of the free model, or a note why it was left out."""
+    n_img = len(run.image_ids)
+    if mode is None or mode == "auto":
+        mode = n_img <= FREE_MODEL_MAX_IMAGES
+        if not mode:
+            return [], {"skipped": f"{n_img} images > {FREE_MODEL_MAX_IMAGES}"}, [
+                f"free model: not run for {n_img} images (more than {FREE_MODEL_MAX_IMAGES}; "
+                "ask for it with --free-model)"]
+    if not mode:
+        return [], {"skipped": "--no-free-model"}, ["free model: not run (--no-free-model)"]
+    fm = free_model(_problem(run), run.result.eo, run.result.xyz)
+    return free_model_stages(fm, run.point_ids, pixel)
+
+
+def _production_checks(run, pixel: Optional[float], *, frame, strips, zone_columns,
+                       free_model_mode) -> tuple:
+    """Zones, inter-strip ties and the free model: ``(stages, notes, parts)``."""
+    view = block_view(run, frame)
+    numbers, labels, source = _strips_of(run, view, strips)
+    stages, notes, pairs, trips = zone_stages(view, numbers, zone_columns)
+    is_stages, is_notes, inter = inter_strip_stages(view, numbers, pixel, labels)
+    fm_stages, fm_entry, fm_notes = _free_model_part(run, pixel, free_model_mode)
+    names = _strip_names(numbers, labels)
+    parts = {
+        "tie_zones": pairs, "triplet_zones": trips, "inter_strip": inter,
+        "strips": {"source": source, "frame_mm": list(view.frame),
+                   "strips": [{"strip": names[k], "images": [view.image_ids[i] for i in
+                                                             np.flatnonzero(numbers == k)]}
+                              for k in range(len(names))]},
+        "free_model": fm_entry,
+    }
+    return stages + is_stages + fm_stages, notes + is_notes + fm_notes, parts
+
+
 # ------------------------------------------------------------------- the report
 @dataclass
 class QAReport:
@@ -582,6 +815,9 @@ class QAReport:
     dtm_points : list of dict
         Per control / check point: surveyed Z, the DEM's height there and the
         difference (empty without a DEM).
+    production : dict
+        ``tie_zones`` (per stereo pair), ``triplet_zones``, ``strips``, ``inter_strip``
+        (per pair of adjacent strips) and ``free_model`` (empty for RPC blocks).
     """
 
     verdict: QAVerdict
@@ -595,6 +831,7 @@ class QAReport:
     control_rows: np.ndarray
     notes: list = field(default_factory=list)
     dtm_points: list = field(default_factory=list)
+    production: dict = field(default_factory=dict)
 
     @property
     def passed(self) -> bool:
@@ -648,6 +885,11 @@ class QAReport:
             "triplets": self.triplets,
             "control_points": ctrl,
             "dtm_points": list(self.dtm_points),
+            "tie_zones": self.production.get("tie_zones", []),
+            "triplet_zones": self.production.get("triplet_zones", []),
+            "strips": self.production.get("strips", {}),
+            "inter_strip": self.production.get("inter_strip", []),
+            "free_model": self.production.get("free_model", {}),
             "stages": v["stages"],
             "notes": list(self.notes),
         }
@@ -858,6 +1100,10 @@ def accuracy_control(
     min_triplet_points: int = 3,
     point_rule: str = "limit",
     working_radius: Optional[float] = None,
+    frame_size: Optional[tuple] = None,
+    strips: Optional[Sequence] = None,
+    zone_columns: int = 2,
+    free_model: Optional[bool] = None,
 ) -> QAReport:
     """Judge an adjustment run against the production tolerances (``DESIGN.md`` 7).
 
@@ -879,6 +1125,18 @@ def accuracy_control(
     working_radius : float, optional
         ``r`` (mm) of the orthophoto height tolerance; default ``[qa] working_radius``,
         else the largest radial distance of a measured photo point.
+    frame_size : (float, float), optional
+        Frame width and height (mm) for the overlaps of the tie-point zones; default
+        the camera's ``image_size x pixel_size``, its fiducials, else the extent of the
+        measurements.
+    strips : sequence or dict, optional
+        Strip label of every image (in ``run.image_ids`` order, or by image id); default
+        the images' ``strip`` attribute when they have one, else found from the flight.
+    zone_columns : {2, 3}
+        Zone columns along each base (2: the 6 von Gruber zones).
+    free_model : bool, optional
+        Adjust the free model (a second, unconstrained bundle adjustment); default
+        (None) for blocks of at most ``FREE_MODEL_MAX_IMAGES`` images.
 
     Returns
     -------
@@ -890,6 +1148,7 @@ def accuracy_control(
     interior = getattr(data, "interior", None) or {}
     pixel, pixel_src = resolve_pixel_size(data.camera, spec, pixel_size, interior)
     tolerances, notes = _pixel_tolerances(point_rule, pixel)
+    production: dict = {}
     if _problem(run).is_rpc.any():  # the frame camera's stages do not apply
         stages, pair_stats, trip_stats = [], [], []
         notes.append("RPC images: the interior orientation, relative orientation (vertical "
@@ -905,6 +1164,13 @@ def accuracy_control(
         tr_stages, tr_notes, trip_stats = _triplet_stages(run, f, min_triplet_points, pixel)
         stages += tr_stages
         notes += tr_notes
+        if strips is None:
+            strips = _image_strip_labels(data, run.image_ids)
+        pc_stages, pc_notes, production = _production_checks(
+            run, pixel, frame=frame_size, strips=strips, zone_columns=zone_columns,
+            free_model_mode=free_model)
+        stages += pc_stages
+        notes += pc_notes
     r_mm = _radius(run, spec, working_radius)
     cqa, used, bl_stages, bl_notes = _block_stages(run, spec, f, r_mm, point_rule, tolerances)
     stages += bl_stages
@@ -916,7 +1182,16 @@ def accuracy_control(
     verdict = qa_verdict(stages)
     return QAReport(verdict=verdict, spec=spec, pixel_size=pixel, pixel_size_source=pixel_src,
                     tolerances=tolerances, stereo_pairs=pair_stats, triplets=trip_stats,
-                    control=cqa, control_rows=used, notes=notes, dtm_points=dtm_rows)
+                    control=cqa, control_rows=used, notes=notes, dtm_points=dtm_rows,
+                    production=production)
+
+
+def _image_strip_labels(data, image_ids: Sequence) -> Optional[list]:
+    """The ``strip`` of every image when the project gives one to each, else None."""
+    by_id = {str(getattr(im, "id", "")): getattr(im, "strip", None)
+             for im in getattr(data, "images", []) or []}
+    labels = [by_id.get(str(i)) for i in image_ids]
+    return labels if labels and all(x is not None for x in labels) else None
 
 
 def control_qa_field(run, spec: QASpec, *, point_rule: str = "limit",
@@ -990,7 +1265,63 @@ def html_section(report: dict) -> str:
                    f"<td>{fmt_number(s['point_tolerance'])}</td><td>{e(s['unit'])}</td>"
                    f"<td>{e(s['status'])}</td></tr>")
     out.append("</tbody></table>")
+    for title, rows in production_rows(report):
+        out.append(f"<h3>{e(title)}</h3><table><thead><tr>"
+                   + "".join(f"<th>{e(k)}</th>" for k in rows[0]) + "</tr></thead><tbody>")
+        out += ["<tr>" + "".join(f"<td>{e(str(v))}</td>" for v in r.values()) + "</tr>"
+                for r in rows]
+        out.append("</tbody></table>")
     if report["notes"]:
         out.append("<ul>" + "".join(f"<li>{e(n)}</li>" for n in report["notes"]) + "</ul>")
     out.append("</section>")
     return "\n".join(out)
+
+
+def _zone_rows_flat(entries: list) -> list:
+    rows = []
+    for t in entries:
+        row = {"overlap": "-".join(t["images"]), "points": t["points"]}
+        for z in t["zones"]:
+            row[z["zone"]] = f"{z['count']} ({z['status']})"
+        row["road vertices"] = sum(z["road"] for z in t["zones"])
+        row["status"] = t["status"]
+        rows.append(row)
+    return rows
+
+
+def production_rows(report: dict) -> list:
+    """The production checks as flat tables for HTML: ``[(title, rows), ...]``.
+
+    Parameters
+    ----------
+    report : dict
+        :meth:`QAReport.as_dict` (missing keys are skipped).
+
+    Returns
+    -------
+    list of (str, list of dict)
+        Tie-point zones per stereo pair, triplet zones, inter-strip ties, free model;
+        only the non-empty ones.
+    """
+    out = []
+    for key, title in (("tie_zones", "Tie-point zones per stereo pair (counted points)"),
+                       ("triplet_zones", "Triplet zones (triple overlap)")):
+        rows = _zone_rows_flat(report.get(key) or [])
+        if rows:
+            out.append((title, rows))
+    inter = [{"strips": "-".join(t["strips"]), "points": t["n_points"],
+              "counted": t["n_counted"], "min per image": t["min_per_image"],
+              "ray pairs": t["ray_pairs"], "mean |py| px": fmt_number(
+                  t["parallax"].get("mean_px"), 2),
+              "max |py| px": fmt_number(t["parallax"].get("max_px"), 2)}
+             for t in report.get("inter_strip") or []]
+    if inter:
+        out.append(("Inter-strip ties", inter))
+    fm = report.get("free_model") or {}
+    if fm.get("sigma0") is not None:
+        out.append(("Free model (before control)", [{
+            "sigma0": fmt_number(fm["sigma0"], 3), "limit": fmt_number(fm["sigma0_bound"], 3),
+            "dof": fm["dof"], "RMS x um": fmt_number(fm["rms_x_um"], 2),
+            "RMS y um": fmt_number(fm["rms_y_um"], 2),
+            "RMS px": fmt_number(fm.get("rms_px"), 2)}]))
+    return out
