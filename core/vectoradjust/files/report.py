@@ -1618,7 +1618,14 @@ def _qa_body(qa: Any) -> str:
         cls = "na" if passed is None else ("pass" if passed else "fail")
         out.append(f'<div class="verdict {cls}">{_badge(passed, "accepted", "REJECTED")} '
                    f"QA verdict: {_e(qa.get('verdict', ''))}</div>")
-    out.append(_generic({k: v for k, v in qa.items() if k not in ("passed", "verdict")}))
+    from vectoradjust.qa.verdict import production_rows
+
+    # the production checks as compact tables (zones, inter-strip ties, free model);
+    # their full detail (point ids per zone, overlap polygons) is in qa.json
+    for title, rows in production_rows(qa):
+        out.append(f"<h4>{_e(title)}</h4>" + _records_table(rows))
+    skip = ("passed", "verdict", "tie_zones", "triplet_zones", "inter_strip", "free_model")
+    out.append(_generic({k: v for k, v in qa.items() if k not in skip}))
     return "".join(out)
 
 
