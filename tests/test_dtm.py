@@ -215,10 +215,12 @@ def product():
 
 def test_product_terms_are_added_to_the_variance(product):
     s = product.summary
-    assert s["sampling"]["sigma"] == pytest.approx(
-        800.0 * dtm.sampling_per_mille(s["mean_tan_slope"]))
-    tot = np.sqrt(product.sigma_interpolation**2 + product.sigma_sampling**2
-                  + product.sigma_terrain**2)
+    assert s["sampling"]["per_mille"] == pytest.approx(
+        1e3 * dtm.sampling_per_mille(s["mean_tan_slope"]))
+    ok = np.isfinite(product.sigma)
+    assert s["sampling"]["sigma"] == pytest.approx(np.median(product.sampling_cells[ok]))
+    tot = np.sqrt(product.sigma_interpolation**2 + product.sampling_cells**2
+                  + product.terrain_cells**2)
     np.testing.assert_allclose(product.sigma, tot, rtol=1e-12)
     np.testing.assert_allclose(product.le90, 1.6448536 * product.sigma, rtol=1e-6)
     assert s["sigma"]["n"] == int(np.isfinite(product.sigma).sum()) > 1000
@@ -349,3 +351,41 @@ def test_corner_planimetric_errors_match_monte_carlo():
     h_mc = h_corners @ res.jacobian[:, :4].T
     np.testing.assert_allclose(res.covariance, np.cov(h_mc.T), rtol=0.04, atol=1e-5)
     assert res.sigma_heights_only == pytest.approx([0.0, 0.0])
+
+
+def _two_slopes(x, y):
+    """Flat (1 %) west of x = 300, steep and rough (35 % and waves) east of it."""
+    east = np.clip((x - 300.0) / 20.0, 0.0, 1.0)
+    return 100.0 + 0.01 * x + east * (0.35 * (x - 300.0) + 6.0 * np.sin(2 * np.pi * y / 90.0))
+
+
+def test_local_terms_follow_the_slope_and_area_terms_do_not():
+    rng = np.random.default_rng(21)
+    xy = rng.uniform(0, 600, (700, 2))
+    xyz = np.column_stack([xy, _two_slopes(*xy.T)])
+    m = dtm.points_model(xyz, np.eye(3 * len(xyz)) * 0.01)
+    local = dtm.dtm_product(m, 10.0, "tin", flying_height=1000.0, bounds=(20, 20, 580, 580))
+    area = dtm.dtm_product(m, 10.0, "tin", flying_height=1000.0, bounds=(20, 20, 580, 580),
+                           terms="area")
+    x = local.centres()[:, 0].reshape(local.height.shape)
+    west, east = x < 200, x > 400
+    # local: 0.3 per mille of H (0.30 m) on the flat part, much more on the steep one
+    assert np.nanmedian(local.sampling_cells[west]) == pytest.approx(0.30, abs=0.01)
+    assert np.nanmedian(local.sampling_cells[east]) > 0.5
+    assert np.nanmedian(local.terrain_cells[east]) > 3 * np.nanmedian(local.terrain_cells[west])
+    # area: one value everywhere, the mean slope's
+    one = area.sampling_cells[np.isfinite(area.sigma)]
+    assert np.ptp(one) == 0.0
+    assert one[0] == pytest.approx(1000.0 * dtm.sampling_per_mille(area.summary["mean_tan_slope"]))
+    with pytest.raises(ValueError, match="terms 'cells'"):
+        dtm.dtm_product(m, 10.0, "tin", terms="cells")
+
+
+def test_local_mean_slope_averages_over_one_wavelength_and_skips_nan():
+    t = np.zeros((21, 21))
+    t[:, 11:] = 0.4
+    t[0, 0] = np.nan
+    loc = dtm.local_mean_slope(t, 10.0, 50.0)  # 5 x 5 cells
+    assert loc[10, 2] == 0.0 and loc[10, 18] == pytest.approx(0.4)
+    assert loc[10, 10] == pytest.approx(0.4 * 2 / 5)  # two of five columns are steep
+    assert np.isnan(loc[0, 0]) and np.isfinite(loc[0, 1])

@@ -16,6 +16,11 @@ to the variance:
   terrain (:func:`terrain_variance`; ``W`` from the zero crossings of the detrended
   heights, :func:`mean_wavelength`).
 
+Both use each cell's own mean slope, averaged over about one wavelength around it (at
+most ten sampling intervals; :func:`local_mean_slope`), so that a flat valley and a
+steep flank beside it get their own terms; ``terms="area"`` gives the whole area one
+value, as the sources do.
+
 Interpolations (:func:`interpolation_operator`):
 
 * ``tin``: linear in the Delaunay triangles of the points. Moving a vertex ``i``
@@ -43,8 +48,11 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import Delaunay
 
+from vectoradjust.accuracy.stats import LE90_FACTOR  # LE90 / sigma, normal error
+
 __all__ = [
     "LI_B",
+    "local_mean_slope",
     "LE90_FACTOR",
     "NodeGrid",
     "HeightModel",
@@ -74,8 +82,6 @@ __all__ = [
 
 #: Li's constant ``b`` of the terrain term.
 LI_B = 17.0 / 3072.0
-#: LE90 / sigma for a normal height error.
-LE90_FACTOR = 1.6448536269514722
 METHODS = ("tin", "bilinear", "bicubic")
 #: Torlegard's per-mille of the flying height: (tan slope, per mille) at flat and mountains
 _SAMPLING = ((0.05, 0.3e-3), (0.5, 1.5e-3))
@@ -543,7 +549,10 @@ class DTMProduct:
     tan_slope : numpy.ndarray, shape (rows, cols)
         Slope of the interpolated surface at the cell centre.
     sigma_sampling, sigma_terrain : float
-        The added terms (m).
+        The added terms (m): their median over the cells with ``terms="local"``, the
+        one value of the area with ``terms="area"``.
+    sampling_cells, terrain_cells : numpy.ndarray, shape (rows, cols)
+        The added terms per cell (m).
     summary : dict
         Method, terms and their inputs, statistics of ``sigma`` and ``le90``.
     model : HeightModel
@@ -564,6 +573,8 @@ class DTMProduct:
     model: HeightModel
     method: str
     nodes: Optional[NodeGrid] = None
+    sampling_cells: Optional[np.ndarray] = None
+    terrain_cells: Optional[np.ndarray] = None
 
     def centres(self) -> np.ndarray:
         """Cell centres ``(rows * cols, 2)``, row-major."""
@@ -606,9 +617,45 @@ def _sampling_interval(model: HeightModel, cell: float) -> float:
     return max(spacing, float(cell))
 
 
+def local_mean_slope(tan_slope: np.ndarray, cell: float, window: float) -> np.ndarray:
+    """The mean slope around each cell: ``tan a`` averaged over a square of side
+    ``window`` (m; at least 3 x 3 cells, at most 101 x 101), NaN cells left out.
+
+    :func:`dtm_product` takes one mean wavelength ``W`` (a whole rise and fall of the
+    terrain, the scale of Torlegard's and Li's mean slopes), at most ten sampling
+    intervals: a flat valley beside a steep flank then gets the flat terrain's terms
+    and the flank its own.
+    """
+    from scipy.ndimage import uniform_filter
+
+    t = np.asarray(tan_slope, float)
+    k = int(np.clip(np.round(window / cell) if np.isfinite(window) else 101, 3, 101))
+    k += 1 - k % 2
+    ok = np.isfinite(t)
+    num = uniform_filter(np.where(ok, t, 0.0), size=k, mode="nearest")
+    den = uniform_filter(ok.astype(float), size=k, mode="nearest")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(ok & (den > 0), num / den, np.nan)
+
+
+def _added_terms(tan: np.ndarray, cell: float, w: float, s_len: float,
+                 flying_height: Optional[float], terms: str) -> tuple:
+    """Sampling sigma and terrain variance per cell (``terms`` local or area)."""
+    if terms not in ("local", "area"):
+        raise ValueError(f"terms {terms!r}: use 'local' or 'area'")
+    mean_tan = float(np.nanmean(tan)) if np.isfinite(tan).any() else 0.0
+    slope = (local_mean_slope(tan, cell, min(w, 10.0 * s_len)) if terms == "local"
+             else np.where(np.isfinite(tan), mean_tan, np.nan))
+    slope = np.where(np.isfinite(slope), slope, mean_tan)
+    var_t = terrain_variance(s_len, slope, w)
+    s_s = (np.zeros_like(slope) if flying_height is None
+           else sampling_sigma(flying_height, slope))
+    return mean_tan, s_s, var_t
+
+
 def dtm_product(model: HeightModel, cell: float, method: str = "tin", *, bounds=None,
                 flying_height: Optional[float] = None,
-                wavelength: Optional[float] = None) -> DTMProduct:
+                wavelength: Optional[float] = None, terms: str = "local") -> DTMProduct:
     """Height, sigma and LE90 per cell of a DTM with its interpolation and added terms.
 
     Parameters
@@ -626,6 +673,9 @@ def dtm_product(model: HeightModel, cell: float, method: str = "tin", *, bounds=
         ``H`` (m) of the sampling term; None: no sampling term.
     wavelength : float, optional
         ``W`` (m) of the terrain term; default :func:`mean_wavelength` of the heights.
+    terms : {"local", "area"}
+        The slope of the sampling and terrain terms: each cell's
+        :func:`local_mean_slope` (default), or the area's mean slope (one value).
 
     Returns
     -------
@@ -642,23 +692,28 @@ def dtm_product(model: HeightModel, cell: float, method: str = "tin", *, bounds=
                          cell, -cell, shape[0] + 2 * pad - 1, shape[1] + 2 * pad - 1)
     op, s_int = interpolate(model, frame.xy(), method, nodes)
     tan = np.hypot(op.gradient[:, 0], op.gradient[:, 1])
-    mean_tan = float(np.nanmean(tan)) if np.isfinite(tan).any() else 0.0
     h = op.h.reshape(shape)
     w = float(wavelength) if wavelength is not None else mean_wavelength(h, cell)
     s_len = _sampling_interval(model, cell)
-    var_t = float(terrain_variance(s_len, mean_tan, w))
-    s_s = 0.0 if flying_height is None else float(sampling_sigma(flying_height, mean_tan))
+    mean_tan, s_s, var_t = _added_terms(tan.reshape(shape), cell, w, s_len, flying_height,
+                                        terms)
+    s_s, var_t = s_s.ravel(), var_t.ravel()
     sigma = np.sqrt(s_int**2 + s_s**2 + var_t)
+    valid = op.valid
+    s_s_rep = float(np.median(s_s[valid])) if valid.any() else 0.0
+    s_t_rep = float(np.sqrt(np.median(var_t[valid]))) if valid.any() else 0.0
     summary = {
         "method": method, "source": model.kind, "cell": float(cell),
         "cells": int(op.valid.sum()), "shape": list(shape),
-        "mean_tan_slope": mean_tan, "mean_slope_percent": 100.0 * mean_tan,
+        "mean_tan_slope": mean_tan, "mean_slope_percent": 100.0 * mean_tan, "terms": terms,
         "sampling": {"flying_height": flying_height,
                      "per_mille": float(sampling_per_mille(mean_tan)) * 1e3,
-                     "sigma": s_s, "source": "Torlegard: 0.3 per mille of H at <= 5 % "
+                     "sigma": s_s_rep, "cells": _stats(np.where(valid, s_s, np.nan)),
+                     "source": "Torlegard: 0.3 per mille of H at <= 5 % "
                      "mean slope, 1.5 per mille at >= 50 %, linear between"},
         "terrain": {"b": LI_B, "sampling_interval": s_len, "wavelength": w,
-                    "tan_slope": mean_tan, "sigma": float(np.sqrt(var_t)),
+                    "tan_slope": mean_tan, "sigma": s_t_rep,
+                    "cells": _stats(np.where(valid, np.sqrt(var_t), np.nan)),
                     "source": "Li: b (1 + 4 S / W) (S tan a)^2"},
         "sigma_interpolation": _stats(s_int), "sigma": _stats(sigma), "le90": _stats(
             LE90_FACTOR * sigma)}
@@ -667,8 +722,9 @@ def dtm_product(model: HeightModel, cell: float, method: str = "tin", *, bounds=
     else:
         summary.update(node_sigma=model.node_sigma, correlation_length=model.correlation_length)
     return DTMProduct(transform, h, s_int.reshape(shape), sigma.reshape(shape),
-                      (LE90_FACTOR * sigma).reshape(shape), tan.reshape(shape), s_s,
-                      float(np.sqrt(var_t)), summary, model, method, nodes)
+                      (LE90_FACTOR * sigma).reshape(shape), tan.reshape(shape), s_s_rep,
+                      s_t_rep, summary, model, method, nodes, s_s.reshape(shape),
+                      np.sqrt(var_t).reshape(shape))
 
 
 # ------------------------------------------------------------------------- contours
