@@ -314,23 +314,25 @@ def residual_features(run, fields, scale=1.0):
     """Residual vectors: a line from the database position to the adjusted position.
 
     ``scale`` exaggerates the vectors (end = database + scale * V) for a readable map;
-    the ``V*`` fields hold the true residuals.
+    the ``V*`` fields hold the true residuals. The lines, lengths and azimuths are the
+    core's (:func:`vectoradjust.accuracy.residual_vectors.residual_vectors`); this only
+    makes features of them.
     """
     from qgis.core import QgsGeometry, QgsLineString, QgsPoint
+
+    from vectoradjust.accuracy.residual_vectors import residual_vectors
 
     out = []
     for d in run.databases:
         v = d.vertices
-        for i in np.flatnonzero(v["Adjusted"] == 1):
-            x, y, z = float(v["X"][i]), float(v["Y"][i]), float(v["Z"][i])
-            vx, vy, vz = float(v["Vx"][i]), float(v["Vy"][i]), float(v["Vz"][i])
-            z0 = z if math.isfinite(z) else 0.0
-            dz = vz if math.isfinite(vz) else 0.0
-            line = QgsLineString([QgsPoint(x, y, z0),
-                                  QgsPoint(x + scale * vx, y + scale * vy, z0 + scale * dz)])
-            az = math.degrees(math.atan2(vx, vy)) % 360.0
-            values = [v["point_id"][i], v["feature_id"][i], d.name, vx, vy, vz,
-                      math.hypot(vx, vy), az, v["CE90"][i], v["LE90"][i], float(scale)]
+        rows = np.flatnonzero(v["Adjusted"] == 1)
+        r = residual_vectors(*(np.asarray(v[c])[rows] for c in ("X", "Y", "Z", "Vx", "Vy", "Vz")),
+                             scale=scale)
+        for k, i in enumerate(rows):
+            line = QgsLineString([QgsPoint(*r.start[k].tolist()), QgsPoint(*r.end[k].tolist())])
+            values = [v["point_id"][i], v["feature_id"][i], d.name, float(v["Vx"][i]),
+                      float(v["Vy"][i]), float(v["Vz"][i]), float(r.length[k]),
+                      float(r.azimuth[k]), v["CE90"][i], v["LE90"][i], float(scale)]
             out.append(new_feature(fields, values, QgsGeometry(line)))
     return out
 

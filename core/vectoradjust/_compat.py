@@ -1,9 +1,15 @@
-"""Old module names (vectoradjust 0.1) that still import, for one release.
+"""Old module names (vectoradjust 0.1) that still import, with a DeprecationWarning.
 
 0.2 moved the flat modules into subpackages (``docs/architecture.md``). ``import
 vectoradjust.bundle`` still works: it returns the module ``vectoradjust.adjust.bundle``
 itself (same object, so attributes and monkeypatching behave as before) and warns with
-a :class:`DeprecationWarning` naming the new place.
+a :class:`DeprecationWarning` naming the new place. Likewise the 0.1 names of the
+``accuracy``, ``qa`` and ``cli`` packages (their ``__getattr__``).
+
+They were announced "for one release" in 0.2 and are still here in 0.3: they stay for
+scripts written against 0.1 until a release whose notes say they are gone. Nothing in
+this repository uses them (the core, the QGIS plugin and the tests import the new
+names; ``tests/test_architecture.py`` imports old names only to check that they warn).
 """
 
 from __future__ import annotations

@@ -1,10 +1,15 @@
-"""Buffer accuracy test (Goodchild & Hunter 1997) of a line layer against a reference."""
+"""Buffer accuracy test (Goodchild & Hunter 1997) of a line layer against a reference.
+
+QGIS reads the layers and converts them to arrays; the core measures
+(:mod:`vectoradjust.accuracy.buffer`, :mod:`vectoradjust.accuracy.capped_buffer`,
+:mod:`vectoradjust.accuracy.line_distances`).
+"""
+
+import functools
 
 import numpy as np
 from qgis.core import (
-    Qgis,
     QgsFeatureRequest,
-    QgsGeometry,
     QgsProcessing,
     QgsProcessingException,
     QgsProcessingParameterCrs,
@@ -37,27 +42,28 @@ surveyed centre lines".</p>
 <li><b>Ground CRS</b> (optional; projected, metres; default the tested layer's CRS). Both
 layers are transformed to it.</li>
 </ul>
-<p>All reference lines are united before buffering, so overlapping buffers count once. With
-round end caps (the default) the buffers are the exact round buffers computed by the
-vectoradjust core (<code>vectoradjust buffer-test --exact</code>: by segments, linear in the
-size of the data; only the reference lines near the tested ones are read). With flat or
-square caps QGIS's GEOS buffers the united reference lines, round joins approximated by
-<i>segments per quarter circle</i> chords (default 32), at most 0.03 % narrow.</p>
+<p>All reference lines are united before buffering, so overlapping buffers count once. The
+buffers are exact and computed by the vectoradjust core, by segments, linear in the size of
+the data (only the reference lines near the tested ones are read): with round end caps (the
+default) the points within the width of the reference lines
+(<code>vectoradjust buffer-test --exact</code>); with flat or square caps the union of a
+rectangle per segment (square caps: running on by the width at a line's free ends) and a
+round join at each inner vertex. GEOS's polygon buffers approximate the round joins and caps
+by chords, and with flat or square caps they may also cut off part of a line's buffer where
+the line ends with a segment shorter than the width after a turn; the numbers here do
+neither. <i>Segments per quarter circle</i> is no longer used (kept for saved models).</p>
 <h3>Writes</h3>
 <p>A table, one row per width: <code>width</code>, <code>share</code> (0..1),
 <code>percent</code>, <code>inside</code> (length inside, m) and <code>total</code> (total
 length of the tested lines, m).</p>
 <p>The same numbers as <code>vectoradjust.accuracy.buffer.buffer_test</code> with
 <code>method="exact"</code> (round caps; the polygon buffers of the default method are up to
-0.03 % of the width narrower on round caps and joins).</p>
+0.03 % of the width narrower on round caps and joins) and
+<code>vectoradjust.accuracy.capped_buffer.capped_buffer_test</code> (flat and square
+caps).</p>
 """
 
 CAP_STYLES = ["round", "flat", "square"]
-
-
-def _cap(name):
-    return {"round": Qgis.EndCapStyle.Round, "flat": Qgis.EndCapStyle.Flat,
-            "square": Qgis.EndCapStyle.Square}[name]
 
 
 def parse_widths(text):
@@ -82,120 +88,23 @@ def parse_widths(text):
     return out
 
 
-def _lines(source, crs, context, where, feedback=None):
-    from vectoradjust.errors import CRSError, LayerError
-
-    wkb = source.wkbType()
-    if QgsWkbTypes.geometryType(wkb) != QgsWkbTypes.LineGeometry:
-        raise LayerError(f"{where}: the layer holds {QgsWkbTypes.displayString(wkb) or 'no'} "
-                         "geometries, not lines", "Give a line layer")
-    if not source.sourceCrs().isValid():
-        raise CRSError(f"{where}: the layer has no coordinate reference system",
-                       "Set the layer's CRS and run again")
-    request = QgsFeatureRequest()
-    if source.sourceCrs() != crs:
-        request.setDestinationCrs(crs, context.transformContext())
-    geoms = []
-    for k, f in enumerate(source.getFeatures(request)):
-        if k % CHUNK == 0:
-            check_cancelled(feedback)
-        g = f.geometry()
-        if g is None or g.isNull() or g.isEmpty():
-            continue
-        geoms.append(QgsGeometry(g))
-    return geoms
-
-
-def _buffers(reference, widths, quad_segs=32, cap_style="round", feedback=None):
-    """The united reference lines buffered by each width (None: an empty buffer), each
-    with a prepared GEOS engine: ``[(buffer, engine) or None]``."""
-    parts = []
-    for g in reference:
-        parts.extend(QgsGeometry(p.clone()) for p in g.constParts())
-    ref = QgsGeometry.collectGeometry(parts) if parts else None
-    out = []
-    for width in widths:
-        check_cancelled(feedback)
-        if ref is None or width <= 0:
-            out.append(None)
-            continue
-        buf = ref.buffer(float(width), int(quad_segs), _cap(cap_style), Qgis.JoinStyle.Round,
-                         5.0)
-        engine = QgsGeometry.createGeometryEngine(buf.constGet())
-        engine.prepareGeometry()
-        out.append((buf, engine))
-    return out
-
-
-def _inside(tested, buffers, step):
-    """Length of the tested lines inside each buffer and their total length, in chunks of
-    :data:`CHUNK` lines (``step(n)`` after each: progress and Cancel)."""
-    total = float(sum(g.length() for g in tested))
-    inside = [0.0] * len(buffers)
-    for k in range(0, max(len(tested), 1), CHUNK):
-        part = tested[k:k + CHUNK]
-        for j, b in enumerate(buffers):
-            if b is None or total <= 0:
-                continue
-            buf, engine = b
-            inside[j] += sum(g.intersection(buf).length() for g in part
-                             if engine.intersects(g.constGet()))
-        step(len(part))
-    return inside, total
-
-
-def _share(inside, total):
-    return None if total <= 0 else min(max(inside / total, 0.0), 1.0)
-
-
-def buffer_shares(tested, reference, widths, quad_segs=32, cap_style="round", feedback=None,
-                  start=0.0, span=100.0):
-    """Share of the tested lines' length inside buffers of the reference lines.
-
-    The QGIS/GEOS twin of :func:`vectoradjust.accuracy.buffer.buffer_test` (same result
-    dictionaries): the reference lines' parts are collected into one multi-line and
-    buffered; each tested geometry is intersected with the buffer. Reports progress per
-    chunk of :data:`CHUNK` tested lines to ``feedback`` (``start`` .. ``start + span``
-    percent) and stops with :class:`vectoradjust.errors.CancelledError` on Cancel.
-    """
-    report = progress_callback(feedback, start, span) if feedback is not None else None
-    if report is not None:
-        feedback.setProgressText("buffering the reference lines")
-    buffers = _buffers(reference, widths, quad_segs, cap_style, feedback)
-    done = [0]
-
-    def step(n):
-        done[0] += n
-        if report is not None:
-            report(done[0] / max(len(tested), 1), "intersecting the tested lines")
-        check_cancelled(feedback)
-
-    inside, total = _inside(tested, buffers, step)
-    return [{"width": float(w), "share": _share(x, total), "length_inside": x,
-             "length_total": total} for w, x in zip(widths, inside)]
-
-
-def exact_shares(tested, reference, widths, crs, context, feedback=None):
-    """The buffer test with round caps by the core
-    (:func:`vectoradjust.accuracy.buffer.segment_buffer_test`, the exact round buffers of
-    ``vectoradjust buffer-test --exact``): QGIS reads both layers into segments in
-    ``crs`` (the reference only near the tested lines); progress 5 .. 95 % per
-    :data:`SEGMENT_CHUNK` tested segments, Cancel between them."""
+def exact_shares(tested, reference, widths, crs, context, feedback=None, cap_style="round"):
+    """The buffer test by the core: QGIS reads both layers (the reference only near the
+    tested lines) in ``crs`` and converts them; the core measures
+    (:func:`vectoradjust.accuracy.buffer.segment_buffer_test` for round caps, the exact
+    round buffers of ``vectoradjust buffer-test --exact``;
+    :func:`vectoradjust.accuracy.capped_buffer.capped_buffer_test` for flat and square
+    caps). Progress 5 .. 95 % per :data:`SEGMENT_CHUNK` tested segments, Cancel between
+    them."""
     from vectoradjust.accuracy.buffer import segment_buffer_test
+    from vectoradjust.accuracy.capped_buffer import capped_buffer_test
 
     t = line_segments_of(tested, crs, context, f"tested layer {tested.sourceName()!r}",
                          feedback)
     feedback.setProgress(5)
-    rect = None
-    if len(t):
-        from qgis.core import QgsRectangle
-
-        lo, hi = t.min(axis=(0, 1)), t.max(axis=(0, 1))
-        m = max(widths, default=0.0) + 1.0
-        rect = QgsRectangle(float(lo[0] - m), float(lo[1] - m), float(hi[0] + m),
-                            float(hi[1] + m))
-    r = line_segments_of(reference, crs, context,
-                         f"reference layer {reference.sourceName()!r}", feedback, rect)
+    rect = segments_rect(t, max(widths, default=0.0) + 1.0)
+    where = f"reference layer {reference.sourceName()!r}"
+    r = line_parts_of(reference, crs, context, where, feedback, rect)
     feedback.setProgress(10)
     check_cancelled(feedback)
     feedback.setProgressText("intersecting the tested lines")
@@ -207,7 +116,22 @@ def exact_shares(tested, reference, widths, crs, context, feedback=None):
         report(done[0] / max(len(t), 1), "intersecting the tested lines")
         check_cancelled(feedback)
 
-    return segment_buffer_test(t, r, widths, chunk=SEGMENT_CHUNK, step=step)
+    if cap_style == "round":
+        return segment_buffer_test(t, parts_to_segments(r), widths, chunk=SEGMENT_CHUNK,
+                                   step=step)
+    return capped_buffer_test(t, r, widths, cap_style, chunk=SEGMENT_CHUNK, step=step)
+
+
+def segments_rect(segments, margin):
+    """The QgsRectangle around segments ``(n, 2, 2)`` grown by ``margin`` (None without
+    segments): the reference lines read for them."""
+    from qgis.core import QgsRectangle
+
+    if not len(segments):
+        return None
+    lo, hi = segments.min(axis=(0, 1)), segments.max(axis=(0, 1))
+    return QgsRectangle(float(lo[0] - margin), float(lo[1] - margin), float(hi[0] + margin),
+                        float(hi[1] + margin))
 
 
 #: tested segments measured per step of the exact (round) buffer test
@@ -241,15 +165,13 @@ def _parts_xy(geom):
     return out
 
 
-def line_segments_of(source, crs, context, where, feedback=None, rect=None):
-    """The straight segments ``(n, 2, 2)`` of a line layer in ``crs``, for the core's
-    :class:`vectoradjust.accuracy.buffer.SegmentBuffer` (QGIS only reads and converts).
+def line_parts_of(source, crs, context, where, feedback=None, rect=None):
+    """The line parts of a line layer in ``crs``, each an ``(k, 2)`` XY array (QGIS only
+    reads and converts).
 
-    As :func:`vectoradjust.accuracy.buffer.line_segments`: segments never join two parts,
-    zero-length segments and those without coordinates are dropped. ``rect``
-    (QgsRectangle in ``crs``, optional): only the features whose bounding box meets it
-    (the lines near the tested ones; the others add nothing to a buffer or a nearest
-    distance inside it). Polls Cancel every :data:`CHUNK` features.
+    ``rect`` (QgsRectangle in ``crs``, optional): only the features whose bounding box
+    meets it (the lines near the tested ones; the others add nothing to a buffer or a
+    nearest distance inside it). Polls Cancel every :data:`CHUNK` features.
     """
     from vectoradjust.errors import CRSError, LayerError
 
@@ -265,20 +187,34 @@ def line_segments_of(source, crs, context, where, feedback=None, rect=None):
         request.setDestinationCrs(crs, context.transformContext())
     if rect is not None:
         request.setFilterRect(rect)  # in the destination CRS when one is set
-    segs = []
+    parts = []
     for k, f in enumerate(source.getFeatures(request)):
         if k % CHUNK == 0:
             check_cancelled(feedback)
         g = f.geometry()
         if g is None or g.isNull() or g.isEmpty():
             continue
-        for xy in _parts_xy(g):
-            segs.append(np.stack([xy[:-1], xy[1:]], axis=1))
+        parts.extend(_parts_xy(g))
+    return parts
+
+
+def parts_to_segments(parts):
+    """The straight segments ``(n, 2, 2)`` of line parts, as
+    :func:`vectoradjust.accuracy.buffer.line_segments`: segments never join two parts,
+    zero-length segments and those without coordinates are dropped."""
+    segs = [np.stack([xy[:-1], xy[1:]], axis=1) for xy in parts]
     if not segs:
         return np.zeros((0, 2, 2))
     seg = np.concatenate(segs)
     keep = np.any(seg[:, 0] != seg[:, 1], axis=1) & np.isfinite(seg).all(axis=(1, 2))
     return seg[keep]
+
+
+def line_segments_of(source, crs, context, where, feedback=None, rect=None):
+    """The straight segments ``(n, 2, 2)`` of a line layer in ``crs``, for the core's
+    :class:`vectoradjust.accuracy.buffer.SegmentBuffer`: :func:`parts_to_segments` of
+    :func:`line_parts_of`."""
+    return parts_to_segments(line_parts_of(source, crs, context, where, feedback, rect))
 
 
 def runs_extent(runs, margin):
@@ -344,61 +280,35 @@ class TrueLines:
         self.buffers = SegmentBuffer(self.segments)
         self._all = None  # every true line, read when a point's nearest may lie beyond rect
 
-    def _room(self, xy):
-        """Each point's distance to the outside of :attr:`rect` (inf without one): a
-        true line not read is at least that far."""
-        if self.rect is None:
-            return np.full(len(xy), np.inf)
+    def _box(self):
+        """:attr:`rect` as ``(xmin, ymin, xmax, ymax)``, or None."""
         r = self.rect
-        return np.minimum.reduce([xy[:, 0] - r.xMinimum(), r.xMaximum() - xy[:, 0],
-                                  xy[:, 1] - r.yMinimum(), r.yMaximum() - xy[:, 1]])
+        return None if r is None else (r.xMinimum(), r.yMinimum(), r.xMaximum(), r.yMaximum())
 
     def distances(self, xy, feedback=None):
         """Each point's distance to the nearest true line (NaN without coordinates): the
         core's grid of segments for the near points, the whole layer's segments (GEOS
-        would give the same) for the few whose nearest line may not have been read."""
+        would give the same) for the few whose nearest line may not have been read
+        (:mod:`vectoradjust.accuracy.line_distances`)."""
         from vectoradjust.accuracy.buffer import SegmentBuffer
+        from vectoradjust.accuracy.line_distances import nearest_distances, room_in_box
 
         xy = np.asarray(xy, float).reshape(-1, 2)
         check_cancelled(feedback)
         d = np.full(len(xy), np.nan)
         ok = np.flatnonzero(np.isfinite(xy).all(axis=1))
+        check = functools.partial(check_cancelled, feedback)
         if len(self.segments):
-            d[ok] = self._far(self.buffers, xy[ok], feedback)
-        far = ok[~(d[ok] <= self._room(xy[ok]))]
+            d[ok] = nearest_distances(self.buffers, xy[ok], check)
+        far = ok[~(d[ok] <= room_in_box(xy[ok], self._box()))]
         if len(far) and self.rect is not None:
             if self._all is None:
                 seg = line_segments_of(self.layer, self.crs, self.context, self.where,
                                        feedback)
                 self._all = SegmentBuffer(seg) if len(seg) else False
             if self._all is not False:
-                d[far] = self._far(self._all, xy[far], feedback)
+                d[far] = nearest_distances(self._all, xy[far], check)
         return d
-
-    @staticmethod
-    def _far(buffers, xy, feedback):
-        """Each point's distance to the nearest segment of ``buffers``: among the boxes
-        within the grid's radius, then within a growing radius."""
-        out = np.full(len(xy), np.nan)
-        for k in range(0, len(xy), 5000):  # bounded memory: few points per query
-            out[k:k + 5000] = TrueLines._nearest(buffers, xy[k:k + 5000], feedback)
-        return out
-
-    @staticmethod
-    def _nearest(buffers, xy, feedback):
-        out = np.full(len(xy), np.nan)
-        radius = max(buffers.cell, 1.0)
-        todo = np.arange(len(xy))
-        while len(todo):
-            check_cancelled(feedback)
-            d = buffers.nearest_distance(xy[todo], radius)
-            hit = np.isfinite(d)
-            out[todo[hit]] = d[hit]
-            todo = todo[~hit]
-            radius *= 4.0
-            if radius > 1e8:
-                break
-        return out
 
 
 def truth_buffer(run, truth_path, widths, crs, context, feedback=None, start=0.0, span=100.0,
@@ -532,6 +442,7 @@ class BufferAccuracyTest(VectorAdjustAlgorithm):
         self.addParameter(QgsProcessingParameterCrs(
             self.GROUND_CRS, "Ground CRS (projected, metres; default: tested layer CRS)",
             optional=True))
+        # not used since the buffers are exact (kept so that saved models still run)
         p = QgsProcessingParameterNumber(self.QUAD_SEGS, "Segments per quarter circle",
                                          QgsProcessingParameterNumber.Integer, defaultValue=32,
                                          minValue=1)
@@ -566,18 +477,7 @@ class BufferAccuracyTest(VectorAdjustAlgorithm):
         qgis_io.check_ground_crs(crs, where)
         feedback.setProgressText("reading the tested and reference lines")
         cap = CAP_STYLES[self.parameterAsEnum(parameters, self.CAP_STYLE, context)]
-        if cap == "round":  # the core's exact round buffers (vectoradjust buffer-test --exact)
-            rows = exact_shares(tested, reference, widths, crs, context, feedback)
-        else:
-            t = _lines(tested, crs, context, f"tested layer {tested.sourceName()!r}", feedback)
-            feedback.setProgress(5)
-            r = _lines(reference, crs, context, f"reference layer {reference.sourceName()!r}",
-                       feedback)
-            feedback.setProgress(10)
-            check_cancelled(feedback)
-            rows = buffer_shares(t, r, widths,
-                                 self.parameterAsInt(parameters, self.QUAD_SEGS, context), cap,
-                                 feedback, 10.0, 85.0)
+        rows = exact_shares(tested, reference, widths, crs, context, feedback, cap)
         fields = qgis_io.fields_for(self.FIELDS, {})
         sink, dest = self.parameterAsSink(parameters, self.OUTPUT, context, fields,
                                           QgsWkbTypes.NoGeometry, crs)

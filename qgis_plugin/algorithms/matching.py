@@ -161,16 +161,16 @@ def vertex_renames(prj, entry, id_field, line_layer, context):
 
     A vertex of such a road that lies on a vertex of a road that is held (a junction,
     within the merge tolerance) is that vertex: its measurements are renamed to it. The
-    other vertices are not in the run: their measurements are left out (None).
+    other vertices are not in the run: their measurements are left out (None). QGIS
+    reads the entry's file; the core decides
+    (:func:`vectoradjust.adjust.junctions.junction_renames`).
 
     Returns
     -------
     dict
         ``{vertex id: vertex id of line_layer, or None}`` (empty: nothing is missing).
     """
-    from scipy.spatial import cKDTree
-
-    from vectoradjust.adjust.shapepoints import vertex_ids
+    from vectoradjust.adjust.junctions import junction_renames
 
     missing = missing_features(entry, id_field, line_layer.feature_ids)
     if not missing:
@@ -181,17 +181,7 @@ def vertex_renames(prj, entry, id_field, line_layer, context):
     if request.filterExpression() is not None:
         layer = layer.materialize(request)
     full, _ = qgis_io.read_line_source(layer, entry.name, id_field, prj.crs, context, where)
-    ids = vertex_ids(full)
-    gone = np.isin(full.feature_ids[full.vertex_feature].astype(str), sorted(missing))
-    renames = dict.fromkeys(ids[gone].tolist())
-    kept_ids = vertex_ids(line_layer)
-    if len(kept_ids) and gone.any():
-        tol = prj.spec.settings.merge_tolerance
-        dist, idx = cKDTree(line_layer.coords[:, :2]).query(full.coords[gone, :2],
-                                                            distance_upper_bound=tol)
-        hit = dist <= tol
-        renames.update(zip(ids[gone][hit].tolist(), kept_ids[idx[hit]].astype(str).tolist()))
-    return renames
+    return junction_renames(full, line_layer, missing, prj.spec.settings.merge_tolerance)
 
 
 def apply_renames(meas, name, renames):

@@ -23,7 +23,8 @@ from vectoradjust.results import AdjustmentRun, DatabaseResult
 __all__ = ["LE90_FACTOR", "cov_stats", "tabulate_control", "tabulate_database",
            "one_vertex_per_point", "truth_points"]
 
-LE90_FACTOR = 1.6448536269514722  # Phi^-1(0.95)
+#: LE90 / sigma (:data:`vectoradjust.accuracy.stats.LE90_FACTOR`, defined there once)
+LE90_FACTOR = stats.LE90_FACTOR
 
 
 def cov_stats(cov: np.ndarray):

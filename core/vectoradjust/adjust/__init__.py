@@ -12,6 +12,14 @@
 - :mod:`~vectoradjust.adjust.vce` - variance component estimation.
 - :mod:`~vectoradjust.adjust.orientation` - relative/absolute orientation, 3D conformal,
   two-step (DESIGN section 6).
+- :mod:`~vectoradjust.adjust.intersection` - forward intersection of the rays of a point.
+- :mod:`~vectoradjust.adjust.datum` - what fixes the block in space; the free network.
+- :mod:`~vectoradjust.adjust.offsets` - systematic database offsets as nuisance
+  parameters.
+- :mod:`~vectoradjust.adjust.selfcal` - self-calibration of the camera with the bundle.
+- :mod:`~vectoradjust.adjust.plausibility` - plausibility checks before the adjustment.
+- :mod:`~vectoradjust.adjust.junctions` - vertices of left-out roads that are junctions
+  with the roads of a run.
 
 Imports numpy and scipy only.
 """

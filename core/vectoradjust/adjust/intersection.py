@@ -51,10 +51,16 @@ def inv3x3(a: np.ndarray) -> np.ndarray:
 
 
 def _block_sum(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """Sum ``values`` (k, ...) into ``n`` bins by ``index`` (k,), vectorised."""
+    """Sum ``values`` (k, ...) into ``n`` bins by ``index`` (k,), vectorised.
+
+    The one definition (``adjust.bundle``, ``adjust.offsets`` and ``adjust.selfcal``
+    import it from here); zeros for no values.
+    """
     k = values.shape[0]
     inner = values.shape[1:]
     size = int(np.prod(inner)) if inner else 1
+    if k == 0:
+        return np.zeros((n,) + inner)
     flat = values.reshape(k, size)
     idx = (index[:, None] * size + np.arange(size)[None, :]).ravel()
     out = np.bincount(idx, weights=flat.ravel(), minlength=n * size)

@@ -14,6 +14,17 @@
   GeoTIFF.
 - :mod:`~vectoradjust.files.report` - report.html (matplotlib figures).
 - :mod:`~vectoradjust.files.jsonfile` - strict JSON writing.
+- :mod:`~vectoradjust.files.dtm_outputs` - the files of ``vectoradjust dtm``.
+- :mod:`~vectoradjust.files.smart_outputs` - smart conflation's files.
+- :mod:`~vectoradjust.files.images`, :mod:`~vectoradjust.files.measuring` - image windows,
+  chips and measurement tables; measuring on the images of a project.
+- :mod:`~vectoradjust.files.rpc`, :mod:`~vectoradjust.files.rpc_ties` - RPC files and the
+  ground frame; automatic tie points between satellite images.
+- :mod:`~vectoradjust.files.drone`, :mod:`~vectoradjust.files.trajectory` - drone images
+  into a project; GNSS/INS camera positions from a trajectory CSV.
+- :mod:`~vectoradjust.files.study`, :mod:`~vectoradjust.files.study_report` - the
+  dissertation's experiments and their report.
+- :mod:`~vectoradjust.files.many` - many independent projects at once, on Dask.
 
 Only :mod:`project`, :mod:`tables`, :mod:`assemble` and :mod:`jsonfile` are free of
 GDAL-based packages; the QGIS plugin uses those and never the others.

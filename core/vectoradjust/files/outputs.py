@@ -1040,6 +1040,8 @@ class DirLock:
     def __enter__(self) -> DirLock:
         try:
             return self.acquire()
+        except InputFileError:  # held by another run (an OSError too): says so itself
+            raise
         except OSError as exc:
             raise InputFileError(
                 f"Cannot write into the output directory {str(self.folder)!r} ({exc})",
@@ -1090,8 +1092,8 @@ def _write_error_on_a_full_disk(exc: BaseException, folder: Path) -> bool:
     names = {type(e).__name__ for e in (exc, exc.__cause__, exc.__context__) if e is not None}
     if not (names & {"DataLayerError", "DataSourceError", "FieldError", "GeometryError",
                      "CPLE_AppDefinedError", "CPLE_FileIOError", "OperationalError"}
-            or isinstance(exc, OSError)):
-        return False
+            or (isinstance(exc, OSError) and not isinstance(exc, InputFileError))):
+        return False  # (an InputFileError is an OSError too: the user's, not the disk's)
     try:
         probe = Path(folder)
         while not probe.exists() and probe != probe.parent:
@@ -1250,6 +1252,9 @@ class RunFolder:
             self._made = not self.path.exists()  # (PermissionError above an unsearchable folder)
             self.path.mkdir(parents=True, exist_ok=True)
             self._lock.acquire()
+        except InputFileError:  # held by another run (an OSError too): says so itself
+            self._drop_made()
+            raise
         except OSError as exc:
             self._drop_made()
             raise InputFileError(

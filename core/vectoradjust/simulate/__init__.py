@@ -9,8 +9,13 @@ Modules: :mod:`.scenario` (:func:`make_scenario` and the command line),
 road databases), :mod:`.real_roads` (real road geometry as the true roads),
 :mod:`.imaging` (orientation, image measurements, effects, scanning), :mod:`.container`
 (:class:`Scenario`), :mod:`.writer` (:func:`write_project`), :mod:`.readme`
-(:func:`describe`) and :mod:`.conflation` (a database with a smooth error field, partly
-measured: the conflation's test scenarios).
+(:func:`describe`), :mod:`.conflation` (a database with a smooth error field, partly
+measured: the conflation's test scenarios), :mod:`.physics` (an independent formulation
+of the frame camera, the simulator's truth), :mod:`.render` and :mod:`.measure_scene`
+(rendered stereo images with painted roads, for :mod:`vectoradjust.measure`),
+:mod:`.drone` (a drone block over real roads), :mod:`.satellite`,
+:mod:`.satellite_project` and :mod:`.satellite_sample` (pushbroom images with RPCs, the
+satellite block and sample) and ``__main__`` (``python -m vectoradjust.simulate``).
 """
 
 from vectoradjust.simulate.container import Scenario
