@@ -14,6 +14,7 @@ from .algorithms.equal_error_map import EqualErrorMap
 from .algorithms.extract_shape_points import ExtractShapePoints
 from .algorithms.gcp_study import GcpStudy
 from .algorithms.measure_images import MeasureOnImages
+from .algorithms.smart_conflation import SmartConflation
 from .algorithms.uncertainty_bands import UncertaintyBands
 
 PLUGIN_DIR = os.path.dirname(os.path.abspath(__file__))
@@ -37,5 +38,6 @@ class VectorAdjustProvider(QgsProcessingProvider):
     def loadAlgorithms(self):
         for alg in (ExtractShapePoints(), AdjustRoadVectors(), CompareRoadDatabases(),
                     BufferAccuracyTest(), AccuracyControl(), UncertaintyBands(),
-                    EqualErrorMap(), GcpStudy(), MeasureOnImages(), DtmAccuracy()):
+                    EqualErrorMap(), GcpStudy(), MeasureOnImages(), DtmAccuracy(),
+                    SmartConflation()):
             self.addAlgorithm(alg)

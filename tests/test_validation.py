@@ -48,13 +48,13 @@ NGI = ROOT.parent / "shared" / "data" / "aerial" / "ngi_dmc"
 NEEDS = {"pleiades": PLEIADES / "img_01.tif", "aerial_gnss": NGI / "camera_pos_ori.txt"}
 SCRIPTS = ("blunder_detection", "ce90_coverage", "conflation", "conflation_noise", "measure",
            "monte_carlo_coverage", "pleiades", "real_roads", "satellite", "drone_roads",
-           "aerial_gnss")
+           "aerial_gnss", "smart_conflation")
 #: at least this many criteria in a fast run (so that a script cannot pass by checking
 #: nothing)
 MIN_CRITERIA = {"blunder_detection": 13, "ce90_coverage": 10, "conflation": 28,
                 "conflation_noise": 5, "measure": 5, "monte_carlo_coverage": 5,
                 "pleiades": 18, "real_roads": 7, "satellite": 3, "drone_roads": 20,
-                "aerial_gnss": 14}
+                "aerial_gnss": 14, "smart_conflation": 8}
 
 sys.path.insert(0, str(VALIDATION))
 from acceptance import coverage_1d, coverage_2d, share_band  # noqa: E402

@@ -103,6 +103,11 @@ def runs(s, w):
             "LAYERS": [f"{s}/osm_roads.shp", f"{s}/tiger_roads.shp"],
             "PROJECT": f"{s}/project.toml", "OUTPUT": tmp, "SHAPE_POINTS": tmp,
             "RESIDUALS": tmp, "OUTPUT_FOLDER": f"{w}/compare", "REPORT": f"{w}/compare.html"}),
+        # the per-database GeoPackages compare wrote: adjusted features with CE90
+        ("vectoradjust:smartconflation", {
+            "LAYERS": [f"{w}/compare/OSM/adjusted.gpkg|layername=features",
+                       f"{w}/compare/TIGER/adjusted.gpkg|layername=features"],
+            "OUTPUT": tmp}),
         ("vectoradjust:bufferaccuracytest", {
             "INPUT": f"{s}/tiger_roads.shp", "REFERENCE": f"{s}/truth_roads.shp",
             "OUTPUT": tmp}),

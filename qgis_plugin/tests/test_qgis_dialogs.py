@@ -12,7 +12,7 @@ pytestmark = pytest.mark.qgis
 
 ALGORITHMS = ("extractshapepoints", "adjustroadvectors", "compareroaddatabases",
               "bufferaccuracytest", "accuracycontrol", "uncertaintybands", "equalerrormap",
-              "gcpstudy", "measureonimages", "dtmaccuracy")
+              "gcpstudy", "measureonimages", "dtmaccuracy", "smartconflation")
 
 
 @pytest.fixture(scope="module")
@@ -47,6 +47,10 @@ def dialog_parameters(alg_id, user):
 
 def user_choices(alg_id, sample, layers):
     """What a user must choose in each dialog for the sample."""
+    if alg_id == "smartconflation":  # adjusted features (test_smart_conflation_alg.py)
+        from .test_smart_conflation_alg import adjusted_layers
+
+        return {"LAYERS": adjusted_layers(sample)}
     project = str(sample / "project.toml")
     osm = layers["osm_roads"]
     return {

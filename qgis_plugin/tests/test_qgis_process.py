@@ -37,6 +37,7 @@ ALGORITHM_LINES = [
     "vectoradjust:extractshapepoints\tExtract shape points",
     "vectoradjust:gcpstudy\tGCP study (number and location of control points)",
     "vectoradjust:measureonimages\tMeasure on the images",
+    "vectoradjust:smartconflation\tSmart conflation",
     "vectoradjust:uncertaintybands\tUncertainty bands",
 ]
 

@@ -24,6 +24,7 @@ ALGORITHMS = {
     "vectoradjust:gcpstudy": "GCP study (number and location of control points)",
     "vectoradjust:measureonimages": "Measure on the images",
     "vectoradjust:dtmaccuracy": "DTM accuracy",
+    "vectoradjust:smartconflation": "Smart conflation",
 }
 
 

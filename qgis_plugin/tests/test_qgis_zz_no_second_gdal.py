@@ -144,7 +144,7 @@ def test_no_second_gdal_after_every_algorithm(gdal_venv, sample, tmp_path):
     venv = str(Path(gdal_venv).parents[1])
     assert all((rep["findable"][n] or "").startswith(venv) for n in BANNED), rep["findable"]
     assert rep["numpy"] == [numpy.__version__, numpy.__file__]  # QGIS's numpy
-    assert len(rep["algorithms"]) == 10 and {a for a, _ in rep["seconds"]} == set(
+    assert len(rep["algorithms"]) == 11 and {a for a, _ in rep["seconds"]} == set(
         rep["algorithms"]), "every algorithm of the provider runs once"
     for f in ("report.html", "ee.tif", "qa.json", "compare.html", "study/gcp_study.csv",
               "rpc/S1_rpc.txt"):
