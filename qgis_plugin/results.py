@@ -26,7 +26,7 @@ from qgis.PyQt.QtCore import QVariant
 from .qgis_io import SHAPEFILE_INTEGER_WIDTH, fields_for, is_null, line_z, new_feature, point_z
 
 _SHAPE_TYPES = {"point_id": "s", "feature_id": "s", "Database": "s", "NImages": "i",
-                "Adjusted": "i", "Source": "s"}
+                "Adjusted": "i", "Source": "s", "Problem": "s"}
 _FEATURE_TYPES = {"NPts": "i", "NAdj": "i", "Images": "s", "ImgDate": "s", "Database": "s",
                   "Problem": "s", "LengthSDOf": "s"}
 _CONTROL_TYPES = {"point_id": "s", "role": "s", "NImages": "i", "Used": "i"}
@@ -221,6 +221,8 @@ def _column(col, mask=None):
 
 def shape_point_features(run, fields):
     """Features of the ``shape_points`` layer (every vertex of every database)."""
+    from vectoradjust.accuracy.tables import shape_point_column
+
     names = _outputs_module().SHAPE_FIELDS
     out = []
     for d in run.databases:
@@ -228,7 +230,8 @@ def shape_point_features(run, fields):
         adj = v["Adjusted"] == 1
         if "Source" in v:  # vertices corrected by the conflation carry values too
             adj = adj | np.isin(v["Source"], ("interpolated", "extrapolated"))
-        cols = [_column(v[f], adj if f in _MASKED else None) for f in names]
+        cols = [_column(shape_point_column(v, f), adj if f in _MASKED else None)
+                for f in names]
         for i in range(len(adj)):
             out.append(new_feature(fields, [c[i] for c in cols],
                                    point_z(v["AdjX"][i], v["AdjY"][i], v["AdjZ"][i])))

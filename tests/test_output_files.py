@@ -164,6 +164,13 @@ def test_unmeasured_vertices_outside_the_dem_get_a_problem(project_dir, tmp_path
     assert shapely.is_valid(geoms).all() and shapely.has_z(geoms).all()
     z = shapely.get_coordinates(geoms, include_z=True)[:, 2]
     assert np.isfinite(z).all() and (z[:3] == 0).all()
+    # the shape points say it too, vertex by vertex: the 5 without a height, no other
+    pts = gpd.read_file(out["adjusted.gpkg"], layer="shape_points")
+    noz = pts["AdjZ"].isna()
+    assert noz.sum() == 5 and pts["feature_id"][noz].isin(["999001", "999002", 999001,
+                                                            999002]).all()
+    assert pts["Problem"][noz].str.startswith("no height").all()
+    assert (pts["Problem"][~noz].fillna("") == "").all()
 
 
 # --------------------------------------------------------------------------- file modes

@@ -21,7 +21,7 @@ from vectoradjust.adjust.shapepoints import lookup
 from vectoradjust.results import AdjustmentRun, DatabaseResult
 
 __all__ = ["LE90_FACTOR", "cov_stats", "tabulate_control", "tabulate_database",
-           "one_vertex_per_point", "truth_points"]
+           "one_vertex_per_point", "truth_points", "vertex_problems", "shape_point_column"]
 
 #: LE90 / sigma (:data:`vectoradjust.accuracy.stats.LE90_FACTOR`, defined there once)
 LE90_FACTOR = stats.LE90_FACTOR
@@ -341,6 +341,22 @@ def _feature_problems(d: DatabaseResult, adj: np.ndarray) -> np.ndarray:
                 f"1 vertex without height ({why}); its Z is written as 0")
         txt[f] = f"{txt[f]}; {note}" if txt[f] else note
     return txt
+
+
+def vertex_problems(v: dict) -> np.ndarray:
+    """The ``Problem`` text of each vertex of a database's ``vertices`` table: a vertex
+    whose adjusted height is unknown (``AdjZ`` NaN: not measured and outside the DEM, or
+    a layer without Z) is written with Z = 0 in the point geometry, and says so here."""
+    noz = ~np.isfinite(np.asarray(v["AdjZ"], float))
+    txt = np.full(noz.shape, "", dtype=object)
+    txt[noz] = "no height (outside the DEM or no Z in the layer): geometry Z is 0, AdjZ null"
+    return txt
+
+
+def shape_point_column(v: dict, name: str) -> np.ndarray:
+    """Column ``name`` of the ``shape_points`` layer from a database's ``vertices``
+    (``Problem`` is derived: :func:`vertex_problems`)."""
+    return vertex_problems(v) if name == "Problem" and "Problem" not in v else v[name]
 
 
 def length_sd_scope(npts: np.ndarray, nadj: np.ndarray) -> np.ndarray:

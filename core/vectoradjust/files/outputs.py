@@ -23,6 +23,7 @@ from typing import Optional
 
 import numpy as np
 
+from vectoradjust.accuracy.tables import shape_point_column
 from vectoradjust.errors import CancelledError, InputFileError
 from vectoradjust.files.jsonfile import (
     FEATURE_ACCURACY_CSV,
@@ -37,7 +38,7 @@ __all__ = ["write_outputs", "shape_points_frame", "features_frame", "control_poi
 
 SHAPE_FIELDS = ["point_id", "feature_id", "X", "Y", "Z", "Vx", "Vy", "Vz", "AdjX", "AdjY", "AdjZ",
                 "SigmaX", "SigmaY", "SigmaZ", "CE90", "LE90", "CE90_meas", "LE90_meas",
-                "NImages", "Adjusted", "Database", "Source"]
+                "NImages", "Adjusted", "Database", "Source", "Problem"]
 FEATURE_FIELDS = ["NPts", "NAdj", "RMSE_X", "RMSE_Y", "RMSE_Z", "RMSE", "CE90", "LE90",
                   "Length", "LengthSD",
                   "LengthSDnc", "LengthSDOf", "FirstX",
@@ -163,8 +164,8 @@ def shape_points_frame(run: AdjustmentRun):
     for d in run.databases:
         v = d.vertices
         adj = _valued_vertices(v)
-        cols = {f: _nullable(v[f], adj) if f in _MASKED_SHAPE_FIELDS else _nullable(v[f])
-                for f in SHAPE_FIELDS}
+        cols = {f: _nullable(shape_point_column(v, f), adj) if f in _MASKED_SHAPE_FIELDS
+                else _nullable(shape_point_column(v, f)) for f in SHAPE_FIELDS}
         geom = shapely.points(np.column_stack([v["AdjX"], v["AdjY"],
                                                np.nan_to_num(v["AdjZ"], nan=0.0)]))
         frames.append(gpd.GeoDataFrame(pd.DataFrame(cols), geometry=geom, crs=run.data.crs))
@@ -190,7 +191,7 @@ def shape_points_table(run: AdjustmentRun):
     adj = np.concatenate([_valued_vertices(d.vertices) for d in dbs])
     arrays = []
     for f in SHAPE_FIELDS:
-        col = np.concatenate([np.asarray(d.vertices[f]) for d in dbs])
+        col = np.concatenate([np.asarray(shape_point_column(d.vertices, f)) for d in dbs])
         if col.dtype.kind == "f":
             valid = np.isfinite(col) & (adj if f in _MASKED_SHAPE_FIELDS else True)
             arrays.append(pa.array(np.where(valid, col, 0.0), mask=~valid))
