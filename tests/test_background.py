@@ -1,4 +1,4 @@
-"""The command line's second process (cli/background.py): the same result as in the
+"""A run's second process (runner/background.py): the same result as in the
 parent, progress forwarded, a failing child falls back to the parent (which raises as
 it would have without the child)."""
 
@@ -10,8 +10,8 @@ import sys
 
 import pytest
 
-from vectoradjust.cli.background import Background, gather, workers
 from vectoradjust.errors import VectorAdjustError
+from vectoradjust.runner.background import Background, gather, workers
 
 fork_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forks on Linux only")
 
@@ -146,20 +146,21 @@ def test_report_written_alongside_shows_the_warnings_of_writing(sample_dir, tmp_
     """The report's process starts before the layers are written; a warning GDAL gives
     while writing them still reaches the report (the parent writes it again)."""
     pytest.importorskip("geopandas")
-    from vectoradjust.cli import commands, main
+    from vectoradjust.cli import main
     from vectoradjust.files import outputs
+    from vectoradjust.runner import alongside
 
     original = outputs._write_layer
     monkeypatch.setattr(outputs, "_write_layer", lambda gdf, path, layer, fmt: original(
         gdf, path, layer, fmt) + [f"a writer's note on {layer}"])
     forked = []
-    real = commands._ReportAlongside.result
+    real = alongside.ReportAlongside.result
 
     def result(self, progress=None):
         forked.append(self.forked)
         return real(self, progress)
 
-    monkeypatch.setattr(commands._ReportAlongside, "result", result)
+    monkeypatch.setattr(alongside.ReportAlongside, "result", result)
     reports = {}
     for n in ("1", "2"):
         monkeypatch.setenv("VECTORADJUST_WORKERS", n)
@@ -190,7 +191,7 @@ def test_gather_reads_every_child_as_it_talks(monkeypatch):
 def test_preload_imports_in_a_thread_and_leaves_failures_for_later():
     import sys
 
-    from vectoradjust.cli.background import Preload
+    from vectoradjust.runner.background import Preload
 
     name = "wave"  # a standard module nothing here imports
     sys.modules.pop(name, None)
@@ -310,8 +311,8 @@ def test_the_parent_keeps_the_covariances_the_band_processes_saved(sample_dir, t
     import time
 
     from vectoradjust.accuracy import derived
-    from vectoradjust.cli import commands
     from vectoradjust.files import derived_outputs as do
+    from vectoradjust.runner import alongside
 
     monkeypatch.setenv("VECTORADJUST_WORKERS", "2")
     if not do.arrow_layers():
@@ -319,11 +320,11 @@ def test_the_parent_keeps_the_covariances_the_band_processes_saved(sample_dir, t
     if not saved:
         def cannot(path, kept):
             raise OSError("disk full")
-        monkeypatch.setattr(commands, "_save_covariances", cannot)
+        monkeypatch.setattr(alongside, "save_covariances", cannot)
     result = _sample_run(sample_dir)
-    bands = commands._BandsAlongside(result, tmp_path / "out")
+    bands = alongside.BandsAlongside(result, tmp_path / "out")
     assert all(j.forked for j in bands.jobs) and bands.parts == [(0, 2), (1, 2)]
-    files = [commands._covariance_file(bands.folder, p) for p in bands.parts]
+    files = [alongside.covariance_file(bands.folder, p) for p in bands.parts]
     if saved:  # the processes save them first thing: wait for both files
         deadline = time.monotonic() + 120
         while not all(f.is_file() for f in files) and time.monotonic() < deadline:
@@ -344,7 +345,7 @@ def test_the_parent_keeps_the_covariances_the_band_processes_saved(sample_dir, t
             f"uncertainty bands: covariances of the segments (share {i} of 2)" for i in (1, 2)]
         assert not any(f.exists() for f in files)
     for part, child in zip(bands.parts, children):  # as if the process had failed
-        here = commands._band_share(do.uncertainty_bands_file, result, os.getpid(),
+        here = alongside.band_share(do.uncertainty_bands_file, result, os.getpid(),
                                     bands.kept, part=part, folder=tmp_path)
         a, b = _arrow_rows(child), _arrow_rows(here)
         assert a.num_rows == b.num_rows > 0 and a.equals(b)

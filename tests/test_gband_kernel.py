@@ -235,7 +235,7 @@ def test_the_command_line_builds_the_same_bands_with_the_kernel(sample_dir, tmp_
         assert main(["adjust", str(sample_dir / "project.toml"), "--out", str(out), "-q"]) == 0
         layers[numba] = pyogrio.read_dataframe(out / "adjusted.gpkg", layer="uncertainty_bands")
         if numba == "1":  # the parent (loading it), the child that looked for it first
-            # (_KernelsAlongside) and both band processes used it
+            # (KernelsAlongside) and both band processes used it
             assert len(list(tmp_path.glob("used-*"))) == 4
             assert (tmp_path / f"used-{os.getpid()}").exists()
             # in both band processes, and in the parent for the conflated segments (their
@@ -258,15 +258,16 @@ def test_the_command_line_compiles_the_kernels_in_a_child_while_it_adjusts(
     pytest.importorskip("geopandas")
     import os
 
-    from vectoradjust.cli import commands, main
+    from vectoradjust.cli import main
+    from vectoradjust.runner import alongside
 
-    real = commands._compile_kernels
+    real = alongside.compile_kernels
 
     def counted(n, progress=None):  # a file per process that looked for them
         (tmp_path / f"compile-{os.getpid()}").touch()
         return real(n, progress)
 
-    monkeypatch.setattr(commands, "_compile_kernels", counted)
+    monkeypatch.setattr(alongside, "compile_kernels", counted)
     monkeypatch.setenv("VECTORADJUST_WORKERS", "2")
     monkeypatch.delenv("VECTORADJUST_NUMBA", raising=False)
     project = str(sample_dir / "project.toml")

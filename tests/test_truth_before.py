@@ -229,7 +229,7 @@ def _adjust(sample_dir, out, monkeypatch, workers):
 def test_adjust_with_the_forked_before_half_writes_the_same_truth(sample_dir, tmp_path,
                                                                   monkeypatch, capfd):
     from vectoradjust.cli import buffer as cli_buffer
-    from vectoradjust.cli.background import Background
+    from vectoradjust.runner.background import Background
 
     got = []
     original = cli_buffer.TruthBeforeAlongside.result

@@ -17,51 +17,10 @@ import csv
 from pathlib import Path
 
 from vectoradjust.files.truth import parse_widths, project_truth, read_lines, truth_buffer
+from vectoradjust.runner.alongside import TruthBeforeAlongside
 
 __all__ = ["add_parser", "cmd_buffer_test", "read_lines", "truth_buffer", "parse_widths",
            "project_truth", "TruthBeforeAlongside", "measuring_crs", "utm_crs"]
-
-
-class TruthBeforeAlongside:
-    """The ``[truth]`` tests' half before the adjustment
-    (:func:`vectoradjust.files.truth.truth_before`: the database lines inside the true
-    lines' buffers, the database vertices' distances to them) computed by a forked
-    process while the parent adjusts (the second core is idle during the solve).
-
-    :meth:`result` gives it to ``truth_buffer(before=...)`` and
-    ``truth_tables(before=...)``, which then measure only the adjusted coordinates.
-    Without a child (no ``fork``, ``VECTORADJUST_WORKERS=1``) or when it failed,
-    :meth:`result` is None and they measure both halves as without it: the same values.
-
-    Parameters
-    ----------
-    data : vectoradjust.model.ProjectData
-        The project's inputs, as read.
-    truth_path : str
-        The true centrelines (``[truth] path``).
-    widths : list of float
-        The buffer widths.
-    preload : vectoradjust.cli.background.Preload, optional
-        Imports running in a thread: waited for before the fork (no module half
-        imported in the child).
-    """
-
-    def __init__(self, data, truth_path, widths, preload=None) -> None:
-        from vectoradjust.cli.background import Background
-        from vectoradjust.files.truth import truth_before
-
-        if preload is not None:
-            preload.wait()
-        self.job = Background(truth_before, data, truth_path, widths)
-
-    def result(self, progress=None):
-        """The :class:`vectoradjust.files.truth.TruthBefore` of the child (waits for it,
-        forwarding its progress), or None (no child, or it failed)."""
-        return self.job.result(progress, rerun=False)
-
-    def close(self) -> None:
-        """Stop the child if it still runs (an error or Ctrl-C in the parent)."""
-        self.job.close()
 
 
 def utm_crs(lon: float, lat: float):

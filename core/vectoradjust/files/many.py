@@ -2,12 +2,12 @@
 
 A county or a state is covered by many stereo models or blocks that share nothing: each
 is a project of its own. :func:`adjust_many` adjusts every project exactly as
-``vectoradjust adjust`` does (outputs, ``[truth]`` buffer test, ``[qa]`` verdict,
-report) into ``DIR/<project name>/`` and writes one combined summary,
-``DIR/many_summary.csv`` and ``DIR/many_summary.json``: per project sigma0^2, the
-chi-square test, the check-point RMSE and the shape-point counts, or the error of a
-project that failed (the others go on; ``many_summary.json`` lists the failed ones and
-why under ``failures``).
+``vectoradjust adjust`` does (:func:`vectoradjust.runner.project_run.run_project`:
+outputs, ``[truth]`` buffer test and truth tables, ``[qa]`` verdict, report) into
+``DIR/<project name>/`` and writes one combined summary, ``DIR/many_summary.csv`` and
+``DIR/many_summary.json``: per project sigma0^2, the chi-square test, the check-point
+RMSE and the shape-point counts, or the error of a project that failed (the others go
+on; ``many_summary.json`` lists the failed ones and why under ``failures``).
 
 Each project's folder is written as ``adjust`` writes its own
 (:class:`~vectoradjust.files.outputs.RunFolder`): staged, moved into place when
@@ -148,37 +148,14 @@ def adjust_one(project, out_dir, name: Optional[str] = None, fmt: str = "gpkg",
 
 
 def _adjust(project, out_dir, fmt: str, bands: bool, report: bool):
-    """The stages of ``vectoradjust adjust`` without a console; the outputs staged and
-    moved into ``out_dir`` when all are written."""
-    from vectoradjust.files.outputs import RunFolder, write_outputs
-    from vectoradjust.files.project import load_project
-    from vectoradjust.files.readers import load_project_data
-    from vectoradjust.files.truth import project_truth, truth_buffer
-    from vectoradjust.pipeline import run
+    """The project run as ``vectoradjust adjust`` runs it
+    (:func:`vectoradjust.runner.project_run.run_project`: the same files), without a
+    console and without processes of its own (the Dask workers are the parallelism)."""
+    from vectoradjust.runner.project_run import RunOptions, run_project
 
-    spec = load_project(project)
-    data = load_project_data(spec)
-    result = run(data)
-    truth = project_truth(spec)
-    if truth is not None:
-        truth_buffer(result, *truth)
-    with RunFolder(out_dir, command="adjust-many") as folder:
-        write_outputs(result, out_dir, fmt=fmt, bands=bands)
-        qa_doc = None
-        if data.qa:
-            from vectoradjust.files.jsonfile import write_json
-            from vectoradjust.qa.verdict import accuracy_control, spec_from_table
-
-            qa_doc = accuracy_control(result, spec_from_table(data.qa,
-                                                              source=data.source)).as_dict()
-            write_json(folder.stage, "qa.json", {**qa_doc, "project": str(project)})
-        if report:
-            from vectoradjust.files.report import write_report
-
-            write_report(result, folder.stage / "report.html", reliability=result.reliability,
-                         qa=qa_doc)
-        folder.commit()
-    return result
+    options = RunOptions(fmt=fmt, bands=bands, report=report, quiet=True, background=False,
+                         command="adjust-many")
+    return run_project(project, out_dir, options).run
 
 
 def _client(scheduler):

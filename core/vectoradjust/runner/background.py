@@ -1,14 +1,15 @@
-"""Run one stage of a command in a forked child process while the parent goes on.
+"""Run one stage of a project's run in a forked child process while the parent goes on.
 
-The command line has more cores to use: ``adjust`` builds the uncertainty bands (the
-longest stage after the solve) in children, one share of the features each, while the
-parent runs the ``[truth]`` tests and writes the other layers. A child is a ``fork`` of
-the parent (it sees the adjusted run without copying it), sends its progress and then its
-result back through a pipe, and the parent waits only where it needs the result.
+A run has more cores to use: :func:`vectoradjust.run_project` (``adjust``) builds the
+uncertainty bands (the longest stage after the solve) in children, one share of the
+features each, while the parent runs the ``[truth]`` tests and writes the other layers.
+A child is a ``fork`` of the parent (it sees the adjusted run without copying it), sends
+its progress and then its result back through a pipe, and the parent waits only where
+it needs the result.
 
 Where ``fork`` is not safe or not available (anything but Linux: macOS's system
 libraries may not survive a fork; Windows has none), with ``VECTORADJUST_WORKERS=1``, or
-when a child fails, the stage runs in the parent as before: the outputs are the same
+when a child fails, the stage runs in the parent: the outputs are the same
 either way, and an error is raised where it would have been raised without the child.
 """
 
@@ -31,7 +32,7 @@ __all__ = ["Background", "Preload", "gather", "workers"]
 
 
 def workers() -> int:
-    """Processes the command line may use: ``VECTORADJUST_WORKERS``, else the CPUs.
+    """Processes a run may use: ``VECTORADJUST_WORKERS``, else the CPUs.
 
     Raises
     ------
