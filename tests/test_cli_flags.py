@@ -866,3 +866,50 @@ def test_measure_transfer_anisotropy_and_back_tolerance(pair_project, tmp_path):
     off = _transfer(["measure", "transfer", p, "-q", "--measured", m, "-o", tmp_path / "e",
                      "--back-tolerance", "inf"])
     assert all(r["back_error"] == "" for r in off)
+
+
+# ------------------------------------------------------------------ conflate (issue 34)
+def test_conflate_databases_max_distance_min_overlap_by_quiet(work, tmp_path, capsys):
+    """``conflate``: ``--databases`` picks and orders the databases, ``--max-distance``
+    below the roads' offsets leaves every feature unmatched, ``--min-overlap 1`` keeps
+    fewer matches, ``--by rmse`` lets the smaller RMSE win every match, ``--quiet``
+    prints nothing."""
+    adj = _ok(["adjust", work / "fast.toml", "-o", tmp_path / "adj", "--no-bands", "-q"])
+    capsys.readouterr()
+    out = _ok(["conflate", adj, "-o", tmp_path / "c1", "--databases", "TNM", "OSM"])
+    s = _json(out / "summary.json")
+    assert list(s["databases"]) == ["TNM", "OSM"] and s["matched"] == 26
+    assert "TNM" in capsys.readouterr().out
+    rows = _rows(out / "conflated.csv")
+    assert all(float(r["CE90"]) <= 1.01 * float(r["LoserCE90"]) for r in rows)
+    out = _ok(["conflate", adj, "-o", tmp_path / "c2", "--max-distance", "0.01", "--quiet"])
+    assert capsys.readouterr().out == ""
+    s = _json(out / "summary.json")
+    assert s["matched"] == 0 and s["features"] == 52 and s["max_distance"] == 0.01
+    out = _ok(["conflate", adj, "-o", tmp_path / "c3", "--min-overlap", "1", "-q"])
+    assert _json(out / "summary.json")["matched"] < 26
+    out = _ok(["conflate", adj, "-o", tmp_path / "c4", "--by", "rmse", "-q"])
+    rows = _rows(out / "conflated.csv")
+    assert _json(out / "summary.json")["by"] == "rmse" and len(rows) == 26
+    assert all(float(r["RMSE"]) <= float(r["LoserRMSE"]) for r in rows)
+    assert main(["conflate", str(adj), "-o", str(adj)]) == 1  # would overwrite its summary
+
+
+# ------------------------------------------------- qa production checks (issue 34, h2)
+def test_qa_free_model_and_no_free_model(strip, tmp_path, qa_once):
+    """``--free-model`` adds the free-model stages (sigma0, image residual RMS) and their
+    ``free_model`` entry; ``--no-free-model`` leaves them out and says so."""
+    on = _qa(["qa", strip, "-o", tmp_path / "on", "-q", "--product", "topographic map",
+              "--scale", "2000", "--contour-interval", "1", "--pixel-size", "0.012",
+              "--free-model"])
+    assert on["free_model"]["sigma0"] > 0 and on["free_model"]["dof"] > 0
+    assert _stage(on, "free model: sigma0")["measured"] == on["free_model"]["sigma0"]
+    off = _qa(["qa", strip, "-o", tmp_path / "off", "-q", "--product", "topographic map",
+               "--scale", "2000", "--contour-interval", "1", "--pixel-size", "0.012",
+               "--no-free-model"])
+    assert off["free_model"] == {"skipped": "--no-free-model"}
+    assert not any(s["name"].startswith("free model") for s in off["stages"])
+    assert any("--no-free-model" in n for n in off["notes"])
+    # the zones of both stereo pairs and the triplet are there either way
+    assert [z["images"] for z in off["tie_zones"]] == [["I01", "I02"], ["I02", "I03"]]
+    assert [z["images"] for z in off["triplet_zones"]] == [["I01", "I02", "I03"]]
