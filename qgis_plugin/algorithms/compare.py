@@ -27,7 +27,7 @@ from ..styles import style_output
 from . import inputs
 from .adjust import write_html_report
 from .base import VectorAdjustAlgorithm, cancel_callback, check_cancelled, progress_callback
-from .buffer_test import project_truth_buffer
+from .buffer_test import project_truth_buffer, project_truth_lines
 
 HELP = """
 <p>Adjusts several road databases (e.g. OSM, TNM and TIGER) of the same area <b>one at a
@@ -218,7 +218,10 @@ class CompareRoadDatabases(VectorAdjustAlgorithm):
                 feedback.pushWarning(f"{spec.name}: {w}")
             runs.append(out)
         check_cancelled(feedback)
-        project_truth_buffer(prj, runs, context, feedback)
+        # true centrelines ([truth]): buffer shares and point distances, as vectoradjust
+        # compare writes them into each database's summary
+        truth = project_truth_buffer(prj, runs, context, feedback)
+        project_truth_lines(prj, runs, context, feedback, truth)
         rows = [compare_row(r.summary) for r in runs]
         outputs = self._write(parameters, context, feedback, runs, rows, in_fields, prj.crs,
                               [k for k, _ in compare_columns(rows)])
