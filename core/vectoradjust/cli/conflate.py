@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
 
-from vectoradjust.cli.tools import run_command
+from vectoradjust.cli.tools import run_alone
 from vectoradjust.errors import ProjectError
 
 __all__ = ["add_parser", "cmd_conflate", "main"]
@@ -115,13 +115,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Run ``vectoradjust conflate`` alone (``python -m vectoradjust.cli.conflate``)."""
-    parser = argparse.ArgumentParser(prog="vectoradjust")
-    sub = parser.add_subparsers(dest="command")
-    add_parser(sub)
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] != "conflate":
-        argv = ["conflate", *argv]
-    return run_command(parser.parse_args(argv))
+    return run_alone(add_parser, "conflate", argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -21,7 +21,7 @@ from typing import Optional
 
 import numpy as np
 
-from vectoradjust.cli.tools import fmt_number, run_command, write_json
+from vectoradjust.cli.tools import fmt_number, run_alone, write_json
 from vectoradjust.errors import ProjectError
 
 __all__ = ["add_parser", "cmd_dtm", "main"]
@@ -168,13 +168,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Run ``vectoradjust dtm`` alone (``python -m vectoradjust.cli.dtm``)."""
-    parser = argparse.ArgumentParser(prog="vectoradjust")
-    sub = parser.add_subparsers(dest="command")
-    add_parser(sub)
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] != "dtm":
-        argv = ["dtm", *argv]
-    return run_command(parser.parse_args(argv))
+    return run_alone(add_parser, "dtm", argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
 
-from vectoradjust.cli.tools import run_command, write_json
+from vectoradjust.cli.tools import run_alone, write_json
 from vectoradjust.errors import VectorAdjustError
 from vectoradjust.qa.free_model import FREE_MODEL_MAX_IMAGES
 from vectoradjust.qa.text import format_report
@@ -143,14 +143,7 @@ def cmd_qa(args) -> int:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Run the ``qa`` subcommand alone: ``python -m vectoradjust.cli.qa PROJECT --out DIR``."""
-    parser = argparse.ArgumentParser(prog="vectoradjust")
-    sub = parser.add_subparsers(dest="command")
-    add_parser(sub)
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] != "qa":
-        argv = ["qa", *argv]
-    args = parser.parse_args(argv)
-    return run_command(args)
+    return run_alone(add_parser, "qa", argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

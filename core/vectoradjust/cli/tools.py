@@ -8,7 +8,7 @@ from vectoradjust.errors import CancelledError, VectorAdjustError
 from vectoradjust.files.jsonfile import clean_json, write_json
 from vectoradjust.formatting import fmt_number
 
-__all__ = ["clean_json", "write_json", "run_command", "fmt_number"]
+__all__ = ["clean_json", "write_json", "run_command", "run_alone", "fmt_number"]
 
 
 def run_command(args) -> int:
@@ -28,3 +28,16 @@ def run_command(args) -> int:
     except KeyboardInterrupt:
         print("\nvectoradjust: interrupted", file=sys.stderr)
         return 130
+
+
+def run_alone(add_parser, command: str, argv=None) -> int:
+    """Run one subcommand as its own program (``python -m vectoradjust.cli.<module>``):
+    its parser alone, ``command`` put in front of ``argv`` when it is missing."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="vectoradjust")
+    add_parser(parser.add_subparsers(dest="command"))
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] != command:
+        argv = [command, *argv]
+    return run_command(parser.parse_args(argv))
