@@ -174,8 +174,12 @@ def test_low_threshold_matters(pair):
     readers = {k: ArrayImage(v) for k, v in pair.images.items()}
     meas = {"point_id": np.arange(len(pl)).astype(str), "image_id": np.full(len(pl), "L"),
             "col": pl[:, 0], "row": pl[:, 1]}
-    lo = transfer(pair.approx, readers, meas, pair.scene.height, MatchSettings(min_ncc=0.5))
-    hi = transfer(pair.approx, readers, meas, pair.scene.height, MatchSettings(min_ncc=0.97))
+    # distinct_factor = 1: min_ncc alone (a distinct peak is otherwise accepted down to
+    # 1 - 2 (1 - min_ncc), which the clear rendered peaks pass)
+    lo = transfer(pair.approx, readers, meas, pair.scene.height,
+                  MatchSettings(min_ncc=0.5, distinct_factor=1.0))
+    hi = transfer(pair.approx, readers, meas, pair.scene.height,
+                  MatchSettings(min_ncc=0.97, distinct_factor=1.0))
     assert hi["accepted"].sum() < lo["accepted"].sum()
 
 

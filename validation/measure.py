@@ -3,6 +3,7 @@
 Run:  PYTHONPATH=core python validation/measure.py [--size 1500] [--points 1000]
       [--seeds 1 2] [--textures hopper fractal] [--draws 50] [--fast] [--jpeg 30]
       [--json FILE]
+      PYTHONPATH=core python validation/measure.py --aerial 30 [--aerial-sample 2]
 
 ``--timing N`` (issue 28) instead times the windows of a transfer read from an N x N
 JPEG (quality 40, the rendered photograph tiled): read directly (GDAL decodes the JPEG
@@ -15,7 +16,12 @@ compressed as JPEG of quality ``Q`` into a temporary folder, from an orientation
 perturbed by 1 m and 0.01 degrees, with the matching as it was before issue 28 (every
 new check off) and as it is; the reference of each transfer is its prediction from the
 survey's orientation over the 24 m DEM (good to about a pixel). Printed: accepted share,
-distances of the accepted from the reference, flags, time.
+distances of the accepted from the reference, flags, time; and the diagnosis of issue
+28: the share of transfers where an independent plain correlation (numpy, 21 x 21
+template, +-15 px around the reference, :func:`clear_peaks`) finds a clear peak (NCC >=
+0.7 within 2 px of the reference, every other peak at least 0.1 lower), the share of
+those accepted, and the flags that reject the others. ``--aerial-sample K`` transfers
+only every K-th grid point (the machine is shared).
 
 ``--jpeg Q`` (issue 28): both rendered images are compressed as JPEG of quality ``Q``
 (8 bit, GDAL's encoder) and decoded again before anything is measured on them, so that
@@ -143,7 +149,9 @@ def timing(n: int, windows: int = 100) -> dict:
 #: every check of issue 28 off: the matching as it was before
 BEFORE_28 = {"max_anisotropy": np.inf, "min_grey_levels": 0, "min_entropy": 0.0,
              "max_blockiness": np.inf, "min_roundness": 0.0, "grey_step": 0.0,
-             "min_sigma": 0.0, "back_tolerance": np.inf, "max_ray_misfit": np.inf}
+             "min_sigma": 0.0, "back_tolerance": np.inf, "max_ray_misfit": np.inf,
+             "pyramid_levels": 0, "distinct_factor": 1.0, "back_k": 0.0,
+             "lsm_tol_sigma": 0.0}
 
 
 def _aerial_jpegs(folder: Path, quality: int, out: Path) -> dict:
@@ -166,27 +174,28 @@ def _aerial_jpegs(folder: Path, quality: int, out: Path) -> dict:
     return paths
 
 
-def aerial_study(quality: int, data: Path) -> list:
-    """Before/after transfers on the JPEG-compressed DMC frames (``--aerial``)."""
+def aerial_study(quality: int, data: Path, sample: int = 0, settings: dict | None = None) -> list:
+    """Before/after transfers on the JPEG-compressed DMC frames (``--aerial``).
+
+    ``sample``: transfer only every ``sample``-th grid point (0 or 1: all);
+    ``settings``: label -> MatchSettings keyword arguments (default before and after
+    issue 28). Each row: ``(label, table, distance to the reference, seconds, clear)``
+    with ``clear`` the independent clear-peak label of each transfer
+    (:func:`clear_peaks`).
+    """
     import tempfile
 
     from aerial_gnss import PAIRS, read_block
 
     from vectoradjust.files.images import RasterioImage
+    from vectoradjust.measure.geometry import local_affine
     from vectoradjust.measure.transfer import MatchSettings
 
     block = read_block(data)
-    sw = {"earth_curvature": True, "refraction": True}
-    sig = np.r_[np.full(3, 1.0), np.radians(np.full(3, 0.01))]
-    rng = np.random.default_rng(1)
-    true = {i: ImageGeometry(i, e, block.camera, sw, block.terrain_height, sigma_eo=sig)
-            for i, e in zip(block.ids, block.eo)}
-    approx = {i: ImageGeometry(i, e + rng.normal(size=6) * sig, block.camera, sw,
-                               block.terrain_height, sigma_eo=sig)
-              for i, e in zip(block.ids, block.eo)}
+    true, approx = _aerial_geometries(block)
     pid, iid, cr = [], [], []
     gx, gy = np.meshgrid(np.arange(40, 600, 24.0), np.arange(40, 1112, 24.0))
-    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    grid = np.column_stack([gx.ravel(), gy.ravel()])[::max(int(sample), 1)]
     for a, b in PAIRS:
         pb = true[b].to_pixel(true[a].to_ground(grid, block.height))
         ok = np.all((pb > 40) & (pb < [600, 1112]), axis=1)
@@ -196,38 +205,131 @@ def aerial_study(quality: int, data: Path) -> list:
     cr = np.vstack(cr)
     meas = {"point_id": np.array(pid), "image_id": np.array(iid), "col": cr[:, 0],
             "row": cr[:, 1]}
+    where = {p: j for j, p in enumerate(pid)}
+    runs = settings or {"before issue 28": BEFORE_28, "now": {}}
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         readers = {k: RasterioImage(v, k) for k, v in
                    _aerial_jpegs(data, quality, Path(tmp)).items()}
-        for label, st in (("before", MatchSettings(**BEFORE_28)), ("after", MatchSettings())):
+        grey = {k: rd.read(0, 0, *rd.size) for k, rd in readers.items()}
+        for label, kw in runs.items():
             t0 = time.perf_counter()
-            r = transfer(approx, readers, meas, block.height, st, sigma_height=5.0)
+            r = transfer(approx, readers, meas, block.height, MatchSettings(**kw),
+                         sigma_height=5.0)
             dt = time.perf_counter() - t0
-            k = np.array([pid.index(p) for p in r["point_id"]])
-            ref = np.array([true[d].to_pixel(true[s_].to_ground(cr[j:j + 1], block.height))[0]
-                            for j, s_, d in zip(k, r["ref_image"], r["image_id"])])
+            src = cr[np.array([where[p] for p in r["point_id"]], int)]
+            ref, aff = np.zeros_like(src), np.zeros((len(src), 2, 2))
+            for s_, d in {(s_, d) for s_, d in zip(r["ref_image"], r["image_id"])}:
+                m = (r["ref_image"] == s_) & (r["image_id"] == d)
+                ref[m], aff[m] = local_affine(true[s_], true[d], src[m], block.height)
             err = np.hypot(r["col"] - ref[:, 0], r["row"] - ref[:, 1])
-            rows.append((label, r, err, dt))
+            clear = clear_peaks(grey, r["ref_image"], r["image_id"], src, ref, aff)
+            rows.append((label, r, err, dt, clear))
         for rd in readers.values():
             rd.close()
     return rows
 
 
+def _aerial_geometries(block) -> tuple:
+    """The survey's (true) and perturbed (1 m, 0.01 degrees) frame geometries."""
+    sw = {"earth_curvature": True, "refraction": True}
+    sig = np.r_[np.full(3, 1.0), np.radians(np.full(3, 0.01))]
+    rng = np.random.default_rng(1)
+    true = {i: ImageGeometry(i, e, block.camera, sw, block.terrain_height, sigma_eo=sig)
+            for i, e in zip(block.ids, block.eo)}
+    approx = {i: ImageGeometry(i, e + rng.normal(size=6) * sig, block.camera, sw,
+                               block.terrain_height, sigma_eo=sig)
+              for i, e in zip(block.ids, block.eo)}
+    return true, approx
+
+
+def clear_peaks(grey: dict, src_ids, dst_ids, src_px: np.ndarray, ref_px: np.ndarray,
+                affine: np.ndarray, half: int = 10, radius: int = 15, min_ncc: float = 0.7,
+                gap: float = 0.1, near: float = 2.0) -> np.ndarray:
+    """An independent "clear correlation peak" label of each transfer (issue 28).
+
+    Plain normalised cross-correlation (numpy, no code of vectoradjust.measure) of the
+    ``2 half + 1`` square template around the source pixel over ``+- radius`` px around
+    the reference position on the target image (sampled bilinearly through the true
+    local affine, so that rotation between the frames does not matter). The peak is
+    clear when its NCC is at least ``min_ncc``, it lies within ``near`` px of the
+    reference, and every other local maximum (3 x 3) more than ``near`` px from it is at
+    least ``gap`` lower.
+
+    Parameters
+    ----------
+    grey : dict of image id -> numpy.ndarray
+        Whole grey-value images.
+    src_ids, dst_ids : array_like of str
+        Source and target image of each transfer.
+    src_px, ref_px : numpy.ndarray, shape (n, 2)
+        Source pixel and reference target pixel (column, row).
+    affine : numpy.ndarray, shape (n, 2, 2)
+        ``d target / d source`` at the points.
+
+    Returns
+    -------
+    numpy.ndarray of bool, shape (n,)
+    """
+    from numpy.lib.stride_tricks import sliding_window_view
+    from scipy.ndimage import map_coordinates, maximum_filter
+
+    size, span = 2 * half + 1, radius + half
+    t = np.arange(-half, half + 1.0)
+    s = np.arange(-span, span + 1.0)
+    out = np.zeros(len(src_px), bool)
+    dd = np.arange(-radius, radius + 1.0)
+    dv, du = np.meshgrid(dd, dd, indexing="ij")
+    for j, (si, di) in enumerate(zip(src_ids, dst_ids)):
+        tv, tu = np.meshgrid(t, t, indexing="ij")
+        tpl = map_coordinates(grey[si], [src_px[j, 1] + tv, src_px[j, 0] + tu], order=1,
+                              cval=np.nan)
+        sv, su = np.meshgrid(s, s, indexing="ij")
+        a = affine[j]
+        chip = map_coordinates(grey[di], [ref_px[j, 1] + a[1, 0] * su + a[1, 1] * sv,
+                                          ref_px[j, 0] + a[0, 0] * su + a[0, 1] * sv],
+                               order=1, cval=np.nan)
+        if not (np.all(np.isfinite(tpl)) and np.all(np.isfinite(chip))):
+            continue
+        win = sliding_window_view(chip, (size, size)).reshape(2 * radius + 1,
+                                                               2 * radius + 1, -1)
+        tz = (tpl - tpl.mean()).ravel()
+        wz = win - win.mean(axis=2, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rho = wz @ tz / np.sqrt(np.sum(wz * wz, axis=2) * np.sum(tz * tz))
+        rho = np.where(np.isfinite(rho), rho, -1.0)
+        k = np.unravel_index(np.argmax(rho), rho.shape)
+        best = rho[k]
+        far = np.hypot(dv - dv[k], du - du[k]) > near
+        peaks = rho == maximum_filter(rho, size=3, mode="nearest")
+        second = np.max(np.where(far & peaks, rho, -1.0))
+        out[j] = (best >= min_ncc and np.hypot(du[k], dv[k]) <= near
+                  and second <= best - gap)
+    return out
+
+
 def _print_aerial(quality: int, rows: list) -> None:
     from collections import Counter
 
-    for label, r, err, dt in rows:
+    for label, r, err, dt, clear in rows:
         acc = r["accepted"]
         e = err[acc]
         n = len(acc)
         flags = Counter(f for t in r["flag_text"] for f in str(t).split("|") if f)
-        print(f"DMC frames, JPEG quality {quality}, {label} issue 28: {n} transfers, accepted "
+        print(f"DMC frames, JPEG quality {quality}, {label}: {n} transfers, accepted "
               f"{acc.sum()} ({acc.mean():.1%}); of those within 0.5 px {np.mean(e <= 0.5):.1%}, "
               f"within 2 px {np.mean(e <= 2):.1%}, beyond 2 px {int(np.sum(e > 2))}, beyond 5 "
               f"px {int(np.sum(e > 5))}, worst {e.max() if e.size else np.nan:.2f} px; "
               f"{1000 * dt / max(n, 1):.0f} ms per transfer")
         print(f"  flags: {dict(flags.most_common())}")
+        nc = int(clear.sum())
+        rej = Counter(f for t in r["flag_text"][clear & ~acc] for f in str(t).split("|") if f)
+        alone = Counter(str(t) for t in r["flag_text"][clear & ~acc] if "|" not in str(t))
+        print(f"  independent clear correlation peak: {nc} ({nc / max(n, 1):.1%}); accepted "
+              f"of those {int(np.sum(acc & clear))} ({np.mean(acc[clear]) if nc else np.nan:.1%}"
+              f"); accepted without a clear peak {int(np.sum(acc & ~clear))}")
+        print(f"  flags of the rejected clear peaks: {dict(rej.most_common())}; as the only "
+              f"flag: {dict(alone.most_common())}")
 
 
 def _points(pair, n, seed, margin=40):
@@ -358,6 +460,8 @@ def main(argv=None) -> int:
     ap.add_argument("--aerial-data", type=Path,
                     default=Path(__file__).resolve().parents[1].parent / "shared" / "data"
                     / "aerial" / "ngi_dmc", help="the ngi_dmc folder")
+    ap.add_argument("--aerial-sample", type=int, default=1, metavar="K",
+                    help="--aerial: transfer every K-th grid point only")
     ap.add_argument("--jpeg", type=int, default=None,
                     help="compress both images as JPEG of this quality first")
     ap.add_argument("--json", help="write the criteria to this file")
@@ -366,7 +470,8 @@ def main(argv=None) -> int:
         if not (args.aerial_data / "camera_pos_ori.txt").is_file():
             print(f"the DMC frames are not found: {args.aerial_data}")
             return 1
-        _print_aerial(args.aerial, aerial_study(args.aerial, args.aerial_data))
+        _print_aerial(args.aerial, aerial_study(args.aerial, args.aerial_data,
+                                                args.aerial_sample))
         return 0
     if args.timing:
         t = timing(args.timing)

@@ -59,7 +59,7 @@ from vectoradjust.sensor.models import EO_PARAMETERS
 from vectoradjust.sensor.refine import fit_fiducial_affine
 
 __all__ = ["PointSet", "image_geometries", "project_points", "predict", "transfer",
-           "measure_roads", "image_points", "read_chips", "BATCH"]
+           "measure_roads", "image_points", "read_chips", "back_tolerance", "BATCH"]
 
 #: points matched at once (memory: a few MB per point)
 BATCH = 100
@@ -363,9 +363,9 @@ def _transfer_pair(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float
                    sigma_ref_px: float, st: MatchSettings) -> dict:
     """Match the reference pixels of ``src`` on ``dst`` and, where that is accepted, the
     matches back on ``src`` (:func:`_one_way`): a back-match whose least-squares matching
-    fails, or lands farther than ``st.back_tolerance`` px from the reference pixel, flags
-    ``back_mismatch`` (the back-match's own quality flags do not count: the distance is
-    the test).
+    fails, or lands farther than its tolerance (:func:`back_tolerance`) from the
+    reference pixel, flags ``back_mismatch`` (the back-match's own quality flags do not
+    count: the distance is the test).
     ``back_error`` (px) is NaN where no back-match was tried."""
     fwd = _one_way(src, dst, rd_src, rd_dst, ref_px, height, sigma_height, sigma_ref_px, st)
     err = np.full(len(ref_px), np.nan)
@@ -374,9 +374,40 @@ def _transfer_pair(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float
         back = _one_way(dst, src, rd_dst, rd_src, fwd["px"][ok], height, sigma_height,
                         sigma_ref_px, st)
         err[ok] = np.hypot(*(back["px"] - np.asarray(ref_px, float)[ok]).T)
-        fwd["flags"][ok[~(err[ok] <= st.back_tolerance)]] |= FLAGS["back_mismatch"]
+        tol = back_tolerance(fwd["sigma"][ok], back["sigma"], fwd["inflation"][ok],
+                             back["inflation"], st)
+        fwd["flags"][ok[~(err[ok] <= tol)]] |= FLAGS["back_mismatch"]
     fwd["back_error"] = err
     return fwd
+
+
+def back_tolerance(sigma_fwd: np.ndarray, sigma_back: np.ndarray, inflation_fwd: np.ndarray,
+                   inflation_back: np.ndarray, st: MatchSettings) -> np.ndarray:
+    """How far a back-match may land from the reference pixel (px), from the noise.
+
+    The back-match's distance from the reference is the sum of the two matches' errors:
+    its standard deviation is about ``hypot(s_f i_f, s_b i_b)`` with ``s`` the larger
+    LSM sigma of each match and ``i`` its residual inflation
+    (:func:`vectoradjust.measure.matching.residual_inflation`: the LSM sigma assumes
+    independent residuals, which compressed images do not have). The tolerance is
+    ``st.back_k`` times that, at least ``st.back_tolerance`` and at most twice that
+    (``st.back_tolerance`` alone where a sigma is undefined or ``st.back_k`` is 0).
+
+    Parameters
+    ----------
+    sigma_fwd, sigma_back : numpy.ndarray, shape (n, 2)
+        LSM standard deviations of the forward and the back match (px).
+    inflation_fwd, inflation_back : numpy.ndarray, shape (n,)
+    st : MatchSettings
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+    """
+    sf = np.max(np.asarray(sigma_fwd, float), axis=1) * np.asarray(inflation_fwd, float)
+    sb = np.max(np.asarray(sigma_back, float), axis=1) * np.asarray(inflation_back, float)
+    tol = np.clip(st.back_k * np.hypot(sf, sb), st.back_tolerance, 2.0 * st.back_tolerance)
+    return np.where(np.isfinite(tol), tol, st.back_tolerance)
 
 
 def _one_way(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float,
@@ -409,7 +440,7 @@ def _one_way(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float,
     px = res.px + o_dst if o_dst else res.px
     return {"pred": pred, "px": px, "ncc": res.ncc, "rho": res.rho, "sigma": res.sigma,
             "flags": res.flags, "off_image": off, "texture": res.texture,
-            "cov_rays": cov_rays}
+            "cov_rays": cov_rays, "inflation": res.inflation}
 
 
 def _frame_transfer_cov(src: ImageGeometry, dst: ImageGeometry, ground, a, sigma_height,
@@ -448,7 +479,8 @@ def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Map
     height : callable or float, optional
         Terrain height ``(n, 2) -> (n,)`` (a DEM), default the mean terrain height.
     settings : MatchSettings, optional
-        Thresholds; ``back_tolerance`` (default 0.5 px) sets the back-matching.
+        Thresholds; ``back_tolerance`` (default 0.5 px) and ``back_k`` set the
+        back-matching (:func:`back_tolerance`).
     sigma_height : float
         Uncertainty of the terrain height (m) for the search window.
     sigma_ref_px : float

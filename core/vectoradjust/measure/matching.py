@@ -6,11 +6,14 @@ search chips of the same size at once (no Python loop over points).
 * :func:`ncc_search` - the normalised cross-correlation coefficient of a template at
   every position of a search chip, by FFT (the local sums of the chip by summed-area
   tables), the best position inside an allowed region with a sub-pixel parabola fit.
+* :func:`ncc_pyramid` - the same coarse-to-fine: the peak found at 1/4 and 1/2 of the
+  resolution in the whole window, then refined at full resolution near it.
 * :func:`lsm` - least-squares matching (Gruen 1985, "Adaptive least squares correlation"):
   ``g1(u, v) + e = r0 + r1 g2(t + A (u, v))`` with an affine geometric transformation
   ``(A, t)`` and a linear radiometric one ``(r0, r1)``, solved by Gauss-Newton; the
   precision of the shift from ``sigma0^2 N^-1`` and the correlation coefficient of the
-  matched patches.
+  matched patches; :func:`residual_inflation` - how much correlated residuals widen
+  that precision.
 
 Coordinates are pixel (column, row) of the chip arrays ``chip[row, column]``; a chip's
 pixel ``(c, r)`` holds the value at its centre.
@@ -22,17 +25,19 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import fft as sfft
-from scipy.ndimage import maximum_filter
+from scipy.ndimage import maximum_filter, uniform_filter
 
 __all__ = [
     "NCCResult",
     "LSMResult",
     "ncc_surface",
     "ncc_search",
+    "ncc_pyramid",
     "sample",
     "lsm",
     "FLAGS",
     "texture_measures",
+    "residual_inflation",
 ]
 
 #: Failure flags of a match (bits of ``flags``): a match with any flag is not accepted.
@@ -120,7 +125,8 @@ def _box_sums(a: np.ndarray, th: int, tw: int) -> np.ndarray:
 
 
 def ncc_search(templates: np.ndarray, chips: np.ndarray,
-               allowed: np.ndarray | None = None) -> NCCResult:
+               allowed: np.ndarray | None = None,
+               peak_region: np.ndarray | None = None) -> NCCResult:
     """Best NCC position of each template in its chip, sub-pixel.
 
     Parameters
@@ -130,6 +136,9 @@ def ncc_search(templates: np.ndarray, chips: np.ndarray,
     chips : numpy.ndarray, shape (n, H, W)
     allowed : numpy.ndarray of bool, shape (n, H - th + 1, W - tw + 1), optional
         Positions (top-left) the peak may take (the search window).
+    peak_region : numpy.ndarray of bool, same shape as ``allowed``, optional
+        Where the peak is taken (e.g. near the peak of a coarser pyramid level); the
+        ``second`` peak is still looked for in the whole ``allowed`` window.
 
     Returns
     -------
@@ -145,7 +154,7 @@ def ncc_search(templates: np.ndarray, chips: np.ndarray,
     if allowed is not None:
         r = np.where(allowed, r, -np.inf)
     h, w = r.shape[1:]
-    flat = r.reshape(n, -1)
+    flat = (r if peak_region is None else np.where(peak_region, r, -np.inf)).reshape(n, -1)
     k = np.argmax(flat, axis=1)
     best = flat[np.arange(n), k]
     rr, cc = np.divmod(k, w)
@@ -171,6 +180,89 @@ def ncc_search(templates: np.ndarray, chips: np.ndarray,
     best = np.where(np.isfinite(best), best, -1.0)
     second = np.where(np.isfinite(second), second, -1.0)
     return NCCResult(pos, best, second)
+
+
+def ncc_pyramid(templates: np.ndarray, chips: np.ndarray, allowed: np.ndarray | None = None,
+                levels: int = 2, radius: float = 1.5) -> NCCResult:
+    """Coarse-to-fine NCC over an image pyramid.
+
+    Template and chip are smoothed by a ``f x f`` box and decimated by ``f = 2^L`` for
+    ``L = levels ... 1``; the coarsest level finds the peak in the whole ``allowed``
+    window, each finer level only within ``radius`` times the coarser level's factor
+    (full-resolution pixels) of the coarser peak, and full resolution refines it
+    (:func:`ncc_search` with ``peak_region``, so that ``second`` - the ambiguity - is
+    still that of the whole window). At the coarse levels the noise, JPEG blocks and
+    small geometric differences are averaged out, so that a broad true peak is found in
+    a large window before the fine texture places it.
+
+    Parameters
+    ----------
+    templates : numpy.ndarray, shape (n, th, tw)
+        Odd sizes.
+    chips : numpy.ndarray, shape (n, H, W)
+    allowed : numpy.ndarray of bool, shape (n, H - th + 1, W - tw + 1), optional
+    levels : int
+        Number of coarse levels (0: :func:`ncc_search` alone); a level whose decimated
+        template would be smaller than 5 x 5 is skipped.
+    radius : float
+        Search radius around a coarser level's peak, in that level's pixels.
+
+    Returns
+    -------
+    NCCResult
+        As :func:`ncc_search` at full resolution.
+    """
+    t = np.asarray(templates, float)
+    s = np.asarray(chips, float)
+    n, th, tw = t.shape
+    hh, ww = s.shape[1] - th + 1, s.shape[2] - tw + 1
+    ok = np.ones((n, hh, ww), bool) if allowed is None else np.asarray(allowed, bool)
+    yy, xx = np.mgrid[0:hh, 0:ww]
+    centre = None  # (n, 2) full-resolution top-left (column, row) of the coarser peak
+    for lev in range(int(levels), 0, -1):
+        f = 2 ** lev
+        kr, kc = (th - 1) // 2 // f, (tw - 1) // 2 // f
+        if min(kr, kc) < 2:
+            continue
+        region = ok if centre is None else _near(xx, yy, centre, radius * 2 * f)
+        centre = _coarse_peak(t, s, ok & region, f, kr, kc)
+    region = None if centre is None else _near(xx, yy, centre, radius * 2)
+    return ncc_search(t, s, ok, region)
+
+
+def _near(xx: np.ndarray, yy: np.ndarray, centre: np.ndarray, r: float) -> np.ndarray:
+    """Positions within ``r`` of each ``centre`` (column, row), shape (n, H, W); all
+    positions where the centre is NaN (no coarse peak)."""
+    d2 = (xx[None] - centre[:, 0, None, None]) ** 2 + (yy[None] - centre[:, 1, None, None]) ** 2
+    return ~(d2 > r * r)
+
+
+def _coarse_peak(t: np.ndarray, s: np.ndarray, ok: np.ndarray, f: int, kr: int,
+                 kc: int) -> np.ndarray:
+    """Full-resolution top-left (column, row) of the best NCC at decimation ``f``.
+
+    The template's centre pixel and every ``f``-th pixel around it (``2 kr + 1`` rows,
+    ``2 kc + 1`` columns), the chip's every ``f``-th pixel, both after a ``f x f`` box
+    filter; a coarse position counts where its full-resolution top-left is ``ok``. NaN
+    where no position counts.
+    """
+    n, th, tw = t.shape
+    cr, cc = (th - 1) // 2, (tw - 1) // 2
+    ts = uniform_filter(t, size=(1, f, f), mode="nearest")
+    ss = uniform_filter(s, size=(1, f, f), mode="nearest")
+    td = ts[:, cr - kr * f:cr + kr * f + 1:f, cc - kc * f:cc + kc * f + 1:f]
+    sd = ss[:, ::f, ::f]
+    rho = ncc_surface(td, sd)
+    gr, gc = np.mgrid[0:rho.shape[1], 0:rho.shape[2]]
+    fr, fc = f * (gr + kr) - cr, f * (gc + kc) - cc  # full top-left of the centre
+    inside = (fr >= 0) & (fc >= 0) & (fr < ok.shape[1]) & (fc < ok.shape[2])
+    okc = np.zeros(rho.shape, bool)
+    okc[:, inside] = ok[:, fr[inside], fc[inside]]
+    r = np.where(np.isfinite(rho) & okc, rho, -np.inf).reshape(n, -1)
+    k = np.argmax(r, axis=1)
+    found = np.isfinite(r[np.arange(n), k])
+    out = np.column_stack([fc.ravel()[k], fr.ravel()[k]]).astype(float)
+    return np.where(found[:, None], out, np.nan)  # NaN: no coarse peak
 
 
 def sample(chips: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -242,6 +334,13 @@ class LSMResult:
         Root mean square grey-value residual.
     converged : numpy.ndarray of bool, shape (n,)
     iterations : numpy.ndarray of int, shape (n,)
+    inflation : numpy.ndarray, shape (n,)
+        How much ``sigma`` understates the scatter of ``pos`` because neighbouring
+        grey-value residuals are correlated (JPEG blocks, blur, resampling):
+        ``sqrt((1 + rx)(1 + ry) / ((1 - rx)(1 - ry)))`` with ``rx, ry`` the lag-one
+        correlations of the residuals along the columns and rows (clipped to
+        ``[0, 0.9]``; 1 for white residuals), the factor by which correlated
+        residuals reduce the number of independent observations.
     """
 
     pos: np.ndarray
@@ -252,6 +351,7 @@ class LSMResult:
     sigma0: np.ndarray
     converged: np.ndarray
     iterations: np.ndarray
+    inflation: np.ndarray | None = None
 
 
 def _lsm_design(chips, grads, p, u, v, scale, idx=None):
@@ -280,7 +380,7 @@ def _lsm_design(chips, grads, p, u, v, scale, idx=None):
 def lsm(templates: np.ndarray, chips: np.ndarray, start: np.ndarray,
         affine0: np.ndarray | None = None, max_iterations: int = 40,
         tol: float = 0.005, quadratic: bool = False,
-        sigma0_floor: float = 0.0) -> LSMResult:
+        sigma0_floor: float = 0.0, tol_sigma: float = 0.0) -> LSMResult:
     """Least-squares matching with an affine patch and linear radiometry (Gruen 1985).
 
     Parameters
@@ -332,6 +432,7 @@ def lsm(templates: np.ndarray, chips: np.ndarray, start: np.ndarray,
     done = np.zeros(n, bool)
     its = np.zeros(n, int)
     corner = np.array([(tw - 1) / 2.0, (th - 1) / 2.0])
+    last = np.full(n, np.inf)
     for _ in range(max_iterations):
         ia = np.flatnonzero(active)
         if ia.size == 0:
@@ -345,10 +446,15 @@ def lsm(templates: np.ndarray, chips: np.ndarray, start: np.ndarray,
         p[ia] += np.nan_to_num(dp)
         its[ia] += 1
         move = np.abs(dp[:, 4:6]).max(axis=1) + np.abs(dp[:, :4]).max(axis=1) * corner.max()
+        last[ia] = move
         fin = move < tol
         done[ia[fin]] = True
         active[ia[fin | ~np.isfinite(move)]] = False
-    return _lsm_result(s, grads, p, u, v, g1, done, its, scale, sigma0_floor)
+    out = _lsm_result(s, grads, p, u, v, g1, done | active, its, scale, sigma0_floor, (th, tw))
+    steady = active & (last < tol_sigma * np.nanmax(np.nan_to_num(out.sigma, nan=-1.0), axis=1))
+    out.converged &= done | steady
+    out.sigma = np.where(out.converged[:, None], out.sigma, np.nan)
+    return out
 
 
 def _linear_fit(x: np.ndarray, y: np.ndarray):
@@ -411,8 +517,10 @@ def batched_solve(m: np.ndarray, b: np.ndarray, rcond: float = 1e-13) -> np.ndar
     return x
 
 
-def _lsm_result(s, grads, p, u, v, g1, done, its, scale, floor=0.0) -> LSMResult:
-    """Precision and correlation coefficient at the final parameters."""
+def _lsm_result(s, grads, p, u, v, g1, done, its, scale, floor=0.0,
+                shape=(1, -1)) -> LSMResult:
+    """Precision, correlation coefficient and residual inflation at the final parameters
+    (``shape``: the template's rows and columns)."""
     n, k = p.shape
     model, g2, a = _lsm_design(s, grads, p, u, v, scale)
     finite = np.all(np.isfinite(a), axis=(1, 2)) & np.all(np.isfinite(g2), axis=1)
@@ -427,17 +535,65 @@ def _lsm_result(s, grads, p, u, v, g1, done, its, scale, floor=0.0) -> LSMResult
     e4[:, 4] = 1.0
     e5 = np.zeros((n, k))
     e5[:, 5] = 1.0
-    q = np.zeros((n, k, k))
-    q[:, 4, 4] = batched_solve(nn, e4)[:, 4]
-    q[:, 5, 5] = batched_solve(nn, e5)[:, 5]
-    qq = np.stack([q[:, 4, 4], q[:, 5, 5]], axis=1)
+    q4, q5 = batched_solve(nn, e4), batched_solve(nn, e5)
+    qq = np.stack([q4[:, 4], q5[:, 4 + 1]], axis=1)
     sig = np.sqrt(np.clip(s0_used[:, None] * qq, 0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
         rho = np.array([np.nan] * n) if n == 0 else _rowcorr(g1, g2)
     conv = done & finite
     sig = np.where(conv[:, None], sig, np.nan)
+    w = np.stack([np.einsum("nmi,ni->nm", a, np.nan_to_num(q)) for q in (q4, q5)], axis=1)
+    infl = residual_inflation(res.reshape((n,) + tuple(shape)),
+                              w.reshape((n, 2) + tuple(shape)))
     return LSMResult(p[:, 4:6].copy(), p[:, :4].reshape(n, 2, 2), p[:, 6:].copy(), sig,
-                     np.where(finite, rho, np.nan), np.sqrt(s0sq), conv, its)
+                     np.where(finite, rho, np.nan), np.sqrt(s0sq), conv, its, infl)
+
+
+def residual_inflation(res: np.ndarray, weights: np.ndarray, lags: int = 3) -> np.ndarray:
+    """How much correlated residuals widen a least-squares shift's standard deviation.
+
+    The LSM sigma ``sigma0^2 N^-1`` assumes independent grey-value residuals; those of a
+    compressed, blurred or resampled image are correlated over a few pixels. The shift is
+    ``t = sum_i w_i l_i`` (``w``: its row of ``N^-1 A'``), so its variance is
+    ``sum_d gamma(d) sum_i w_i w_(i+d)`` over the lags ``d`` of the residuals'
+    autocovariance ``gamma`` (a kernel estimate of the sandwich covariance with
+    Bartlett weights up to ``lags`` pixels in each direction, which keeps it positive);
+    the ratio to the lag-0 term ``gamma(0) sum w_i^2`` is the inflation.
+
+    Parameters
+    ----------
+    res : numpy.ndarray, shape (n, rows, columns)
+        Grey-value residuals of each patch.
+    weights : numpy.ndarray, shape (n, 2, rows, columns)
+        Each shift's (column, row) weights ``w`` of the observations.
+    lags : int
+        Largest lag (pixels) of the autocovariance.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+        The square root of the ratio, of the worse axis; at least 1 (1 where undefined,
+        e.g. no residuals).
+    """
+    e = np.asarray(res, float)
+    w = np.asarray(weights, float)
+    _, th, tw = e.shape
+    e = e - e.mean(axis=(1, 2), keepdims=True)
+    num = np.zeros(w.shape[:2])
+    den = np.zeros(w.shape[:2])
+    for dy in range(-lags, lags + 1):
+        for dx in range(-lags, lags + 1):
+            ys, yd = slice(max(dy, 0), th + min(dy, 0)), slice(max(-dy, 0), th - max(dy, 0))
+            xs, xd = slice(max(dx, 0), tw + min(dx, 0)), slice(max(-dx, 0), tw - max(dx, 0))
+            gamma = np.sum(e[:, ys, xs] * e[:, yd, xd], axis=(1, 2)) / (th * tw)
+            sw = np.sum(w[:, :, ys, xs] * w[:, :, yd, xd], axis=(2, 3))
+            kern = (1 - abs(dy) / (lags + 1)) * (1 - abs(dx) / (lags + 1))
+            num += kern * gamma[:, None] * sw
+            if dy == 0 and dx == 0:
+                den = gamma[:, None] * sw
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.max(num / den, axis=1)
+    return np.sqrt(np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0))
 
 
 def _rowcorr(x: np.ndarray, y: np.ndarray) -> np.ndarray:

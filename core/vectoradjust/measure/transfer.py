@@ -6,8 +6,9 @@ the predicted target position), the local affine between the images over the ter
 (:func:`vectoradjust.measure.geometry.local_affine`) and the covariance of the
 prediction. The reference patch is correlated with the target chip resampled into the
 reference geometry (so rotation, scale and relief displacement between the images do
-not spoil the correlation), the best position inside the search ellipse is refined by
-least-squares matching, and every failure is flagged (:data:`matching.FLAGS`): a flagged
+not spoil the correlation), the best position inside the search ellipse - found
+coarse-to-fine over an image pyramid - is refined by least-squares matching, and every
+failure is flagged (:data:`matching.FLAGS`): a flagged
 match is never accepted.
 """
 
@@ -18,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vectoradjust.measure.geometry import WINDOW_K, inv2, window_axes
-from vectoradjust.measure.matching import FLAGS, lsm, ncc_search, sample, texture_measures
+from vectoradjust.measure.matching import FLAGS, lsm, ncc_pyramid, sample, texture_measures
 
 __all__ = ["MatchSettings", "MatchResult", "match_batch"]
 
@@ -37,6 +38,16 @@ class MatchSettings:
         clipped to it.
     min_ncc : float
         Correlation coefficient threshold (0.8 - 0.95 in production) for NCC and LSM.
+    distinct_factor : float
+        A match whose NCC peak is distinct (every other peak of the window at least
+        ``distinct_gap`` lower) may be ``distinct_factor`` times as far from a perfect
+        correlation: accepted down to ``1 - distinct_factor (1 - min_ncc)`` (NCC and
+        LSM; 0.6 for ``min_ncc`` 0.8). ``1 - rho`` is about the share of noise in the
+        grey-value variance, so this admits about twice the noise where the peak is
+        unique: on compressed images with relief the correlation of a true match drops,
+        but a clear, unique peak is still the right one (1: ``min_ncc`` for all).
+    distinct_gap : float
+        How much lower than the peak every other peak must be for ``distinct_factor``.
     max_sigma : float
         Largest accepted LSM standard deviation of the position (pixels).
     max_lsm_move : float
@@ -71,17 +82,37 @@ class MatchSettings:
     back_tolerance : float
         Largest distance (px) between the reference point and the target match
         matched back to the reference image (``inf``: no back-matching); used by
-        :func:`vectoradjust.files.measuring.transfer`.
+        :func:`vectoradjust.files.measuring.transfer`. With ``back_k`` the smallest
+        tolerance: noisier matches get ``back_k`` times the standard deviation of the
+        back-match's distance, up to twice ``back_tolerance``
+        (:func:`vectoradjust.files.measuring.back_tolerance`).
+    back_k : float
+        Tolerance of the back-matching in standard deviations of its distance (from
+        the LSM sigmas inflated for correlated residuals; 0: ``back_tolerance``
+        alone).
     max_ray_misfit : float
         A point accepted on three or more frame images: the forward intersection of
         all its rays must reproduce each match within about this many pixels (more
         where the orientations are uncertain; ``inf``: no check; the flag
         ``inconsistent``, :func:`vectoradjust.files.measuring.transfer`).
+    lsm_tol_sigma : float
+        LSM still moving after its iterations is converged when its last step is below
+        this fraction of its own standard deviation (noisy images; 0: off;
+        :func:`~vectoradjust.measure.matching.lsm`).
+    pyramid_levels : int
+        Coarse-to-fine search (:func:`~vectoradjust.measure.matching.ncc_pyramid`):
+        the peak is found at ``1 / 2^pyramid_levels`` of the resolution in the whole
+        window and followed down, each finer level searching only near the coarser
+        peak (0: the best full-resolution NCC of the whole window).
+    pyramid_radius : float
+        Search radius around a coarser level's peak (pixels of that level).
     """
 
     half_template: int = 20
     max_radius: float = 40.0
     min_ncc: float = 0.8
+    distinct_factor: float = 2.0
+    distinct_gap: float = 0.1
     max_sigma: float = 0.07
     max_lsm_move: float = 1.5
     ambiguity: float = 0.02
@@ -95,7 +126,11 @@ class MatchSettings:
     grey_step: float = 1.0
     min_sigma: float = 0.01
     back_tolerance: float = 0.5
+    back_k: float = 3.0
     max_ray_misfit: float = 1.0
+    lsm_tol_sigma: float = 0.2
+    pyramid_levels: int = 2
+    pyramid_radius: float = 1.5
 
 
 @dataclass
@@ -117,6 +152,9 @@ class MatchResult:
     texture : dict of numpy.ndarray, shape (n,)
         The reference templates' texture measures
         (:func:`~vectoradjust.measure.matching.texture_measures`).
+    inflation : numpy.ndarray, shape (n,)
+        Factor by which ``sigma`` understates the scatter because the LSM residuals are
+        correlated (:func:`~vectoradjust.measure.matching.residual_inflation`).
     """
 
     px: np.ndarray
@@ -125,6 +163,7 @@ class MatchResult:
     sigma: np.ndarray
     flags: np.ndarray
     texture: dict = field(default_factory=dict)
+    inflation: np.ndarray | None = None
 
     @property
     def accepted(self) -> np.ndarray:
@@ -191,11 +230,12 @@ def match_batch(ref_chips: np.ndarray, ref_origin: np.ndarray, ref_px: np.ndarra
     dr = np.arange(-rad, rad + 1, dtype=float)
     dv, du = np.meshgrid(dr, dr, indexing="ij")
     allowed = _in_ellipse(a, cov, du, dv, st.k) & (du**2 + dv**2 <= st.max_radius**2)
-    nc = ncc_search(templ, warped, allowed)
+    nc = ncc_pyramid(templ, warped, allowed, st.pyramid_levels, st.pyramid_radius)
     d = nc.pos - (h + rad)
     approx = np.asarray(pred_px, float) + np.einsum("nij,nj->ni", a, d)
     res = lsm(templ, tgt_chips, approx - np.asarray(tgt_origin, float), a,
-              quadratic=st.quadratic, sigma0_floor=st.grey_step / np.sqrt(12.0))
+              quadratic=st.quadratic, sigma0_floor=st.grey_step / np.sqrt(12.0),
+              tol_sigma=st.lsm_tol_sigma)
     res.sigma = np.maximum(res.sigma, st.min_sigma)
     px = res.pos + np.asarray(tgt_origin, float)
     flags |= _quality_flags(nc, res, px, approx, np.asarray(pred_px, float), cov, st)
@@ -203,7 +243,7 @@ def match_batch(ref_chips: np.ndarray, ref_origin: np.ndarray, ref_px: np.ndarra
     cov_ref = ai @ np.asarray(cov, float) @ np.swapaxes(ai, 1, 2)
     flags[window_axes(cov_ref, st.k)[:, 0] > st.max_radius] |= FLAGS["window_clipped"]
     px = np.where(res.converged[:, None], px, np.nan)
-    return MatchResult(px, nc.ncc, res.rho, res.sigma, flags, tex)
+    return MatchResult(px, nc.ncc, res.rho, res.sigma, flags, tex, res.inflation)
 
 
 def _poor_texture(tex: dict, st: MatchSettings) -> np.ndarray:
@@ -229,7 +269,9 @@ def _quality_flags(nc, res, px, approx, pred, cov, st: MatchSettings) -> np.ndar
     n = len(px)
     f = np.zeros(n, np.int64)
     rho = np.where(np.isfinite(res.rho), res.rho, -1.0)
-    f[(nc.ncc < st.min_ncc) | (rho < st.min_ncc)] |= FLAGS["low_correlation"]
+    distinct = nc.second <= nc.ncc - st.distinct_gap
+    lo = np.where(distinct, 1.0 - max(st.distinct_factor, 1.0) * (1.0 - st.min_ncc), st.min_ncc)
+    f[(nc.ncc < lo) | (rho < lo)] |= FLAGS["low_correlation"]
     f[nc.second >= nc.ncc - st.ambiguity] |= FLAGS["ambiguous"]
     moved = np.hypot(*(px - approx).T)
     bad = ~res.converged | ~np.isfinite(moved) | (moved > st.max_lsm_move)
