@@ -74,7 +74,8 @@ def tie_settings(**changes) -> MatchSettings:
     """The matching thresholds :func:`rpc_tie_points` uses by default.
 
     :class:`~vectoradjust.measure.transfer.MatchSettings` as the project's transfer uses
-    them (NCC and LSM correlation >= 0.8, LSM sigma <= 0.07 px, ambiguity 0.02) with a
+    them (NCC and LSM correlation >= 0.8, or >= 0.6 for a distinct peak - every other
+    peak 0.1 lower -, LSM sigma <= 0.07 px, ambiguity 0.02) with a
     finite anisotropy limit (3: a patch textured in one direction only slides along it)
     and a 15 px half template (31 x 31 px); ``changes`` override fields.
     """
