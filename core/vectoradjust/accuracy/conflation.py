@@ -263,12 +263,17 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     own variance): a proper scoring rule, so the predicted variances are calibrated on
     the data rather than on a curve fit that cannot tell the database's white noise from
     a steep rise of the semivariogram at the shortest lags. With ``kind = "auto"`` both
-    functions are fitted and the one with the better score is kept. The optimiser's
-    result is polished on a fixed lattice (:func:`_lattice_min`) so that QGIS's numpy
-    gives the same model; ``n_db`` is then replaced by its mean given the data
-    (:func:`_nugget_posterior`, which also keeps its distribution), and the sill's
-    degrees of freedom are estimated (:func:`_sill_dof`): the CE90 of a predicted
-    vertex accounts for both parameters' uncertainty (:func:`ce90_factor`).
+    functions are fitted and the one with the better score is kept. The score's
+    gradient is in closed form (:func:`_loo_score_grad`), so a quasi-Newton search
+    (:func:`_projected_bfgs`) needs 15-30 scores where a derivative-free one needed
+    several hundred; its result is put on a fixed lattice (:func:`_lattice_min`) so
+    that QGIS's numpy gives the same model. ``n_db`` is then replaced by its mean given
+    the data (:func:`_nugget_posterior`, every nugget from one eigendecomposition,
+    :func:`_nugget_scores`), and the sill's degrees of freedom are estimated
+    (:func:`_sill_dof`): the CE90 of a predicted vertex accounts for both parameters'
+    uncertainty (:func:`ce90_factor`). On the sample project and the conflation
+    simulation the chosen models are those of the former Nelder-Mead search, at a
+    fifth of its time (issue 32, benchmarks/README.md).
 
     Parameters
     ----------
@@ -283,8 +288,9 @@ def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
     k : int
         Neighbours per leave-one-out prediction (the ``[conflation] k``).
     max_targets : int
-        The score is summed over at most this many held-out points (a random subset;
-        all points serve as neighbours).
+        The score is summed over at most this many held-out points (a random subset,
+        seeded: the same points every run; all points serve as neighbours), so a
+        score costs the same from ``max_targets`` measured points on.
     corr : numpy.ndarray, shape (n, r), optional
         The points' noise shared with each other: covariance ``corr corr'`` (part of
         ``known_noise`` on the diagonal), e.g. the images' height error through their
@@ -393,18 +399,19 @@ def _neighbours(tree, xy: np.ndarray, k: int, skip_self: bool):
     return dist, idx
 
 
-def _system(cov: CovarianceModel, dd, dist, noise_nb, u_nb=None, u_tgt=None):
+def _system(cov: CovarianceModel, dd, dist, noise_nb, u_nb=None, u_tgt=None, signal=None):
     """Kriging matrix (b, k, k) and right side (b, k) of ``k`` neighbours.
 
     ``C(dd) + diag(n_db + noise)`` against ``C(dist)``; with ``u_nb`` (b, k, r) the
     neighbours' noise is correlated, ``u u'`` (the images' shared error, e.g. of their
     orientation; ``noise`` holds each point's whole variance, so the diagonal keeps it),
     and a target that is itself a measured point (leave-one-out; ``u_tgt`` (b, r))
-    shares it with them: the right side gains ``u_nb u_tgt``.
+    shares it with them: the right side gains ``u_nb u_tgt``. ``signal``: ``(C(dd),
+    C(dist))`` when the caller has them already (not modified).
     """
     diag = np.arange(dd.shape[1])
-    a = cov(dd)
-    c = cov(dist)
+    a = cov(dd) if signal is None else signal[0].copy()
+    c = cov(dist) if signal is None else signal[1]
     if u_nb is None:
         a[:, diag, diag] += cov.nugget + noise_nb
         return a, c
@@ -455,9 +462,57 @@ def _loo_score(theta, kind: str, setup, resid: np.ndarray, noise: np.ndarray) ->
     return float(np.sum(resid.shape[1] * np.log(s2) + (e ** 2).sum(axis=1) / s2))
 
 
+def _loo_score_grad(x, kind: str, setup, resid: np.ndarray, noise: np.ndarray):
+    """:func:`_loo_score` of ``theta = exp(x)`` and its gradient in ``x`` (the
+    logarithms of nugget, sill and length), in closed form: one batched solve.
+
+    With ``w = A^-1 c`` the held-out point's weights, ``e`` its error and ``s2`` its
+    variance, the score's derivative is ``sum alpha ds2 + g' dw`` with ``alpha = c/s2 -
+    |e|^2/s2^2`` and ``g = -alpha c - 2 R e / s2`` (``R`` the neighbours' residuals);
+    ``dw = A^-1 (dc - dA w)``, so ``lambda = A^-1 g`` (``A`` symmetric) gives every
+    parameter's share ``lambda' (dc - dA w)`` (the adjoint). ``lambda = -alpha w - 2
+    (A^-1 R) e / s2`` comes from the same solve as ``w`` (right sides ``c`` and ``R``).
+    ``(inf, 0)`` where the score is inf.
+    """
+    theta = np.exp(np.asarray(x, float))
+    tgt, dist, idx, dd, corr = setup
+    cov = CovarianceModel(kind, theta[1], theta[2], theta[0])
+    s_dd, s_dist = cov(dd), cov(dist)  # the signal's share of a and c: d/d log sill
+    a, c = _system(cov, dd, dist, noise[idx], None if corr is None else corr[idx],
+                   None if corr is None else corr[tgt], signal=(s_dd, s_dist))
+    r_nb = resid[idx]
+    try:  # the weights and A^-1 R together: one factorisation
+        sol = np.linalg.solve(a, np.concatenate([c[:, :, None], r_nb], axis=2))
+    except np.linalg.LinAlgError:
+        return float("inf"), np.zeros(3)
+    w, a_r = sol[:, :, 0], sol[:, :, 1:]
+    e = resid[tgt] - np.matmul(w[:, None, :], r_nb)[:, 0, :]
+    sig = cov.sill - (w * c).sum(axis=1)
+    live = np.ones_like(sig) if corr is not None else (sig > 0).astype(float)
+    s2 = sig * live + cov.nugget + noise[tgt]
+    if not np.all(s2 > 0):
+        return float("inf"), np.zeros(3)
+    m = resid.shape[1]
+    e2 = (e ** 2).sum(axis=1)
+    score = float(np.sum(m * np.log(s2) + e2 / s2))
+    alpha = m / s2 - e2 / s2 ** 2
+    # lambda = A^-1 g with g = -alpha c - 2 R e / s2, from the solution above
+    lam = -(alpha * live)[:, None] * w - (2.0 / s2)[:, None] * np.matmul(a_r, e[:, :, None])[..., 0]
+    u_dd, u_dist = dd / theta[2], dist / theta[2]
+    h_dd, h_dist = ((u_dd, u_dist) if kind == "exponential" else (2 * u_dd ** 2, 2 * u_dist ** 2))
+    grad = np.zeros(3)
+    grad[0] = theta[0] * float(np.sum(alpha - (lam * w).sum(axis=1)))
+    for j, (da, dc) in ((1, (s_dd, s_dist)), (2, (s_dd * h_dd, s_dist * h_dist))):
+        direct = (theta[1] if j == 1 else 0.0) * live - live * (w * dc).sum(axis=1)
+        da_w = np.matmul(da, w[:, :, None])[:, :, 0]
+        grad[j] = float(np.sum(alpha * direct) + np.sum(lam * (dc - da_w)))
+    return score, grad
+
+
 def _fit_loo(kind: str, setup, resid, noise, start, scale: float, lags):
     """``(nugget_db, sill, length), score`` minimising :func:`_loo_score` (bounded
-    Nelder-Mead on the logarithms, from ``start``).
+    quasi-Newton, L-BFGS-B on the logarithms from ``start``, with the closed-form
+    gradient of :func:`_loo_score_grad`; then polished on a lattice).
 
     Nugget and sill lie between ``1e-6 scale`` and ``2 scale`` (``scale``: the larger of
     the residuals' mean square and the largest semivariance), the length between a
@@ -465,22 +520,19 @@ def _fit_loo(kind: str, setup, resid, noise, start, scale: float, lags):
     from the nearest points see the field near the origin only (for the exponential
     function ``C0 / L``): sill and length are not told apart beyond the data's extent,
     and without these bounds a field could grow a sill and a range it never showed.
+    About 15-30 scores with their gradients instead of the several hundred of a
+    derivative-free search (issue 32).
     """
-    from scipy.optimize import minimize
-
     floor = 1e-6 * scale
-    bounds = [(np.log(floor), np.log(2 * scale))] * 2 + [
-        (np.log(lags[0] / 10.0), np.log(lags[-1] * 2.0))]
-    x0 = np.clip(np.log(np.maximum(np.asarray(start, float), floor)),
-                 [b[0] for b in bounds], [b[1] for b in bounds])
+    lo = np.array([np.log(floor)] * 2 + [np.log(lags[0] / 10.0)])
+    hi = np.array([np.log(2 * scale)] * 2 + [np.log(lags[-1] * 2.0)])
+    x0 = np.clip(np.log(np.maximum(np.asarray(start, float), floor)), lo, hi)
 
     def f(x):
         return _loo_score(np.exp(x), kind, setup, resid, noise)
 
-    r = minimize(f, x0, method="Nelder-Mead", bounds=bounds,
-                 options={"xatol": 1e-2, "fatol": 1e-3, "maxiter": 400})
-    x, fx = _lattice_min(f, r.x, np.array([b[0] for b in bounds]),
-                         np.array([b[1] for b in bounds]))
+    x1 = _projected_bfgs(lambda x: _loo_score_grad(x, kind, setup, resid, noise), x0, lo, hi)
+    x, fx = _lattice_min(f, x1, lo, hi, max_moves=1)
     theta = np.exp(x)
     theta[:2] = np.where(theta[:2] <= 10 * floor, 0.0, theta[:2])
     if theta[1] == 0.0:  # no signal: the length means nothing (a plateau); white noise
@@ -489,13 +541,64 @@ def _fit_loo(kind: str, setup, resid, noise, start, scale: float, lags):
     return theta, fx
 
 
+def _projected_bfgs(fg, x0, lo, hi, max_iter: int = 60, xtol: float = 1e-3,
+                    ftol: float = 1e-4, max_step: float = 1.0):
+    """Minimise ``f`` in the box ``[lo, hi]`` from ``x0``: BFGS on the free variables
+    (``fg(x) = (f, gradient)``), steps projected onto the box, backtracking (Armijo).
+
+    A few dozen evaluations for the three logarithmic parameters of :func:`_fit_loo`;
+    stops when a step moves every coordinate by less than ``xtol`` or ``f`` no longer
+    decreases. A variable at a bound whose gradient pushes outwards stays there.
+    """
+    x = np.clip(np.asarray(x0, float), lo, hi)
+    fx, g = fg(x)
+    if not np.isfinite(fx):
+        return x
+    h, first, gamma, was = np.eye(len(x)), True, 1.0, np.zeros(len(x), bool)
+    for _ in range(max_iter):
+        fixed = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))
+        if np.any(fixed != was):  # another active set: forget the curvature across it
+            h, was = np.eye(len(x)) * gamma, fixed
+        hf = np.where(fixed[:, None] | fixed[None, :], 0.0, h)
+        d = -hf @ np.where(fixed, 0.0, g)
+        if not g @ d < 0:  # not a descent direction: restart from steepest descent
+            h, d = np.eye(len(x)) * gamma, -gamma * np.where(fixed, 0.0, g)
+        t, moved = min(1.0, max_step / max(float(np.max(np.abs(d))), 1e-300)), False
+        for _ in range(30):
+            xn = np.clip(x + t * d, lo, hi)
+            fn, gn = fg(xn)
+            if np.isfinite(fn) and fn <= fx + 1e-4 * (g @ (xn - x)):
+                moved = True
+                break
+            t *= 0.3
+        if not moved:
+            break
+        sv, yv = xn - x, gn - g
+        x, done = xn, (np.max(np.abs(sv)) < xtol or fx - fn < ftol)
+        fx, g = fn, gn
+        if done:
+            break
+        sy = float(sv @ yv)
+        if sy > 1e-12:
+            if first:  # the first step sets the scale of the inverse Hessian
+                gamma, first = sy / float(yv @ yv), False
+                h = np.eye(len(x)) * gamma
+            rho = 1.0 / sy
+            v = np.eye(len(x)) - rho * np.outer(sv, yv)
+            h = v @ h @ v.T + rho * np.outer(sv, sv)
+    return x
+
+
 def _lattice_min(f, x, lo, hi, step: float = 0.05, max_moves: int = 200):
     """Polish a minimum on the fixed lattice ``step * Z^3`` (logarithms: 5 %).
 
     The optimiser's path depends on the last bits of its sums, which differ between
-    numpy builds (QGIS's and the command line's); ending on a lattice local minimum
-    (best of the 26 neighbours, moves only for a real decrease) gives both the same
-    parameters.
+    numpy builds (QGIS's and the command line's); ending on the lattice (the best of
+    the rounded optimum and its 6 neighbours along the axes, repeated up to
+    ``max_moves`` times while a neighbour is really better) gives both the same
+    parameters. :func:`_fit_loo` makes one such move: its quasi-Newton optimum is
+    converged, and further moves only creep along the flat ridge of sill and length
+    (differences of the score far below its own uncertainty).
     """
     lo_i, hi_i = np.ceil(lo / step - 1e-9), np.floor(hi / step + 1e-9)
     cur = np.clip(np.round(np.asarray(x) / step), lo_i, hi_i)
@@ -507,8 +610,7 @@ def _lattice_min(f, x, lo, hi, step: float = 0.05, max_moves: int = 200):
             seen[key] = f(np.asarray(i, float) * step)
         return seen[key]
 
-    moves = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)
-                      if (a, b, c) != (0, 0, 0)], float)
+    moves = np.vstack([np.eye(3), -np.eye(3)])
     best = val(cur)
     for _ in range(max_moves):
         cand = [np.clip(cur + m, lo_i, hi_i) for m in moves]
@@ -527,7 +629,7 @@ def _fit_white(kind: str, setup, resid, noise, scale: float):
     the neighbours still predict the shared part (:func:`_loo_score`, 71 values)."""
     if setup[4] is not None:
         grid = np.geomspace(1e-6 * scale, 10 * scale, 71)
-        sc = np.array([_loo_score((g, 0.0, 0.0), kind, setup, resid, noise) for g in grid])
+        sc = _nugget_scores((0.0, 0.0, 0.0), kind, setup, resid, noise)(grid)
         i = int(np.argmin(sc))
         return float(grid[i]), float(sc[i])
     grid = np.geomspace(1e-6 * scale, 10 * scale, 400)
@@ -537,6 +639,42 @@ def _fit_white(kind: str, setup, resid, noise, scale: float):
     sc = np.sum(resid.shape[1] * np.log(s2) + r2[None, :] / s2, axis=1)
     i = int(np.argmin(sc))
     return float(grid[i]), float(sc[i])
+
+
+def _nugget_scores(theta, kind: str, setup, resid, noise) -> Callable:
+    """``scores(grid)``: :func:`_loo_score` of ``(g, theta[1], theta[2])`` for every
+    nugget ``g`` of ``grid``, from one eigendecomposition per held-out point.
+
+    The nugget enters the kriging matrix as ``g I`` only, so with ``A0 = V diag(l) V'``
+    (the matrix without it) ``(A0 + g I)^-1 = V diag(1 / (l + g)) V'``: every nugget
+    costs a few products instead of a solve. inf where a system is singular or a
+    variance not positive (as :func:`_loo_score`).
+    """
+    tgt, dist, idx, dd, corr = setup
+    cov = CovarianceModel(kind, theta[1], theta[2], 0.0)
+    a, c = _system(cov, dd, dist, noise[idx], None if corr is None else corr[idx],
+                   None if corr is None else corr[tgt])
+    lam, vec = np.linalg.eigh(a)
+    q = np.matmul(c[:, None, :], vec)[:, 0, :]  # V' c
+    qp = q[:, :, None] * np.matmul(np.swapaxes(vec, 1, 2), resid[idx])  # (b, k, comp)
+    qq = q * q
+    tiny = 1e-12 * np.maximum(np.abs(lam).max(axis=1), 1e-300)
+    r_t, n_t, m = resid[tgt], noise[tgt], resid.shape[1]
+
+    def scores(grid) -> np.ndarray:
+        grid = np.asarray(grid, float)
+        den = lam[None, :, :] + grid[:, None, None]  # (grid, b, k)
+        singular = np.any(np.abs(den) <= tiny[None, :, None], axis=(1, 2))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / den
+            e = r_t[None] - np.matmul(inv[:, :, None, :], qp[None])[:, :, 0, :]
+            sig = cov.sill - (inv * qq[None]).sum(axis=2)
+            s2 = (np.maximum(sig, 0.0) if corr is None else sig) + grid[:, None] + n_t[None]
+            ok = ~singular & np.all(s2 > 0, axis=1)
+            sc = np.sum(m * np.log(s2) + (e ** 2).sum(axis=2) / s2, axis=1)
+        return np.where(ok, sc, np.inf)
+
+    return scores
 
 
 def _nugget_posterior(theta, kind: str, setup, resid, noise, n_grid: int = 41):
@@ -554,9 +692,7 @@ def _nugget_posterior(theta, kind: str, setup, resid, noise, n_grid: int = 41):
     """
     tgt = setup[0]
 
-    def scores(grid):
-        return np.array([_loo_score((g, theta[1], theta[2]), kind, setup, resid, noise)
-                         for g in grid])
+    scores = _nugget_scores(theta, kind, setup, resid, noise)
 
     hi = float(theta[0]) + max(float(np.mean((resid[tgt] ** 2).sum(axis=1)
                                              / resid.shape[1])), 1e-12)
@@ -689,19 +825,21 @@ def _ce90_table(cov: CovarianceModel, n_grid: int = 33) -> np.ndarray:
     lo, hi = np.log(rho0 * a.min(axis=1)), np.log(rho0 * a.max(axis=1))
     x = np.full(len(a), np.log(rho0))
     x = np.clip(x, lo, hi)
+    live = np.arange(len(a))  # the lattice points still iterating
     for _ in range(200):
-        rho = np.exp(x)
-        e = np.exp(-rho[:, None] / a)
+        xl, al = x[live], a[live]
+        rho = np.exp(xl)
+        e = np.exp(-rho[:, None] / al)
         h = e @ w - 0.1
-        lo, hi = np.where(h > 0, x, lo), np.where(h > 0, hi, x)
-        slope = -rho * ((e / a) @ w)
+        lo[live], hi[live] = np.where(h > 0, xl, lo[live]), np.where(h > 0, hi[live], xl)
+        slope = -rho * ((e / al) @ w)
         with np.errstate(divide="ignore", invalid="ignore"):
-            new = x - h / slope
-        bad = ~((new > lo) & (new < hi))
-        new = np.where(bad, 0.5 * (lo + hi), new)
-        done = np.max(np.abs(new - x)) < 1e-13
-        x = new
-        if done:
+            new = xl - h / slope
+        bad = ~((new > lo[live]) & (new < hi[live]))
+        new = np.where(bad, 0.5 * (lo[live] + hi[live]), new)
+        x[live] = new
+        live = live[np.abs(new - xl) >= 1e-13]
+        if not live.size:
             break
     rho = np.exp(x)
     return np.sqrt(rho / rho0).reshape(n_grid, n_grid)

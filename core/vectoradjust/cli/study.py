@@ -22,6 +22,7 @@ from pathlib import Path
 
 from vectoradjust.cli.progress import ProgressBar
 from vectoradjust.errors import ProjectError
+from vectoradjust.runner.project_run import truth_tables
 
 __all__ = ["add_parser", "cmd_gcp", "cmd_shift", "cmd_identification", "truth_tables",
            "parse_numbers", "write_common_points"]
@@ -44,52 +45,6 @@ def parse_numbers(text, what: str, integer: bool = False) -> list:
     if any(v < 0 for v in vals):
         raise ProjectError(f"{what} {text!r} must be >= 0", "Write e.g. 0,0.5,1,2")
     return vals
-
-
-def truth_tables(run, spec, out_dir, label: str = "", progress=None, before=None) -> dict:
-    """The per-point truth tables of a run into ``out_dir``.
-
-    ``truth_points.csv``: per adjusted object point with vertex truth (``[[vectors]]
-    truth``) the database and adjusted coordinates against the true ones and whether it
-    moved closer. ``truth_line_points.csv``: with ``[truth]`` centrelines, each adjusted
-    vertex's distance to the nearest true line before and after; the share moved closer
-    goes into the summary (``databases[].truth.lines``).
-
-    ``progress(fraction, message)`` is called before each table and while it is written.
-    ``before`` (:func:`vectoradjust.files.truth.truth_before`, optional): the database
-    vertices' distances to the true lines, computed beforehand.
-
-    Returns
-    -------
-    dict
-        Names of the files written.
-    """
-    from vectoradjust.files.study import truth_point_columns, write_csv
-
-    say = progress or (lambda fraction, message="": None)
-    out = Path(out_dir)
-    written = {}
-    say(0.0, "truth_points.csv")
-    rows = truth_point_columns(run)
-    if rows:
-        written[f"{label}truth_points.csv"] = str(write_csv(
-            rows, out / "truth_points.csv",
-            progress=lambda f: say(0.5 * f, "writing truth_points.csv")))
-    truth = None if spec is None else spec.raw.get("truth")
-    if truth:
-        from vectoradjust.cli.buffer import project_truth
-        from vectoradjust.files.truth import truth_line_distances
-
-        say(0.5, "distances to the true centrelines")
-        path, _ = project_truth(spec)
-        rows = truth_line_distances(run, path, as_columns=True, before=before,
-                                    progress=lambda f, m: say(0.5 + 0.25 * f, m))
-        if rows:
-            written[f"{label}truth_line_points.csv"] = str(write_csv(
-                rows, out / "truth_line_points.csv",
-                progress=lambda f: say(0.75 + 0.25 * f, "writing truth_line_points.csv")))
-    say(1.0, "truth tables written")
-    return written
 
 
 def write_common_points(runs, out_dir):
