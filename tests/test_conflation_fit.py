@@ -122,3 +122,49 @@ def test_the_fit_scores_as_well_as_a_derivative_free_search(kind):
                   options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 2000})
     assert abs(score - nm.fun) <= 0.1
     assert np.allclose(np.log(chosen), nm.x, atol=0.2)  # the same parameters (+-20 %)
+
+
+@pytest.mark.io
+def test_weak_control_still_conflates_with_an_honest_ce90():
+    """With 3 of the sample's 24 GCPs the points' marginal covariance holds more shared
+    orientation error than the prior allows (P_img not positive definite in Z): the
+    image-only positions come from the point given the orientation, and the
+    conflation still fits its field, moves the far vertices closer to the truth and
+    covers it - before, no point had an image-only position, the status still said
+    "conflated" and the CE90 of the moved vertices covered none of the truth."""
+    from vectoradjust.files.readers import load_project_data
+    from vectoradjust.files.study import with_control
+    from vectoradjust.pipeline import run
+    from vectoradjust.runner.project_run import sample_project_dir
+
+    d = load_project_data(sample_project_dir() / "project.toml")
+    rows = np.flatnonzero(d.control.role == "control")
+    r = run(with_control(d, rows[:3]))
+    for e in r.summary["conflation"]["databases"]:
+        assert e["status"] == "conflated"
+        assert e["covariance"]["horizontal"]["model"] in ("gaussian", "exponential")
+        t = e["truth"]
+        assert t["rmse_conflated_truth_horizontal"] < t["rmse_database_truth_horizontal"]
+        assert t["share_within_ce90"] >= 0.8
+
+
+def test_no_field_means_not_conflated(monkeypatch):
+    """No measured point with a position from the images alone (forced here): the status
+    says not done and why, no field is kept, the unmeasured vertices stay unchanged."""
+    from vectoradjust.accuracy import conflation
+    from vectoradjust.pipeline import run
+    from vectoradjust.simulate import make_scenario
+
+    r = run(make_scenario(3, n_images=2, sigma_image=0.003).to_project_data())
+    d = r.databases[0]
+    assert d.conflation is not None  # the run itself conflated
+
+    def nothing(result, problem, pts, **kw):
+        nan = np.full((len(pts), 3), np.nan)
+        return nan, nan
+
+    monkeypatch.setattr(conflation, "image_only", nothing)
+    e = conflation.conflate_database(r, d, None, conflation.ConflationSettings())
+    assert e["status"].startswith("not done: 0 of ")
+    assert d.conflation is None
+    assert not np.isin(d.vertices["Source"], ("interpolated", "extrapolated")).any()

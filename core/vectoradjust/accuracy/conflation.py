@@ -1343,6 +1343,21 @@ def _measured_objects(d):
     return obj_pt, meas_v
 
 
+def _image_weights(q: np.ndarray, prior_weight: np.ndarray) -> tuple:
+    """``Q^-1``, ``P_img = Q^-1 - P_prior``, where ``Q`` is usable (finite, positive
+    definite) and where ``P_img`` is positive definite (a point on one image only has
+    rank 2: not ok)."""
+    usable = np.isfinite(q).all(axis=(1, 2))
+    usable[usable] = np.linalg.eigvalsh(q[usable])[:, 0] > 0
+    q_inv = np.broadcast_to(np.eye(3), q.shape).copy()
+    q_inv[usable] = np.linalg.inv(q[usable])
+    p_img = q_inv - prior_weight
+    p_img = 0.5 * (p_img + np.swapaxes(p_img, 1, 2))
+    ev = np.linalg.eigvalsh(p_img)
+    ok = usable & (ev[:, 0] > 1e-6 * np.maximum(ev[:, 2], 1e-300))
+    return q_inv, p_img, usable, ok
+
+
 def image_only(result, problem, pts: np.ndarray, min_share: float = 0.1,
                scale: Optional[float] = None):
     """What the images alone say about measured shape points: position and covariance.
@@ -1378,18 +1393,20 @@ def image_only(result, problem, pts: np.ndarray, min_share: float = 0.1,
         Variances per axis (m^2).
     """
     vf = result.variance_factor
-    q = result.point_cov[pts] / vf
-    usable = np.isfinite(q).all(axis=(1, 2))
-    usable[usable] = np.linalg.eigvalsh(q[usable])[:, 0] > 0
-    q_inv = np.broadcast_to(np.eye(3), q.shape).copy()
-    q_inv[usable] = np.linalg.inv(q[usable])
     scale = vf if scale is None or not np.isfinite(scale) else float(scale)
-    p_img = q_inv - problem.prior_weight[pts]
-    p_img = 0.5 * (p_img + np.swapaxes(p_img, 1, 2))
+    q_inv, p_img, usable, ok = _image_weights(result.point_cov[pts] / vf, problem
+                                              .prior_weight[pts])
+    npp_inv = getattr(result, "npp_inv", None)
+    redo = usable & ~ok
+    if redo.any() and npp_inv is not None:
+        # the marginal covariance holds the orientation's (and offsets') shared error;
+        # where it exceeds what the prior allows (weak control: P_img not positive),
+        # take the point given the adjusted orientation (N_pp^-1), whose weight is the
+        # images' and the prior's alone
+        qi2, pi2, us2, ok2 = _image_weights(np.asarray(npp_inv, float)[pts[redo]],
+                                            problem.prior_weight[pts[redo]])
+        q_inv[redo], p_img[redo], ok[redo] = qi2, pi2, ok2 & us2
     share = np.einsum("nii->ni", p_img) / np.einsum("nii->ni", q_inv)
-    # a point on one image only has no image-only position (rank 2): left out
-    ev = np.linalg.eigvalsh(p_img)
-    ok = usable & (ev[:, 0] > 1e-6 * np.maximum(ev[:, 2], 1e-300))
     q_img = np.full_like(p_img, np.nan)
     q_img[ok] = np.linalg.inv(p_img[ok])
     prior = problem.prior_xyz[pts]
@@ -1726,6 +1743,15 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
         return entry
     u_obj, disp, cov, kappa, fh, info, d.conflation = _predicted_objects(
         out, d, rec, s, obj_pt, report, cancel)
+    if fh.cov is None:  # no horizontal field: nothing honest to predict with
+        d.conflation = None
+        d.vertices["Source"] = source
+        n_img = info["cross_validation"]["horizontal"]["count"]
+        entry.update({"status": f"not done: {n_img} of {n_meas} measured points have a "
+                      f"position from the images alone, fewer than min_points = "
+                      f"{s.min_points}", **info,
+                      "vertices": {k: int((source == k).sum()) for k in SOURCES}})
+        return entry
     nobj = d.shape.n_objects
     db = d.shape.object_xyz
     adj_o = np.full((nobj, 3), np.nan)
