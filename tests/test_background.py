@@ -151,7 +151,7 @@ def test_report_written_alongside_shows_the_warnings_of_writing(sample_dir, tmp_
     from vectoradjust.runner import alongside
 
     original = outputs._write_layer
-    monkeypatch.setattr(outputs, "_write_layer", lambda gdf, path, layer, fmt: original(
+    monkeypatch.setattr(outputs.writing, "_write_layer", lambda gdf, path, layer, fmt: original(
         gdf, path, layer, fmt) + [f"a writer's note on {layer}"])
     forked = []
     real = alongside.ReportAlongside.result

@@ -96,10 +96,11 @@ def _no_report_figures():
     """The report's figures are not rendered here (the flags do not change them)."""
     pytest.importorskip("geopandas")  # (here: deselected with -m "not io", not skipped)
     pytest.importorskip("rasterio")
-    from vectoradjust.files import report
+    from vectoradjust.files.report import listings, page, sections
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(report, "_img", lambda fig, alt, caption: "<p>figure</p>")
+        for mod in (sections, listings, page):  # where the report looks _img up
+            mp.setattr(mod, "_img", lambda fig, alt, caption: "<p>figure</p>")
         yield
 
 

@@ -380,10 +380,10 @@ def test_a_kill_while_the_files_move_into_place_leaves_an_incomplete_folder(
             raise KeyboardInterrupt("killed")
         return real(src, dst)
 
-    monkeypatch.setattr(outputs.os, "replace", killed_after_three)
+    monkeypatch.setattr(outputs.run_folder.os, "replace", killed_after_three)
     with pytest.raises(KeyboardInterrupt, match="killed"):
         write_outputs(tiny_run, out, fmt="gpkg", bands=False)
-    monkeypatch.setattr(outputs.os, "replace", real)
+    monkeypatch.setattr(outputs.run_folder.os, "replace", real)
     doc = read_manifest(out)
     assert doc["complete"] is False and _state(out) == "incomplete"
     assert "features.shp" in doc["earlier"]

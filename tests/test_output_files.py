@@ -283,11 +283,12 @@ def test_shape_points_through_arrow_equal_the_frame(sample_dir, tmp_path, fmt, m
     from vectoradjust.files import outputs
 
     made = []
-    real = outputs.shape_points_table
-    monkeypatch.setattr(outputs, "shape_points_table", lambda r: made.append(1) or real(r))
+    real = outputs.shape_points_table  # looked up, and patched, in outputs.writing
+    monkeypatch.setattr(outputs.writing, "shape_points_table",
+                        lambda r: made.append(1) or real(r))
     for name in ("arrow", "frame"):
         if name == "frame":  # no Arrow writing: the frame of every layer
-            monkeypatch.setattr(outputs, "_arrow_writing", lambda: {})
+            monkeypatch.setattr(outputs.writing, "_arrow_writing", lambda: {})
         assert main(["adjust", str(sample_dir / "project.toml"), "-o", str(tmp_path / name),
                      "-q", "--no-bands", "--format", fmt]) == 0
     assert made == [1]  # the Arrow table in the first run only

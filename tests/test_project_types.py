@@ -147,7 +147,7 @@ def _unreadable(monkeypatch, path: Path) -> None:
             raise PermissionError(13, "Permission denied", str(file))
         return real(file, *args, **kwargs)
 
-    monkeypatch.setattr(camera_module, "open", fake, raising=False)
+    monkeypatch.setattr(camera_module.camera_file, "open", fake, raising=False)
 
 
 def test_an_unreadable_project_says_permission_denied(project, monkeypatch):

@@ -259,8 +259,12 @@ def test_accuracy_section(adj_run, page):
 
 @pytest.fixture()
 def no_figures(monkeypatch):
-    """Skip rendering the figures where a test looks at the text only."""
-    monkeypatch.setattr(report, "_img", lambda fig, alt, caption: "<p>figure</p>")
+    """Skip rendering the figures where a test looks at the text only (``_img`` is
+    looked up in each of these report modules)."""
+    from vectoradjust.files.report import listings, page, sections
+
+    for mod in (sections, listings, page):
+        monkeypatch.setattr(mod, "_img", lambda fig, alt, caption: "<p>figure</p>")
 
 
 def test_flagged_and_qa(adj_run, tmp_path, no_figures):
@@ -297,8 +301,8 @@ def test_flagged_and_qa(adj_run, tmp_path, no_figures):
 
 
 def test_large_runs_list_the_largest_residuals(adj_run, tmp_path, monkeypatch, no_figures):
-    monkeypatch.setattr(report, "MAX_FULL_SHAPE_ROWS", 50)
-    monkeypatch.setattr(report, "LARGEST_SHAPE_ROWS", 25)
+    monkeypatch.setattr(report.listings, "MAX_FULL_SHAPE_ROWS", 50)
+    monkeypatch.setattr(report.listings, "LARGEST_SHAPE_ROWS", 25)
     p = _parse(report.write_report(adj_run, tmp_path / "r.html"))
     head, rows, _ = p.table("shape-table")
     assert len(rows) == 25
@@ -396,9 +400,9 @@ def test_with_the_reliability_module(adj_run, tmp_path, no_figures):
 # --------------------------------------------------------------------------- bounded size
 def test_report_tables_are_bounded_with_the_count_left_out(adj_run, tmp_path, no_figures,
                                                             monkeypatch):
-    monkeypatch.setattr(report, "LARGEST_FLAGGED_ROWS", 2)
-    monkeypatch.setattr(report, "MAX_FEATURE_ROWS", 4)
-    monkeypatch.setattr(report, "LARGEST_FEATURE_ROWS", 3)
+    monkeypatch.setattr(report.listings, "LARGEST_FLAGGED_ROWS", 2)
+    monkeypatch.setattr(report.listings, "MAX_FEATURE_ROWS", 4)
+    monkeypatch.setattr(report.listings, "LARGEST_FEATURE_ROWS", 3)
     flagged = [{"kind": "image", "image": "L", "point": f"P{i}", "w": 9.0 - i}
                for i in range(5)]
     p = _parse(report.write_report(adj_run, tmp_path / "b.html", reliability=flagged))
@@ -418,7 +422,7 @@ def test_figure_lines_sample_whole_features_above_the_limit(adj_run, monkeypatch
     d = adj_run.databases[0]
     lay = d.shape.layer
     full = report._segments(lay.coords, lay.vertex_feature, lay.vertex_part, (0.0, 0.0))
-    monkeypatch.setattr(report, "MAX_SEGMENTS", len(full) // 3)
+    monkeypatch.setattr(report.figures, "MAX_SEGMENTS", len(full) // 3)
     few = report._segments(lay.coords, lay.vertex_feature, lay.vertex_part, (0.0, 0.0))
     assert 0 < len(few) < len(full) // 2
     again = report._segments(d.adjusted_coords, lay.vertex_feature, lay.vertex_part,

@@ -245,11 +245,11 @@ def test_build_zip(tmp_path):
                  "vectoradjust_qgis/algorithms/equal_error_map.py",
                  "vectoradjust_qgis/ext/vectoradjust/files/assemble.py",
                  "vectoradjust_qgis/ext/vectoradjust/accuracy/derived.py",
-                 "vectoradjust_qgis/ext/vectoradjust/qa/verdict.py",
-                 "vectoradjust_qgis/ext/vectoradjust/files/report.py",
+                 "vectoradjust_qgis/ext/vectoradjust/qa/verdict/__init__.py",
+                 "vectoradjust_qgis/ext/vectoradjust/files/report/__init__.py",
                  "vectoradjust_qgis/styles/residual_arrows.qml",
                  "vectoradjust_qgis/ext/vectoradjust/pipeline.py",
-                 "vectoradjust_qgis/ext/vectoradjust/adjust/bundle.py"):
+                 "vectoradjust_qgis/ext/vectoradjust/adjust/bundle/__init__.py"):
         assert must in names, must
     # the plugin repository wants the licence in the zip: the GNU GPL version 2
     assert "vectoradjust_qgis/LICENSE" in names
