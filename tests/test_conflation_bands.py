@@ -204,6 +204,6 @@ def test_far_vertices_take_the_stated_variance(monkeypatch):
     assert prior["variance"] == pytest.approx(stated - e["covariance"]["horizontal"]["nugget"])
     far = e["truth"]["bands"][3]
     assert far["count"] > 200 and far["ce90"] >= 0.85
-    monkeypatch.setattr(conf, "_sill_prior", lambda spec, cov: None)
+    monkeypatch.setattr(conf.prediction, "_sill_prior", lambda spec, cov: None)
     alone = run(data).summary["conflation"]["databases"][0]["truth"]["bands"][3]
     assert alone["count"] == far["count"] and alone["ce90"] < 0.7

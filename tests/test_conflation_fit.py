@@ -163,7 +163,7 @@ def test_no_field_means_not_conflated(monkeypatch):
         nan = np.full((len(pts), 3), np.nan)
         return nan, nan
 
-    monkeypatch.setattr(conflation, "image_only", nothing)
+    monkeypatch.setattr(conflation.prediction, "image_only", nothing)
     e = conflation.conflate_database(r, d, None, conflation.ConflationSettings())
     assert e["status"].startswith("not done: 0 of ")
     assert d.conflation is None

@@ -214,7 +214,7 @@ def test_rings_contain_every_sampled_ellipse_of_short_segments(n_pairs, n_direct
 def test_rings_in_chunks_equal_one_pass_and_report_progress(monkeypatch):
     p1, p2, c = _road_like_segments(300, 1)
     whole = derived.g_band_rings(p1, p2, c)
-    monkeypatch.setattr(derived, "_BAND_BUDGET", 468 * 40)  # chunks of 40 segments
+    monkeypatch.setattr(derived.band_kernels, "_BAND_BUDGET", 468 * 40)  # chunks of 40 segments
     seen = []
     xy, off = derived.g_band_rings(p1, p2, c, progress=seen.append)
     assert np.array_equal(xy, whole[0]) and np.array_equal(off, whole[1])

@@ -1,6 +1,6 @@
 """The compiled G-band ring kernel (numba, issue 13) against the numpy code.
 
-Truth here is the vectorised numpy construction of :func:`derived.g_band_rings`, which
+Truth here is the vectorised numpy construction of :func:`band_kernels.g_band_rings`, which
 ``tests/test_gband_envelope.py`` checks against the definition of the band (sampled
 ellipses, dense envelopes, ``union_all``). The kernel repeats its floating-point
 expressions in the same order, so the rings must come out the same point for point.
@@ -15,7 +15,7 @@ import sys
 import numpy as np
 import pytest
 
-from vectoradjust.accuracy import derived
+from vectoradjust.accuracy.derived import band_kernels
 
 pytest.importorskip("numba")
 
@@ -24,8 +24,8 @@ pytest.importorskip("numba")
 def kernel(monkeypatch):
     """The compiled kernel for any number of segments."""
     monkeypatch.delenv("VECTORADJUST_NUMBA", raising=False)
-    monkeypatch.setattr(derived, "_KERNEL_MIN", 0)
-    k = derived._ring_kernel()
+    monkeypatch.setattr(band_kernels, "_KERNEL_MIN", 0)
+    k = band_kernels._ring_kernel()
     assert k is not None
     return k
 
@@ -33,8 +33,8 @@ def kernel(monkeypatch):
 def _numpy_rings(monkeypatch, *args, **kwargs):
     with monkeypatch.context() as mp:
         mp.setenv("VECTORADJUST_NUMBA", "0")
-        assert derived._ring_kernel() is None
-        return derived.g_band_rings(*args, **kwargs)
+        assert band_kernels._ring_kernel() is None
+        return band_kernels.g_band_rings(*args, **kwargs)
 
 
 def _segments(m, seed, scale=0.06, length=(0.8, 2.5)):
@@ -76,7 +76,7 @@ def _helsinki_segments():
 def test_kernel_rings_equal_the_numpy_rings(kernel, monkeypatch, n_pairs, n_directions):
     p1, p2, c = _segments(3000, n_pairs)
     ref = _numpy_rings(monkeypatch, p1, p2, c, 0.9, n_pairs, n_directions)
-    got = derived.g_band_rings(p1, p2, c, 0.9, n_pairs, n_directions)
+    got = band_kernels.g_band_rings(p1, p2, c, 0.9, n_pairs, n_directions)
     assert np.array_equal(got[1], ref[1])
     assert np.array_equal(got[0], ref[0])
 
@@ -86,7 +86,7 @@ def test_kernel_rings_equal_the_numpy_rings_on_real_roads(kernel, monkeypatch):
     assert len(p1) > 700
     for conf, scale in ((0.9, 1.0), (0.5, 1.0), (0.9, 0.01), (0.9, 100.0)):
         ref = _numpy_rings(monkeypatch, p1, p2, c * scale, conf)
-        got = derived.g_band_rings(p1, p2, c * scale, conf)
+        got = band_kernels.g_band_rings(p1, p2, c * scale, conf)
         assert np.array_equal(got[1], ref[1]) and np.array_equal(got[0], ref[0])
 
 
@@ -105,11 +105,11 @@ def test_kernel_on_degenerate_segments(kernel, monkeypatch):
     p1[125:130, 0] = np.inf
     c[130, 1, 1] = -1.0  # not positive (clipped like the numpy code)
     ref = _numpy_rings(monkeypatch, p1, p2, c)
-    got = derived.g_band_rings(p1, p2, c)
+    got = band_kernels.g_band_rings(p1, p2, c)
     assert np.array_equal(got[1], ref[1]) and np.array_equal(got[0], ref[0])
     assert np.all(np.diff(got[1])[120:130] == 0)  # the rows the numpy code took
     c[:] = np.nan  # no row for the kernel: every one from the numpy code
-    got = derived.g_band_rings(p1, p2, c)
+    got = band_kernels.g_band_rings(p1, p2, c)
     assert got[0].shape == (0, 2) and np.array_equal(got[1], np.zeros(401, np.int64))
 
 
@@ -117,44 +117,45 @@ def test_splice_puts_rings_back_in_row_order():
     xy = np.arange(10.0).reshape(5, 2)  # rows 0 (2 points) and 2 (3 points)
     xy_b = -np.arange(8.0).reshape(4, 2)  # rows 1 (0 points), 3 (4 points)
     ok = np.array([True, False, True, False])
-    out, cnt = derived._splice(xy, np.array([2, 0, 3, 0]), ok, xy_b, np.array([0, 0, 4]))
+    out, cnt = band_kernels._splice(xy, np.array([2, 0, 3, 0]), ok, xy_b, np.array([0, 0, 4]))
     assert list(cnt) == [2, 0, 3, 4]
     assert np.array_equal(out, np.concatenate([xy[:2], xy[2:], xy_b]))
     none = np.zeros(2, bool)  # every row from the second set
-    out, cnt = derived._splice(xy[:0], np.zeros(2, np.int64), none, xy_b, np.array([0, 1, 4]))
+    out, cnt = band_kernels._splice(xy[:0], np.zeros(2, np.int64), none, xy_b, np.array([0, 1, 4]))
     assert list(cnt) == [1, 3] and np.array_equal(out, xy_b[:4])
 
 
 def test_kernel_reports_progress_per_chunk(kernel, monkeypatch):
-    monkeypatch.setattr(derived, "_KERNEL_CHUNK", 64)
+    monkeypatch.setattr(band_kernels, "_KERNEL_CHUNK", 64)
     p1, p2, c = _segments(300, 4)
     seen = []
-    xy, off = derived.g_band_rings(p1, p2, c, progress=seen.append)
+    xy, off = band_kernels.g_band_rings(p1, p2, c, progress=seen.append)
     assert seen == [64 / 300, 128 / 300, 192 / 300, 256 / 300, 1.0]
     ref = _numpy_rings(monkeypatch, p1, p2, c)
     assert np.array_equal(off, ref[1]) and np.array_equal(xy, ref[0])
-    xy0, off0 = derived.g_band_rings(p1[:0], p2[:0], c[:0])
+    xy0, off0 = band_kernels.g_band_rings(p1[:0], p2[:0], c[:0])
     assert xy0.shape == (0, 2) and list(off0) == [0]
 
 
 def test_kernel_only_for_many_segments_and_loaded_once(monkeypatch):
     monkeypatch.delenv("VECTORADJUST_NUMBA", raising=False)
-    monkeypatch.setattr(derived, "_KERNEL", [])  # not looked for yet in this process
+    monkeypatch.setattr(band_kernels, "_KERNEL", [])  # not looked for yet in this process
     used = []
-    real = derived._compiled_rings
-    monkeypatch.setattr(derived, "_compiled_rings", lambda *a: used.append(len(a[1])) or real(*a))
+    real = band_kernels._compiled_rings
+    monkeypatch.setattr(band_kernels, "_compiled_rings",
+                        lambda *a: used.append(len(a[1])) or real(*a))
     p1, p2, c = _segments(50, 1)
-    derived.g_band_rings(p1, p2, c)
-    assert used == [] and derived._KERNEL == []  # fewer than _KERNEL_MIN: numpy only
+    band_kernels.g_band_rings(p1, p2, c)
+    assert used == [] and band_kernels._KERNEL == []  # fewer than _KERNEL_MIN: numpy only
     said = []
-    assert not derived.warm_ring_kernel(derived._KERNEL_MIN - 1, said.append)
+    assert not band_kernels.warm_ring_kernel(band_kernels._KERNEL_MIN - 1, said.append)
     assert used == [] and said == []
-    assert derived.warm_ring_kernel(derived._KERNEL_MIN, said.append)
+    assert band_kernels.warm_ring_kernel(band_kernels._KERNEL_MIN, said.append)
     assert used == [1] and len(said) == 1 and "loading" in said[0]  # loaded now, said so
-    assert derived.warm_ring_kernel(derived._KERNEL_MIN, said.append)
+    assert band_kernels.warm_ring_kernel(band_kernels._KERNEL_MIN, said.append)
     assert used == [1] and len(said) == 1  # once
-    monkeypatch.setattr(derived, "_KERNEL_MIN", 50)
-    derived.g_band_rings(p1, p2, c)
+    monkeypatch.setattr(band_kernels, "_KERNEL_MIN", 50)
+    band_kernels.g_band_rings(p1, p2, c)
     assert used == [1, 50]
 
 
@@ -165,14 +166,14 @@ def test_a_kernel_that_fails_leaves_the_numpy_code_with_a_warning(monkeypatch):
         raise RuntimeError("cannot cache function 'rings': no locator available")
 
     monkeypatch.delenv("VECTORADJUST_NUMBA", raising=False)
-    monkeypatch.setattr(derived, "_KERNEL", [])
+    monkeypatch.setattr(band_kernels, "_KERNEL", [])
     monkeypatch.setattr(_bandkernel, "rings", broken)
     with pytest.warns(RuntimeWarning, match="no locator available.*numpy code"):
-        assert derived._ring_kernel() is None
-    assert derived._KERNEL == [None]
-    monkeypatch.setattr(derived, "_KERNEL_MIN", 0)
+        assert band_kernels._ring_kernel() is None
+    assert band_kernels._KERNEL == [None]
+    monkeypatch.setattr(band_kernels, "_KERNEL_MIN", 0)
     p1, p2, c = _segments(40, 3)
-    got = derived.g_band_rings(p1, p2, c)
+    got = band_kernels.g_band_rings(p1, p2, c)
     ref = _numpy_rings(monkeypatch, p1, p2, c)
     assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
 
@@ -182,18 +183,18 @@ def test_without_numba_the_numpy_code_runs(monkeypatch):
 
     import vectoradjust.accuracy as package
 
-    monkeypatch.setattr(derived, "_KERNEL", [])
+    monkeypatch.setattr(band_kernels, "_KERNEL", [])
     monkeypatch.setitem(sys.modules, "vectoradjust.accuracy._bandkernel", None)
     monkeypatch.delattr(package, "_bandkernel", raising=False)
-    assert derived._ring_kernel() is None  # the import failed: numpy, and remembered
-    assert derived._KERNEL == [None]
-    assert not derived.warm_ring_kernel(10**6)
-    monkeypatch.setattr(derived, "_KERNEL", [])
+    assert band_kernels._ring_kernel() is None  # the import failed: numpy, and remembered
+    assert band_kernels._KERNEL == [None]
+    assert not band_kernels.warm_ring_kernel(10**6)
+    monkeypatch.setattr(band_kernels, "_KERNEL", [])
     monkeypatch.delitem(sys.modules, "vectoradjust.accuracy._bandkernel")
     monkeypatch.setenv("VECTORADJUST_NUMBA", "0")
-    assert derived._ring_kernel() is None and derived._KERNEL == []
+    assert band_kernels._ring_kernel() is None and band_kernels._KERNEL == []
     monkeypatch.delenv("VECTORADJUST_NUMBA")
-    assert derived._ring_kernel() is not None
+    assert band_kernels._ring_kernel() is not None
 
 
 @pytest.mark.io
@@ -212,7 +213,7 @@ def test_the_command_line_builds_the_same_bands_with_the_kernel(sample_dir, tmp_
     from vectoradjust.cli import main
     from vectoradjust.files import derived_outputs
 
-    real, real_union = derived._compiled_rings, derived_outputs._kernel_union
+    real, real_union = band_kernels._compiled_rings, derived_outputs._kernel_union
 
     def counted(*args):  # a file per process that used the kernel
         (tmp_path / f"used-{os.getpid()}").touch()
@@ -223,10 +224,10 @@ def test_the_command_line_builds_the_same_bands_with_the_kernel(sample_dir, tmp_
         return real_union(*args)
 
     monkeypatch.setenv("VECTORADJUST_WORKERS", "2")
-    monkeypatch.setattr(derived, "_KERNEL_MIN", 0)
-    monkeypatch.setattr(derived, "_KERNEL", [])  # to be loaded by the command's parent
-    monkeypatch.setattr(derived, "_UNION", [])
-    monkeypatch.setattr(derived, "_compiled_rings", counted)
+    monkeypatch.setattr(band_kernels, "_KERNEL_MIN", 0)
+    monkeypatch.setattr(band_kernels, "_KERNEL", [])  # to be loaded by the command's parent
+    monkeypatch.setattr(band_kernels, "_UNION", [])
+    monkeypatch.setattr(band_kernels, "_compiled_rings", counted)
     monkeypatch.setattr(derived_outputs, "_kernel_union", counted_union)
     layers = {}
     for numba in ("1", "0"):
@@ -274,13 +275,13 @@ def test_the_command_line_compiles_the_kernels_in_a_child_while_it_adjusts(
     # the sample has far fewer segments than _KERNEL_MIN: nothing started
     assert main(["adjust", project, "--out", str(tmp_path / "a"), "-q"]) == 0
     assert not list(tmp_path.glob("compile-*"))
-    monkeypatch.setattr(derived, "_KERNEL_MIN", 0)
-    monkeypatch.setattr(derived, "_KERNEL", [])
-    monkeypatch.setattr(derived, "_UNION", [])
+    monkeypatch.setattr(band_kernels, "_KERNEL_MIN", 0)
+    monkeypatch.setattr(band_kernels, "_KERNEL", [])
+    monkeypatch.setattr(band_kernels, "_UNION", [])
     assert main(["adjust", project, "--out", str(tmp_path / "b"), "-q"]) == 0
     done = list(tmp_path.glob("compile-*"))
     assert len(done) == 1 and done[0].name != f"compile-{os.getpid()}"  # in a child
-    assert derived._KERNEL[0] is not None and derived._UNION[0] is not None  # then loaded
+    assert band_kernels._KERNEL[0] is not None and band_kernels._UNION[0] is not None  # then loaded
     done[0].unlink()
     monkeypatch.setenv("VECTORADJUST_NUMBA", "0")  # switched off: nothing started
     assert main(["adjust", project, "--out", str(tmp_path / "c"), "-q"]) == 0

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vectoradjust.accuracy import derived
+from vectoradjust.accuracy.derived import band_kernels
 
 pytest.importorskip("numba")
 shapely = pytest.importorskip("shapely")
@@ -23,7 +23,7 @@ shapely = pytest.importorskip("shapely")
 def union(monkeypatch):
     """The compiled union kernel."""
     monkeypatch.delenv("VECTORADJUST_NUMBA", raising=False)
-    k = derived._union_kernel()
+    k = band_kernels._union_kernel()
     assert k is not None
     return k
 
@@ -98,7 +98,7 @@ def _chains(n_features, seed, scale, step=1.5):
         group += [f] * (len(walk) - 1)
     p1, p2 = np.array(p1), np.array(p2)
     a = rng.normal(size=(len(p1), 4, 4)) * scale
-    xy, off = derived.g_band_rings(p1, p2, a @ np.swapaxes(a, 1, 2) + np.eye(4) * scale**2)
+    xy, off = band_kernels.g_band_rings(p1, p2, a @ np.swapaxes(a, 1, 2) + np.eye(4) * scale**2)
     return xy, off, np.array(group)
 
 
@@ -137,7 +137,7 @@ def test_union_of_real_road_bands_equals_geos(union):
     c[:, :2, :2] = c[:, 2:, 2:] = own
     c[:, :2, 2:] = c[:, 2:, :2] = 0.8 * own
     for scale in (0.01, 1.0, 25.0):  # about 0.3 m, 3 m and 15 m wide
-        xy, off = derived.g_band_rings(p1, p2, c * scale)
+        xy, off = band_kernels.g_band_rings(p1, p2, c * scale)
         status = _check(_features_of_rings(xy, off, group, len(coords)), union,
                         max_left=0.05)
         assert len(status) > 100
@@ -205,9 +205,9 @@ def test_band_union_by_the_kernel_equals_geos_through_the_chunks(union, monkeypa
             else np.arange(len(group))
         take = np.concatenate([np.arange(off[i], off[i + 1]) for i in perm]).astype(int)
         sb = SimpleNamespace(xy=xy[take], offsets=np.concatenate([[0], np.cumsum(sizes[perm])]))
-        monkeypatch.setattr(derived, "_KERNEL_MIN", 0)
+        monkeypatch.setattr(band_kernels, "_KERNEL_MIN", 0)
         got = do._feature_unions(sb, group[perm], 40, lambda f: None, chunk=60)
-        monkeypatch.setattr(derived, "_KERNEL_MIN", 10**9)
+        monkeypatch.setattr(band_kernels, "_KERNEL_MIN", 10**9)
         ref = do._feature_unions(sb, group[perm], 40, lambda f: None, chunk=60)
         for a, b in zip(got, ref):
             assert a.geom_type == "MultiPolygon" and a.is_valid
@@ -223,14 +223,14 @@ def test_a_union_kernel_that_fails_leaves_geos_with_a_warning(monkeypatch):
         raise RuntimeError("cannot cache function 'union_rings': no locator available")
 
     monkeypatch.delenv("VECTORADJUST_NUMBA", raising=False)
-    monkeypatch.setattr(derived, "_UNION", [])
+    monkeypatch.setattr(band_kernels, "_UNION", [])
     monkeypatch.setattr(_unionkernel, "union_rings", broken)
     with pytest.warns(RuntimeWarning, match="no locator available.*GEOS"):
-        assert derived._union_kernel() is None
-    assert derived._UNION == [None]
-    monkeypatch.setattr(derived, "_UNION", [])
+        assert band_kernels._union_kernel() is None
+    assert band_kernels._UNION == [None]
+    monkeypatch.setattr(band_kernels, "_UNION", [])
     monkeypatch.setenv("VECTORADJUST_NUMBA", "0")
-    assert derived._union_kernel() is None and derived._UNION == []
+    assert band_kernels._union_kernel() is None and band_kernels._UNION == []
 
 
 def test_without_numba_geos_unites_the_bands(monkeypatch):
@@ -238,9 +238,9 @@ def test_without_numba_geos_unites_the_bands(monkeypatch):
 
     import vectoradjust.accuracy as package
 
-    monkeypatch.setattr(derived, "_UNION", [])
+    monkeypatch.setattr(band_kernels, "_UNION", [])
     monkeypatch.setitem(sys.modules, "vectoradjust.accuracy._unionkernel", None)
     monkeypatch.delattr(package, "_unionkernel", raising=False)
-    assert derived._union_kernel() is None
-    assert derived._UNION == [None]
-    assert not derived.warm_ring_kernel(10**6)
+    assert band_kernels._union_kernel() is None
+    assert band_kernels._UNION == [None]
+    assert not band_kernels.warm_ring_kernel(10**6)

@@ -244,7 +244,7 @@ def test_build_zip(tmp_path):
                  "vectoradjust_qgis/algorithms/uncertainty_bands.py",
                  "vectoradjust_qgis/algorithms/equal_error_map.py",
                  "vectoradjust_qgis/ext/vectoradjust/files/assemble.py",
-                 "vectoradjust_qgis/ext/vectoradjust/accuracy/derived.py",
+                 "vectoradjust_qgis/ext/vectoradjust/accuracy/derived/__init__.py",
                  "vectoradjust_qgis/ext/vectoradjust/qa/verdict/__init__.py",
                  "vectoradjust_qgis/ext/vectoradjust/files/report/__init__.py",
                  "vectoradjust_qgis/styles/residual_arrows.qml",

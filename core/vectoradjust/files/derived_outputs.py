@@ -282,7 +282,7 @@ def _union_chunks(sb, group: np.ndarray, n: int, step, chunk: int = 50_000):
     """
     import shapely
 
-    from vectoradjust.accuracy import derived
+    from vectoradjust.accuracy.derived import band_kernels as derived
 
     kernel = derived._union_kernel() if len(group) >= derived._KERNEL_MIN else None
     in_order = bool(np.all(group[1:] >= group[:-1]))  # segments feature by feature

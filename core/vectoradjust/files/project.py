@@ -278,7 +278,7 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
         if name in raw:
             check_keys(raw[name], PROJECT_SCHEMA[f"[{name}]"], where, f"[{name}]")
     _check_truth(raw.get("truth"), where)
-    if "conflation" in raw:  # used by pipeline.run (accuracy/conflation.py)
+    if "conflation" in raw:  # used by pipeline.run (accuracy/conflation/)
         check_keys(raw["conflation"], PROJECT_SCHEMA["[conflation]"], where, "[conflation]")
         settings_from_table(raw["conflation"], where)
 

@@ -286,7 +286,7 @@ class KernelsAlongside:
                  enabled: bool = True) -> None:
         import importlib.util
 
-        from vectoradjust.accuracy import derived
+        from vectoradjust.accuracy.derived import band_kernels as derived
         from vectoradjust.runner.background import Background, workers
 
         self.job = None

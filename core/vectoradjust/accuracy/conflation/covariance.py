@@ -1,0 +1,623 @@
+"""The covariance function of the displacement field: the empirical semivariogram and
+the leave-one-out fit of ``C0``, ``L`` and ``n_db`` (:func:`fit_covariance`).
+
+Heart module: numpy and scipy only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+
+__all__ = ["CovarianceModel", "empirical_semivariogram", "fit_covariance"]
+
+
+@dataclass
+class CovarianceModel:
+    """An isotropic covariance function plus white noise, per component.
+
+    Attributes
+    ----------
+    kind : str
+        ``"exponential"`` or ``"gaussian"``.
+    sill : float
+        ``C0`` (m^2), the correlated signal's variance.
+    length : float
+        ``L`` (m).
+    nugget : float
+        White database noise ``n_db`` (m^2) in the kriging system and in every
+        predicted vertex's variance (:func:`fit_covariance`).
+    known_noise : float
+        Mean variance of the measured points (adjustment + identification), m^2.
+    fit : dict
+        The empirical semivariogram and the fit's status.
+    nugget_posterior : tuple of numpy.ndarray, optional
+        ``(x, w)``: the distribution of ``n_db / nugget`` given the data (values and
+        weights summing to 1, mean 1; :func:`_nugget_posterior`); None: ``nugget`` is
+        taken as known.
+    sill_dof : float
+        Degrees of freedom of the sill's estimate (:func:`_sill_dof`; inf: known).
+        With ``nugget_posterior`` they make the CE90 that of the predictive
+        distribution (:func:`ce90_factor`).
+    sill_prior : tuple, optional
+        ``(S0, nu0)``: the database's stated variance of its field (m^2) and its degrees
+        of freedom, the sill's prior in the CE90 (:func:`_sill_prior`,
+        :func:`_ce90_table`); None: the estimate alone.
+    """
+
+    kind: str
+    sill: float
+    length: float
+    nugget: float
+    known_noise: float = 0.0
+    fit: dict = field(default_factory=dict)
+    nugget_posterior: Optional[tuple] = None
+    sill_dof: float = float("inf")
+    sill_prior: Optional[tuple] = None
+    _table: Optional[np.ndarray] = field(default=None, init=False, repr=False, compare=False)
+
+    def __call__(self, r: np.ndarray) -> np.ndarray:
+        """``C(r)`` of the signal (no nugget)."""
+        if self.sill <= 0 or self.length <= 0:
+            return np.zeros_like(np.asarray(r, float))
+        u = np.asarray(r, float) / self.length
+        return self.sill * (np.exp(-u) if self.kind == "exponential" else np.exp(-u * u))
+
+    @property
+    def practical_range(self) -> float:
+        """Distance at which the correlation falls to 5 %."""
+        return float(self.length * (3.0 if self.kind == "exponential" else np.sqrt(3.0)))
+
+    def as_dict(self) -> dict:
+        """JSON-ready description."""
+        return {"model": self.kind, "sill": float(self.sill), "length": float(self.length),
+                "practical_range": self.practical_range, "nugget": float(self.nugget),
+                "known_noise": float(self.known_noise), **self.fit,
+                "nugget_sd": (float(self.nugget * np.sqrt(np.sum(self.nugget_posterior[1] * (
+                    self.nugget_posterior[0] - 1.0) ** 2))) if self.nugget_posterior else 0.0),
+                "sill_dof": float(self.sill_dof) if np.isfinite(self.sill_dof) else None,
+                "sill_prior": (None if self.sill_prior is None else
+                               {"variance": float(self.sill_prior[0]),
+                                "dof": float(self.sill_prior[1])})}
+
+
+def empirical_semivariogram(xy: np.ndarray, resid: np.ndarray, n_bins: int = 15,
+                            max_points: int = 2000, seed: int = 0):
+    """Binned semivariogram ``gamma(h) = mean (r_i - r_j)^2 / 2`` of the residuals.
+
+    Parameters
+    ----------
+    xy : numpy.ndarray, shape (n, 2)
+    resid : numpy.ndarray, shape (n, c)
+        Residuals; the components share one semivariogram (averaged).
+    n_bins : int
+        Bins up to half the largest distance: one below the 1st percentile of the
+        distances, the others geometrically spaced above it.
+    max_points : int
+        A random subset of this many points is used when there are more.
+    seed : int
+
+    Returns
+    -------
+    lag, gamma, count : numpy.ndarray
+        Mean distance, semivariance and number of pairs per bin.
+    """
+    from scipy.spatial.distance import pdist
+
+    n = len(xy)
+    if n > max_points:
+        pick = np.random.default_rng(seed).choice(n, max_points, replace=False)
+        xy, resid = xy[pick], resid[pick]
+    h = pdist(xy)
+    g = np.mean([pdist(resid[:, [c]], "sqeuclidean") for c in range(resid.shape[1])],
+                axis=0) / 2.0
+    keep = (h > 0) & (h <= 0.5 * h.max(initial=0.0))
+    h, g = h[keep], g[keep]
+    if h.size < n_bins:
+        return h, g, np.ones(h.size)
+    # geometric bins from the 1st percentile of the distances: the short lags, which
+    # carry the nugget and the field's behaviour near zero, get bins of their own
+    h0 = max(float(np.quantile(h, 0.01)), 1e-6)
+    edges = np.r_[0.0, np.geomspace(h0, h.max() * (1 + 1e-9), n_bins)]
+    b = np.clip(np.searchsorted(edges, h, side="right") - 1, 0, n_bins - 1)
+    count = np.bincount(b, minlength=n_bins).astype(float)
+    ok = count > 0
+    lag = np.bincount(b, weights=h, minlength=n_bins)[ok] / count[ok]
+    gam = np.bincount(b, weights=g, minlength=n_bins)[ok] / count[ok]
+    return lag, gam, count[ok]
+
+
+def fit_covariance(xy: np.ndarray, resid: np.ndarray, known_noise: np.ndarray,
+                   kind: str = "auto", k: int = 12, max_targets: int = 1000,
+                   corr: Optional[np.ndarray] = None) -> CovarianceModel:
+    """Fit the covariance function and the database's white noise to the residuals.
+
+    Two steps. (1) Weighted least squares on the empirical semivariogram,
+    ``gamma(h) = nugget + C0 (1 - rho(h / L))`` with the nugget at least the mean known
+    noise (start values, and the figures reported). (2) The parameters ``(n_db, C0, L)``
+    that minimise the leave-one-out negative log predictive density of the measured
+    points (:func:`_loo_score`; each held out point predicted from its ``k`` nearest
+    others, exactly as a vertex is predicted, its known noise ``known_noise`` entering its
+    own variance): a proper scoring rule, so the predicted variances are calibrated on
+    the data rather than on a curve fit that cannot tell the database's white noise from
+    a steep rise of the semivariogram at the shortest lags. With ``kind = "auto"`` both
+    functions are fitted and the one with the better score is kept. The score's
+    gradient is in closed form (:func:`_loo_score_grad`), so a quasi-Newton search
+    (:func:`_projected_bfgs`) needs 15-30 scores where a derivative-free one needed
+    several hundred; its result is put on a fixed lattice (:func:`_lattice_min`) so
+    that QGIS's numpy gives the same model. ``n_db`` is then replaced by its mean given
+    the data (:func:`_nugget_posterior`, every nugget from one eigendecomposition,
+    :func:`_nugget_scores`), and the sill's degrees of freedom are estimated
+    (:func:`_sill_dof`): the CE90 of a predicted vertex accounts for both parameters'
+    uncertainty (:func:`ce90_factor`). On the sample project and the conflation
+    simulation the chosen models are those of the former Nelder-Mead search, at a
+    fifth of its time (issue 32, benchmarks/README.md).
+
+    Parameters
+    ----------
+    xy : numpy.ndarray, shape (n, 2)
+        Measured points.
+    resid : numpy.ndarray, shape (n, c)
+        Their displacements less the trend.
+    known_noise : numpy.ndarray, shape (n,)
+        Each point's known noise variance per component (m^2).
+    kind : str
+        ``"exponential"``, ``"gaussian"`` or ``"auto"``.
+    k : int
+        Neighbours per leave-one-out prediction (the ``[conflation] k``).
+    max_targets : int
+        The score is summed over at most this many held-out points (a random subset,
+        seeded: the same points every run; all points serve as neighbours), so a
+        score costs the same from ``max_targets`` measured points on.
+    corr : numpy.ndarray, shape (n, r), optional
+        The points' noise shared with each other: covariance ``corr corr'`` (part of
+        ``known_noise`` on the diagonal), e.g. the images' height error through their
+        orientation (:func:`_orientation_basis`); a field must not take it for the
+        database's.
+
+    Returns
+    -------
+    CovarianceModel
+        Without enough pairs for a semivariogram a pure nugget model (no correlated
+        signal). ``fit`` holds the semivariogram, its least-squares fit and the score.
+    """
+    noise_pt = np.asarray(known_noise, float)
+    noise = float(np.mean(noise_pt)) if len(noise_pt) else 0.0
+    total = float(np.mean(resid ** 2)) if resid.size else 0.0
+    lag, gam, cnt = empirical_semivariogram(xy, resid)
+    fit = {"lags": lag.tolist(), "semivariance": gam.tolist(), "pairs": cnt.astype(int).tolist()}
+    if lag.size < 4 or len(xy) < 4:
+        return CovarianceModel(kind if kind in ("exponential", "gaussian") else "exponential",
+                               0.0, 0.0, max(total - noise, 0.0), noise,
+                               {**fit, "status": "too few pairs: white noise only"})
+    # the measured points' own noise is part of the nugget: it cannot be smaller
+    floor = min(noise, 0.999 * float(gam.max()))
+    setup = _loo_setup(xy, k, max_targets, corr=corr)
+    scale = max(total, float(gam.max()), 1e-12)
+    best = None
+    fits = {}
+    for kd in (("exponential", "gaussian") if kind == "auto" else (kind,)):
+        nug, sill, length = _fit_grid(lag, gam, cnt, kd, floor)
+        start = (max(nug - noise, 0.05 * scale), max(sill, 0.05 * scale),
+                 length if sill > 0 else float(np.median(lag)))
+        theta, score = _fit_loo(kd, setup, resid, noise_pt, start, scale, lag)
+        wls = fits[kd] = {"nugget": nug, "sill": sill, "length": length}
+        if best is None or score < best[2]:
+            best = (kd, theta, score, wls)
+    kd, theta, score, wls = best
+    white = _fit_white(kd, setup, resid, noise_pt, scale)
+    status = "fitted"
+    if white[1] <= score + 4.0:  # a signal must earn its two parameters (AIC)
+        theta, score, status = np.array([white[0], 0.0, 0.0]), white[1], "white noise (AIC)"
+        # no signal: its shape does not matter, and the near-tie between the two shapes'
+        # scores must not make the label depend on the platform's rounding
+        kd = "exponential" if kind == "auto" else kd
+        wls = fits[kd]
+    nug, post = _nugget_posterior(theta, kd, setup, resid, noise_pt)
+    model = CovarianceModel(kd, float(theta[1]), float(theta[2]), nug, noise,
+                            {**fit, "status": status, "fitted_nugget": wls["nugget"],
+                             "semivariogram_fit": wls, "loo_score": score,
+                             "loo_score_white": white[1], "nugget_best": float(theta[0]),
+                             "loo_targets": int(len(setup[0]))}, post)
+    model.sill_dof = _sill_dof(model, xy, resid.shape[1])
+    return model
+
+
+def _nonneg_pair(f: np.ndarray, g: np.ndarray, w: np.ndarray):
+    """Per row: ``a, b >= 0`` minimising ``sum w (g - a - b f)^2`` (the KKT candidates)."""
+    sw, sf, sff = w.sum(1), (w * f).sum(1), (w * f * f).sum(1)
+    sg, sfg = (w * g).sum(1), (w * f * g).sum(1)
+    det = sw * sff - sf * sf
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cands = [((sff * sg - sf * sfg) / det, (sw * sfg - sf * sg) / det),  # both free
+                 (np.zeros_like(sw), np.maximum(sfg / sff, 0.0)),            # a = 0
+                 (np.maximum(sg / sw, 0.0), np.zeros_like(sw))]             # b = 0
+    best_a, best_b = cands[2]
+    best = ((g - best_a[:, None]) ** 2 * w).sum(1)
+    for a, b in cands[:2]:
+        ok = np.isfinite(a) & np.isfinite(b) & (a >= 0) & (b >= 0)
+        a, b = np.where(ok, a, 0.0), np.where(ok, b, 0.0)
+        sse = np.where(ok, ((g - a[:, None] - b[:, None] * f) ** 2 * w).sum(1), np.inf)
+        better = sse < best
+        best_a, best_b, best = (np.where(better, a, best_a), np.where(better, b, best_b),
+                                np.where(better, sse, best))
+    return best_a, best_b, best
+
+
+def _fit_grid(lag, gam, cnt, kind: str, floor: float, n_lengths: int = 241):
+    """``(nugget, sill, length)`` of the semivariogram model, weighted least squares.
+
+    For each length on a geometric grid the model is linear in the nugget (>= floor)
+    and the sill (>= 0) and solved exactly; the best length wins. Cressie's weights
+    ``N_h / gamma(h)^2`` (the short lags count as much as the long ones), with the
+    model of the previous round, four rounds. No iterative optimiser: the same data
+    give the same model on every platform (QGIS's numpy and scipy included).
+    """
+    lengths = np.geomspace(lag[0] / 10.0, lag[-1] * 10.0, n_lengths)
+    u = lag[None, :] / lengths[:, None]
+    f = 1.0 - (np.exp(-u) if kind == "exponential" else np.exp(-u * u))
+    g = np.broadcast_to(gam - floor, f.shape)
+    model = np.maximum(gam, 1e-12 * max(float(gam.max()), 1e-300))
+    for _ in range(4):
+        w = np.broadcast_to(cnt / model ** 2, f.shape)
+        a, b, sse = _nonneg_pair(f, g, w)
+        i = int(np.argmin(sse))
+        model = np.maximum(floor + a[i] + b[i] * f[i], 1e-12 * max(float(gam.max()), 1e-300))
+    return float(floor + a[i]), float(b[i]), float(lengths[i])
+
+
+def _neighbours(tree, xy: np.ndarray, k: int, skip_self: bool):
+    """Distances and indices (b, k) of the k nearest measured points."""
+    kk = k + 1 if skip_self else k
+    dist, idx = tree.query(xy, k=kk)
+    dist = np.asarray(dist, float).reshape(len(xy), kk)
+    idx = np.asarray(idx).reshape(len(xy), kk)
+    if skip_self:
+        return dist[:, 1:], idx[:, 1:]
+    return dist, idx
+
+
+def _system(cov: CovarianceModel, dd, dist, noise_nb, u_nb=None, u_tgt=None, signal=None):
+    """Kriging matrix (b, k, k) and right side (b, k) of ``k`` neighbours.
+
+    ``C(dd) + diag(n_db + noise)`` against ``C(dist)``; with ``u_nb`` (b, k, r) the
+    neighbours' noise is correlated, ``u u'`` (the images' shared error, e.g. of their
+    orientation; ``noise`` holds each point's whole variance, so the diagonal keeps it),
+    and a target that is itself a measured point (leave-one-out; ``u_tgt`` (b, r))
+    shares it with them: the right side gains ``u_nb u_tgt``. ``signal``: ``(C(dd),
+    C(dist))`` when the caller has them already (not modified).
+    """
+    diag = np.arange(dd.shape[1])
+    a = cov(dd) if signal is None else signal[0].copy()
+    c = cov(dist) if signal is None else signal[1]
+    if u_nb is None:
+        a[:, diag, diag] += cov.nugget + noise_nb
+        return a, c
+    own = np.einsum("bkr,bkr->bk", u_nb, u_nb)
+    a += np.matmul(u_nb, np.swapaxes(u_nb, 1, 2))
+    a[:, diag, diag] += cov.nugget + np.maximum(noise_nb - own, 0.0)
+    if u_tgt is not None:
+        c = c + np.einsum("bkr,br->bk", u_nb, u_tgt)
+    return a, c
+
+
+def _loo_setup(xy: np.ndarray, k: int, max_targets: int, seed: int = 0, corr=None):
+    """Targets (a random subset of at most ``max_targets`` points), their ``k`` nearest
+    other points (all points serve as neighbours) and the distances: fixed while the
+    parameters of :func:`_loo_score` change."""
+    from scipy.spatial import cKDTree
+
+    n = len(xy)
+    tgt = np.arange(n)
+    if n > max_targets:
+        tgt = np.sort(np.random.default_rng(seed).choice(n, max_targets, replace=False))
+    k = int(min(k, n - 1))
+    dist, idx = _neighbours(cKDTree(xy), xy[tgt], k, skip_self=True)
+    px, py = xy[idx, 0], xy[idx, 1]
+    dd = np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :])
+    return tgt, dist, idx, dd, corr
+
+
+def _loo_score(theta, kind: str, setup, resid: np.ndarray, noise: np.ndarray) -> float:
+    """Negative leave-one-out log predictive density (per component, constants dropped)
+    of ``theta = (nugget_db, sill, length)``: ``sum log s2 + e^2 / s2`` with ``e`` the
+    held-out point's error and ``s2`` its predicted variance (kriging variance + database
+    noise + the point's own noise; with ``corr`` in ``setup`` the noise shared with the
+    neighbours, :func:`_system`)."""
+    tgt, dist, idx, dd, corr = setup
+    cov = CovarianceModel(kind, theta[1], theta[2], theta[0])
+    a, c = _system(cov, dd, dist, noise[idx], None if corr is None else corr[idx],
+                   None if corr is None else corr[tgt])
+    try:
+        w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:  # a singular system: no admissible parameters
+        return float("inf")
+    e = resid[tgt] - np.einsum("bk,bkc->bc", w, resid[idx])
+    sig = cov.sill - np.einsum("bk,bk->b", w, c)
+    s2 = (np.maximum(sig, 0.0) if corr is None else sig) + cov.nugget + noise[tgt]
+    if not np.all(s2 > 0):  # a perfect prediction claimed: not admissible
+        return float("inf")
+    return float(np.sum(resid.shape[1] * np.log(s2) + (e ** 2).sum(axis=1) / s2))
+
+
+def _loo_score_grad(x, kind: str, setup, resid: np.ndarray, noise: np.ndarray):
+    """:func:`_loo_score` of ``theta = exp(x)`` and its gradient in ``x`` (the
+    logarithms of nugget, sill and length), in closed form: one batched solve.
+
+    With ``w = A^-1 c`` the held-out point's weights, ``e`` its error and ``s2`` its
+    variance, the score's derivative is ``sum alpha ds2 + g' dw`` with ``alpha = c/s2 -
+    |e|^2/s2^2`` and ``g = -alpha c - 2 R e / s2`` (``R`` the neighbours' residuals);
+    ``dw = A^-1 (dc - dA w)``, so ``lambda = A^-1 g`` (``A`` symmetric) gives every
+    parameter's share ``lambda' (dc - dA w)`` (the adjoint). ``lambda = -alpha w - 2
+    (A^-1 R) e / s2`` comes from the same solve as ``w`` (right sides ``c`` and ``R``).
+    ``(inf, 0)`` where the score is inf.
+    """
+    theta = np.exp(np.asarray(x, float))
+    tgt, dist, idx, dd, corr = setup
+    cov = CovarianceModel(kind, theta[1], theta[2], theta[0])
+    s_dd, s_dist = cov(dd), cov(dist)  # the signal's share of a and c: d/d log sill
+    a, c = _system(cov, dd, dist, noise[idx], None if corr is None else corr[idx],
+                   None if corr is None else corr[tgt], signal=(s_dd, s_dist))
+    r_nb = resid[idx]
+    try:  # the weights and A^-1 R together: one factorisation
+        sol = np.linalg.solve(a, np.concatenate([c[:, :, None], r_nb], axis=2))
+    except np.linalg.LinAlgError:
+        return float("inf"), np.zeros(3)
+    w, a_r = sol[:, :, 0], sol[:, :, 1:]
+    e = resid[tgt] - np.matmul(w[:, None, :], r_nb)[:, 0, :]
+    sig = cov.sill - (w * c).sum(axis=1)
+    live = np.ones_like(sig) if corr is not None else (sig > 0).astype(float)
+    s2 = sig * live + cov.nugget + noise[tgt]
+    if not np.all(s2 > 0):
+        return float("inf"), np.zeros(3)
+    m = resid.shape[1]
+    e2 = (e ** 2).sum(axis=1)
+    score = float(np.sum(m * np.log(s2) + e2 / s2))
+    alpha = m / s2 - e2 / s2 ** 2
+    # lambda = A^-1 g with g = -alpha c - 2 R e / s2, from the solution above
+    lam = -(alpha * live)[:, None] * w - (2.0 / s2)[:, None] * np.matmul(a_r, e[:, :, None])[..., 0]
+    u_dd, u_dist = dd / theta[2], dist / theta[2]
+    h_dd, h_dist = ((u_dd, u_dist) if kind == "exponential" else (2 * u_dd ** 2, 2 * u_dist ** 2))
+    grad = np.zeros(3)
+    grad[0] = theta[0] * float(np.sum(alpha - (lam * w).sum(axis=1)))
+    for j, (da, dc) in ((1, (s_dd, s_dist)), (2, (s_dd * h_dd, s_dist * h_dist))):
+        direct = (theta[1] if j == 1 else 0.0) * live - live * (w * dc).sum(axis=1)
+        da_w = np.matmul(da, w[:, :, None])[:, :, 0]
+        grad[j] = float(np.sum(alpha * direct) + np.sum(lam * (dc - da_w)))
+    return score, grad
+
+
+def _fit_loo(kind: str, setup, resid, noise, start, scale: float, lags):
+    """``(nugget_db, sill, length), score`` minimising :func:`_loo_score` (bounded
+    quasi-Newton, L-BFGS-B on the logarithms from ``start``, with the closed-form
+    gradient of :func:`_loo_score_grad`; then polished on a lattice).
+
+    Nugget and sill lie between ``1e-6 scale`` and ``2 scale`` (``scale``: the larger of
+    the residuals' mean square and the largest semivariance), the length between a
+    tenth of the shortest and twice the longest lag of the semivariogram. Predictions
+    from the nearest points see the field near the origin only (for the exponential
+    function ``C0 / L``): sill and length are not told apart beyond the data's extent,
+    and without these bounds a field could grow a sill and a range it never showed.
+    About 15-30 scores with their gradients instead of the several hundred of a
+    derivative-free search (issue 32).
+    """
+    floor = 1e-6 * scale
+    lo = np.array([np.log(floor)] * 2 + [np.log(lags[0] / 10.0)])
+    hi = np.array([np.log(2 * scale)] * 2 + [np.log(lags[-1] * 2.0)])
+    x0 = np.clip(np.log(np.maximum(np.asarray(start, float), floor)), lo, hi)
+
+    def f(x):
+        return _loo_score(np.exp(x), kind, setup, resid, noise)
+
+    x1 = _projected_bfgs(lambda x: _loo_score_grad(x, kind, setup, resid, noise), x0, lo, hi)
+    x, fx = _lattice_min(f, x1, lo, hi, max_moves=1)
+    theta = np.exp(x)
+    theta[:2] = np.where(theta[:2] <= 10 * floor, 0.0, theta[:2])
+    if theta[1] == 0.0:  # no signal: the length means nothing (a plateau); white noise
+        theta[2] = 0.0
+        fx = _loo_score(theta, kind, setup, resid, noise)
+    return theta, fx
+
+
+def _projected_bfgs(fg, x0, lo, hi, max_iter: int = 60, xtol: float = 1e-3,
+                    ftol: float = 1e-4, max_step: float = 1.0):
+    """Minimise ``f`` in the box ``[lo, hi]`` from ``x0``: BFGS on the free variables
+    (``fg(x) = (f, gradient)``), steps projected onto the box, backtracking (Armijo).
+
+    A few dozen evaluations for the three logarithmic parameters of :func:`_fit_loo`;
+    stops when a step moves every coordinate by less than ``xtol`` or ``f`` no longer
+    decreases. A variable at a bound whose gradient pushes outwards stays there.
+    """
+    x = np.clip(np.asarray(x0, float), lo, hi)
+    fx, g = fg(x)
+    if not np.isfinite(fx):
+        return x
+    h, first, gamma, was = np.eye(len(x)), True, 1.0, np.zeros(len(x), bool)
+    for _ in range(max_iter):
+        fixed = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))
+        if np.any(fixed != was):  # another active set: forget the curvature across it
+            h, was = np.eye(len(x)) * gamma, fixed
+        hf = np.where(fixed[:, None] | fixed[None, :], 0.0, h)
+        d = -hf @ np.where(fixed, 0.0, g)
+        if not g @ d < 0:  # not a descent direction: restart from steepest descent
+            h, d = np.eye(len(x)) * gamma, -gamma * np.where(fixed, 0.0, g)
+        t, moved = min(1.0, max_step / max(float(np.max(np.abs(d))), 1e-300)), False
+        for _ in range(30):
+            xn = np.clip(x + t * d, lo, hi)
+            fn, gn = fg(xn)
+            if np.isfinite(fn) and fn <= fx + 1e-4 * (g @ (xn - x)):
+                moved = True
+                break
+            t *= 0.3
+        if not moved:
+            break
+        sv, yv = xn - x, gn - g
+        x, done = xn, (np.max(np.abs(sv)) < xtol or fx - fn < ftol)
+        fx, g = fn, gn
+        if done:
+            break
+        sy = float(sv @ yv)
+        if sy > 1e-12:
+            if first:  # the first step sets the scale of the inverse Hessian
+                gamma, first = sy / float(yv @ yv), False
+                h = np.eye(len(x)) * gamma
+            rho = 1.0 / sy
+            v = np.eye(len(x)) - rho * np.outer(sv, yv)
+            h = v @ h @ v.T + rho * np.outer(sv, sv)
+    return x
+
+
+def _lattice_min(f, x, lo, hi, step: float = 0.05, max_moves: int = 200):
+    """Polish a minimum on the fixed lattice ``step * Z^3`` (logarithms: 5 %).
+
+    The optimiser's path depends on the last bits of its sums, which differ between
+    numpy builds (QGIS's and the command line's); ending on the lattice (the best of
+    the rounded optimum and its 6 neighbours along the axes, repeated up to
+    ``max_moves`` times while a neighbour is really better) gives both the same
+    parameters. :func:`_fit_loo` makes one such move: its quasi-Newton optimum is
+    converged, and further moves only creep along the flat ridge of sill and length
+    (differences of the score far below its own uncertainty).
+    """
+    lo_i, hi_i = np.ceil(lo / step - 1e-9), np.floor(hi / step + 1e-9)
+    cur = np.clip(np.round(np.asarray(x) / step), lo_i, hi_i)
+    seen: dict = {}
+
+    def val(i):
+        key = tuple(int(v) for v in i)
+        if key not in seen:
+            seen[key] = f(np.asarray(i, float) * step)
+        return seen[key]
+
+    moves = np.vstack([np.eye(3), -np.eye(3)])
+    best = val(cur)
+    for _ in range(max_moves):
+        cand = [np.clip(cur + m, lo_i, hi_i) for m in moves]
+        vals = [val(c) for c in cand]
+        j = int(np.argmin(vals))
+        if not vals[j] < best - 1e-9 * max(abs(best), 1.0):
+            break
+        cur, best = cand[j], vals[j]
+    return cur * step, float(best)
+
+
+def _fit_white(kind: str, setup, resid, noise, scale: float):
+    """The white-noise-only model (no signal): ``n_db`` minimising :func:`_loo_score`
+    on a logarithmic grid (one parameter) and its score. Without shared noise the
+    held-out point's prediction is 0 and the score is closed-form (400 values); with it
+    the neighbours still predict the shared part (:func:`_loo_score`, 71 values)."""
+    if setup[4] is not None:
+        grid = np.geomspace(1e-6 * scale, 10 * scale, 71)
+        sc = _nugget_scores((0.0, 0.0, 0.0), kind, setup, resid, noise)(grid)
+        i = int(np.argmin(sc))
+        return float(grid[i]), float(sc[i])
+    grid = np.geomspace(1e-6 * scale, 10 * scale, 400)
+    tgt = setup[0]
+    r2 = (resid[tgt] ** 2).sum(axis=1)
+    s2 = grid[:, None] + noise[tgt][None, :]
+    sc = np.sum(resid.shape[1] * np.log(s2) + r2[None, :] / s2, axis=1)
+    i = int(np.argmin(sc))
+    return float(grid[i]), float(sc[i])
+
+
+def _nugget_scores(theta, kind: str, setup, resid, noise) -> Callable:
+    """``scores(grid)``: :func:`_loo_score` of ``(g, theta[1], theta[2])`` for every
+    nugget ``g`` of ``grid``, from one eigendecomposition per held-out point.
+
+    The nugget enters the kriging matrix as ``g I`` only, so with ``A0 = V diag(l) V'``
+    (the matrix without it) ``(A0 + g I)^-1 = V diag(1 / (l + g)) V'``: every nugget
+    costs a few products instead of a solve. inf where a system is singular or a
+    variance not positive (as :func:`_loo_score`).
+    """
+    tgt, dist, idx, dd, corr = setup
+    cov = CovarianceModel(kind, theta[1], theta[2], 0.0)
+    a, c = _system(cov, dd, dist, noise[idx], None if corr is None else corr[idx],
+                   None if corr is None else corr[tgt])
+    lam, vec = np.linalg.eigh(a)
+    q = np.matmul(c[:, None, :], vec)[:, 0, :]  # V' c
+    qp = q[:, :, None] * np.matmul(np.swapaxes(vec, 1, 2), resid[idx])  # (b, k, comp)
+    qq = q * q
+    tiny = 1e-12 * np.maximum(np.abs(lam).max(axis=1), 1e-300)
+    r_t, n_t, m = resid[tgt], noise[tgt], resid.shape[1]
+
+    def scores(grid) -> np.ndarray:
+        grid = np.asarray(grid, float)
+        den = lam[None, :, :] + grid[:, None, None]  # (grid, b, k)
+        singular = np.any(np.abs(den) <= tiny[None, :, None], axis=(1, 2))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / den
+            e = r_t[None] - np.matmul(inv[:, :, None, :], qp[None])[:, :, 0, :]
+            sig = cov.sill - (inv * qq[None]).sum(axis=2)
+            s2 = (np.maximum(sig, 0.0) if corr is None else sig) + grid[:, None] + n_t[None]
+            ok = ~singular & np.all(s2 > 0, axis=1)
+            sc = np.sum(m * np.log(s2) + (e ** 2).sum(axis=2) / s2, axis=1)
+        return np.where(ok, sc, np.inf)
+
+    return scores
+
+
+def _nugget_posterior(theta, kind: str, setup, resid, noise, n_grid: int = 41):
+    """The database's white noise ``n_db`` as its mean given the data, not its best fit,
+    and its distribution given the data ``(x, w)`` (values ``n_db / mean`` with weights,
+    None when the likelihood cannot be evaluated or the mean is 0).
+
+    ``n_db`` is the difference of two similar variances (the held-out points' scatter
+    and their known noise); its best fit is often 0 (the boundary) where the truth is a
+    few cm^2, and a vertex's variance built on it is too small. With a flat prior on
+    ``n_db >= 0`` and the leave-one-out likelihood ``exp(-score / 2)`` (the signal's
+    parameters fixed at their fit), the mean of ``n_db`` is the variance a prediction
+    should carry for it. The grid runs from 0 to where the likelihood has fallen by
+    ``e^-10`` (found on two coarse grids), ``n_grid`` values.
+    """
+    tgt = setup[0]
+
+    scores = _nugget_scores(theta, kind, setup, resid, noise)
+
+    hi = float(theta[0]) + max(float(np.mean((resid[tgt] ** 2).sum(axis=1)
+                                             / resid.shape[1])), 1e-12)
+    for _ in range(2):  # narrow the range to where the likelihood is
+        grid = np.linspace(0.0, hi, 21)
+        sc = scores(grid)
+        if not np.isfinite(sc).any():
+            return float(theta[0]), None
+        i = int(np.nanargmin(sc))
+        above = np.flatnonzero((sc - sc[i] > 20.0) & (np.arange(21) > i))
+        if not above.size:
+            break
+        hi = float(grid[above[0]])
+    grid = np.linspace(0.0, hi, n_grid)
+    sc = scores(grid)
+    w = np.exp(-(sc - np.nanmin(sc)) / 2.0)
+    w[~np.isfinite(w)] = 0.0
+    w = w / np.sum(w)
+    mean = float(np.sum(w * grid))
+    keep = w > 1e-9
+    return mean, ((grid[keep] / mean, w[keep] / w[keep].sum()) if mean > 0 else None)
+
+
+def _sill_dof(cov: CovarianceModel, xy: np.ndarray, n_comp: int, max_points: int = 1500,
+              seed: int = 0) -> float:
+    """Degrees of freedom ``nu`` of the sill's estimate: ``Var(C0_hat) = 2 C0^2 / nu``.
+
+    The field's variance is seen through one realisation at ``m`` correlated places per
+    component: the mean square of the field's values there varies from realisation to
+    realisation by ``2 tr(C^2) / (c m^2)`` (``C`` the fitted signal covariance between
+    the points, ``c`` components), so ``nu = c m^2 C0^2 / tr(C^2)``: ``c m`` for
+    uncorrelated values, between ``c`` and a few ``c`` where the measured points span
+    only a few correlation lengths (the patches of the field that the data saw). The
+    noise's share of the sill's error is left out: a signal is kept only when it beats
+    white noise by the AIC margin (:func:`fit_covariance`), and with it ``nu`` stays at
+    least ``c``. The pair sum is taken on a random subset of at most ``max_points``
+    points (scaled by the number of pairs). Inf without a signal.
+    """
+    m = len(xy)
+    if cov.sill <= 0 or cov.length <= 0 or m < 2:
+        return float("inf")
+    from scipy.spatial.distance import pdist
+
+    pick = (np.sort(np.random.default_rng(seed).choice(m, max_points, replace=False))
+            if m > max_points else np.arange(m))
+    ns = len(pick)
+    off = 2.0 * float(np.sum(cov(pdist(xy[pick])) ** 2)) * m * (m - 1) / (ns * (ns - 1))
+    return float(n_comp * m * m * cov.sill ** 2 / (m * cov.sill ** 2 + off))
