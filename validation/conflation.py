@@ -299,8 +299,9 @@ def use_true_covariance(nugget_only: bool = False) -> None:
     ``nugget_only`` (``--true-nugget``): only the database noise is the true 0.09 m^2,
     the signal's sill and length stay fitted (which parameter's error moves a seed)."""
     import vectoradjust.accuracy.conflation as conf
+    import vectoradjust.accuracy.conflation.fields as conf_fields  # where it is looked up
 
-    fit = conf.fit_covariance
+    fit = conf_fields.fit_covariance
 
     def true_fit(xy, resid, known, kind="auto", k=12, max_targets=1000, corr=None):
         f = fit(xy, resid, known, kind, k, max_targets, corr=corr)
@@ -313,7 +314,7 @@ def use_true_covariance(nugget_only: bool = False) -> None:
         return conf.CovarianceModel("gaussian", sill, 150.0 * np.sqrt(2) if sill else 0.0,
                                     0.3 ** 2, f.known_noise, {**f.fit, "status": "true"})
 
-    conf.fit_covariance = true_fit
+    conf_fields.fit_covariance = true_fit
 
 
 _TRUE = {"amplitude": 2.0}

@@ -55,7 +55,7 @@ sys.path.insert(0, str(ROOT / "core"))
 
 from acceptance import Criteria, mean_band  # noqa: E402
 
-import vectoradjust.accuracy.conflation as conf  # noqa: E402
+import vectoradjust.accuracy.conflation.fields as conf_fields  # noqa: E402
 from vectoradjust.adjust.shapepoints import extract_shape_points, lookup  # noqa: E402
 from vectoradjust.pipeline import run  # noqa: E402
 from vectoradjust.simulate.conflation import conflation_scenario  # noqa: E402
@@ -71,15 +71,16 @@ ALPHA = 0.01 / 6
 
 
 def _capture() -> None:
-    """Keep the horizontal residuals that :func:`fit_covariance` is given."""
-    fit = conf.fit_covariance
+    """Keep the horizontal residuals that :func:`fit_covariance` is given (spied where
+    the conflation's fields look it up)."""
+    fit = conf_fields.fit_covariance
 
     def spy(xy, resid, known, *args, **kw):
         if resid.shape[1] == 2:
             _SEEN.update(xy=xy.copy(), resid=resid.copy(), known=np.asarray(known).copy())
         return fit(xy, resid, known, *args, **kw)
 
-    conf.fit_covariance = spy
+    conf_fields.fit_covariance = spy
 
 
 def one(seed: int, bias=(3.0, -2.0)) -> tuple:
