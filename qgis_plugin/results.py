@@ -1,6 +1,6 @@
 """The adjustment's tables as QGIS features, mirroring :mod:`vectoradjust.files.outputs`.
 
-The layers have the contract's fields (``DESIGN.md`` section 9; the field lists are
+The layers have the contract's fields (``docs/method.md`` section 9; the field lists are
 imported from :mod:`vectoradjust.files.outputs`, whose geopandas writers are never called
 here) and the same nulls: floats that are NaN become NULL, and the per-point
 statistics of unmeasured vertices are NULL. Geometries are Z-aware; an unknown Z is

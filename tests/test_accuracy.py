@@ -1,7 +1,7 @@
 """Accuracy statements (vectoradjust.accuracy.statements) checked against their definitions.
 
 Every expected value is recomputed here from the run's per-vertex arrays (or the raw
-control/truth arrays) with the formulas of DESIGN section 4, NSSDA and ASPRS 2023;
+control/truth arrays) with the formulas of docs/method.md section 4, NSSDA and ASPRS 2023;
 exact CE90/LE90 values are checked by their defining probability (Monte Carlo and the
 normal CDF).
 """

@@ -32,7 +32,7 @@ def test_feature_statements_move_to_a_csv(sample_run, tmp_path):
     pointer = doc["accuracy"]["features"]
     assert pointer["file"] == FEATURE_ACCURACY_CSV
     assert pointer["count"] == {k: len(v) for k, v in feats.items()}
-    # the contract's keys (DESIGN section 9) are all still there
+    # the contract's keys (docs/method.md section 9) are all still there
     for key in ("sigma0_squared", "degrees_of_freedom", "iterations", "converged",
                 "chi_square", "shape_points", "check_points", "images"):
         assert key in doc

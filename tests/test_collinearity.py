@@ -62,5 +62,5 @@ def test_point_partials_against_central_differences(seed):
         x2[:, j] -= 1e-3
         num = (project(eo, x1, f) - project(eo, x2, f)) / 2e-3
         assert np.abs(num - a_pt[:, :, j]).max() / np.abs(num).max() < 1e-6
-    # d/dXA = -d/dXL (DESIGN section 2)
+    # d/dXA = -d/dXL (docs/method.md section 2)
     assert np.allclose(a_pt, -a_eo[:, :, :3])

@@ -1,4 +1,4 @@
-"""Conflation (every vertex corrected by least-squares collocation, DESIGN section 10).
+"""Conflation (every vertex corrected by least-squares collocation, docs/method.md section 10).
 
 Numerics against independent truth: the batched k-nearest kriging equals the dense
 collocation formula solved directly; the fit (leave-one-out score) recovers the parameters

@@ -2,7 +2,7 @@
 
 Truth used here, independent of the code under test:
 * the covariance of the unknowns as ``s0^2 N^-1`` from the full normal matrix, formed
-  densely and inverted (DESIGN section 3) - the definition the batched formulas avoid;
+  densely and inverted (docs/method.md section 3) - the definition the batched formulas avoid;
 * ``BundleResult.joint_covariance`` and the Jacobians of :mod:`vectoradjust.accuracy.propagate`
   (tested against finite differences by their own tests) for the dense checks;
 * finite differences of the forward intersection (:func:`vectoradjust.adjust.bundle.intersect`)

@@ -1,4 +1,4 @@
-"""Image coordinate refinement wired into projects (vectoradjust.sensor.interior, DESIGN 5, 7, 9).
+"""Image coordinate refinement in projects (sensor.interior, docs/method.md sections 5, 7, 9).
 
 Independent truth: the simulator's TRUE ideal image coordinates (a scenario simulated
 with the same seed but without any physical effect draws the same noise), the truth

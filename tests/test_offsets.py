@@ -1,4 +1,4 @@
-"""Database offsets (nuisance parameters) and the identification error (DESIGN section 10).
+"""Database offsets (nuisance parameters) and the identification error (docs/method.md section 10).
 
 The offsets are checked against a dense textbook adjustment with the offsets as explicit
 unknowns (estimates, sigma0^2, every covariance), and on simulations with a biased

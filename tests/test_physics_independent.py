@@ -197,7 +197,7 @@ def test_smac_sample_both_ways():
 
 
 def test_ardc_check_values():
-    # K(3 km, 0.3 km) = 29.7088 urad (DESIGN.md section 5, as tests/test_refine.py);
+    # K(3 km, 0.3 km) = 29.7088 urad (docs/method.md section 5, as tests/test_refine.py);
     # H = 6 km over sea level: 2410 * 6 / 250 = 57.84 urad exactly.
     assert ph.ardc_constant(3000.0, 300.0) * 1e6 == pytest.approx(29.7088, abs=5e-5)
     assert ph.ardc_constant(6000.0, 0.0) * 1e6 == pytest.approx(57.84, abs=1e-10)
@@ -256,8 +256,8 @@ def test_traced_refraction_follows_first_order_theory():
 @pytest.mark.parametrize("big, small, tol", [(3000.0, 300.0, 0.05), (799.0, 188.0, 0.07)])
 def test_ardc_against_the_traced_standard_atmosphere(big, small, tol):
     """The product's ARDC 1959 constant against Snell's law through the US Standard
-    Atmosphere 1976 (dry air, 0.55 um) at the DESIGN check point and at the sample's
-    heights: they agree to a few per cent (measured 3.5 % and 5.3 %; the ARDC fit
+    Atmosphere 1976 (dry air, 0.55 um) at the check point of docs/method.md section 5 and at
+    the sample's heights: they agree to a few per cent (measured 3.5 % and 5.3 %; the ARDC fit
     departs further at low flying heights over sea-level terrain, ~29 % at 1 km)."""
     theta = np.radians(20.0)
     k_traced = float(ph.traced_refraction(big, small, theta)) / np.tan(theta)

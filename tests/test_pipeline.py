@@ -33,7 +33,8 @@ def two_pass_run(scenario):
 
 
 def test_every_database_recovers_its_displacement(two_pass_run, scenario):
-    """Recovery (DESIGN 4) near 100 %, improvement > 90 % for OSM-, TNM- and TIGER-like data."""
+    """Recovery (docs/method.md section 4) near 100 %, improvement > 90 % for OSM-, TNM- and
+    TIGER-like data."""
     for d in two_pass_run.summary["databases"]:
         t = d["truth"]
         # the truth comparison itself, recomputed here from the scenario's arrays

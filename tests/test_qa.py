@@ -7,7 +7,7 @@ Sources of the expected numbers
   quoted in issue 7. The frame is 23 x 23 cm flown at 60 % forward overlap, so the
   photo base is 92 mm.
 * Block tolerances: the published rules (GKINP-02-036-02 via the PHOTOMOD manual,
-  DESIGN.md section 7): GCP 0.2 mm x M and 0.15 h; check points 0.3 mm x M and
+  docs/method.md section 7): GCP 0.2 mm x M and 0.15 h; check points 0.3 mm x M and
   0.2 / 0.25 / 0.35 h for h = 1 / 2.5 / 5-10 m. The expected metres below are those
   rules worked by hand (0.2 mm x 2000 = 0.4 m, ...).
 * Orthomosaic: 0.5 mm flat and hilly, 0.7 mm mountainous; seamlines 0.7 / 1.0 mm

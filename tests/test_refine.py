@@ -1,6 +1,6 @@
 """Tests of vectoradjust.sensor.refine: interior orientation and image coordinate refinement.
 
-Truth comes from published check values (DESIGN.md section 5; the SMAC sample of a
+Truth comes from published check values (docs/method.md section 5; the SMAC sample of a
 USGS calibration report as used by Wolf & Dewitt), from exact geometry (earth
 curvature on a sphere), from definitions (least squares, residual statistics) and from
 round trips.
@@ -74,7 +74,7 @@ def to_pixels(xy_mm, lin, off):
 
 # ----------------------------------------------------------------------- check values
 def test_ardc_k_design_check_value():
-    # DESIGN.md section 5: K(3 km, 0.3 km) = 29.7088 microradians
+    # docs/method.md section 5: K(3 km, 0.3 km) = 29.7088 microradians
     assert ardc_k(3.0, 0.3) * 1e6 == pytest.approx(29.7088, abs=5e-5)
 
 
@@ -125,7 +125,7 @@ def test_distortion_convention_flips_the_sign():
 def test_refraction_example():
     # (59.043, 72.392) mm, f = 152 mm -> (59.0406, 72.3890). The flying and terrain
     # heights of the example were not found in a source available to us; H = 3000 m,
-    # h = 300 m (the DESIGN K check) reproduce it to every printed digit.
+    # h = 300 m (the K check of docs/method.md section 5) reproduce it to every printed digit.
     out = refraction_correction([59.043, 72.392], 152.0, 3000.0, 300.0)
     assert np.round(out, 4).tolist() == [59.0406, 72.3890]
 

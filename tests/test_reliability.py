@@ -114,7 +114,7 @@ def _dense(res):
 def test_critical_value_and_delta0_are_the_published_numbers():
     assert critical_value(0.001) == pytest.approx(3.2905, abs=5e-5)
     assert critical_value(0.05) == pytest.approx(1.9600, abs=5e-5)
-    assert noncentrality(0.001, 0.2) == pytest.approx(4.1321, abs=5e-5)  # DESIGN section 3
+    assert noncentrality(0.001, 0.2) == pytest.approx(4.1321, abs=5e-5)  # docs/method.md section 3
     # Baarda's classical pair alpha0 = 0.001, beta0 = 0.20 -> delta0 = 4.13; power at delta0
     assert float(detection_power(noncentrality(0.001, 0.2))) == pytest.approx(0.8, abs=1e-4)
 

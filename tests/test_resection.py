@@ -1,4 +1,4 @@
-"""B. Dewitt's space resection example (DESIGN section 8) through the bundle adjustment.
+"""B. Dewitt's space resection example (docs/method.md section 8) through the bundle adjustment.
 
 The five control points are held by very heavy priors (1 micrometre), so the bundle
 reduces to a resection with 10 - 6 = 4 degrees of freedom; unit weights on the photo

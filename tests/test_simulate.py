@@ -2,7 +2,7 @@
 
 The checks use independent truth: the collinearity equations (re-projection with the
 true exterior orientation), the camera format, the dissertation's head-to-head RMSE of
-the three road databases (TNM 2.89 m, OSM 4.35 m, TIGER 19.17 m; DESIGN.md section 1),
+the three road databases (TNM 2.89 m, OSM 4.35 m, TIGER 19.17 m; docs/method.md section 1),
 the survey sigmas, and the files read back with csv / tomllib / geopandas / rasterio.
 """
 

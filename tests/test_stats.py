@@ -4,7 +4,7 @@ Truth used here: closed forms (Phi^-1(0.95), sqrt(-2 ln 0.1), the noncentral
 chi-square distribution for a circular error with bias, the 1-D formula for a
 degenerate ellipse), a second, independent integral for P(|e| <= R) (polar form,
 adaptive scipy quadrature), Monte Carlo coverage, published check values
-(DESIGN section 4), and the definitions of RMSE/NSSDA/ASPRS/chi-square.
+(docs/method.md section 4), and the definitions of RMSE/NSSDA/ASPRS/chi-square.
 """
 
 from __future__ import annotations
@@ -71,17 +71,17 @@ def _random_covariances(rng, n, scale_range=(0.01, 10.0)):
 def test_ce90_factor_end_values_are_closed_forms():
     assert S.ce90_ratio_factor(0.0) == pytest.approx(norm.ppf(0.95), rel=1e-12)
     assert S.ce90_ratio_factor(1.0) == pytest.approx(math.sqrt(-2 * math.log(0.1)), rel=1e-12)
-    # DESIGN check values to the digits given
+    # the check values of docs/method.md section 4 to the digits given
     assert round(S.ce90_ratio_factor(0.0), 6) == 1.644854
     assert round(S.ce90_ratio_factor(1.0), 6) == 2.145966
 
 
 def test_ce90_factor_half_ratio_and_design_value():
-    """ratio 0.5 gives 1.737080 by an independent integral; DESIGN's 1.716257 is g(0.45)."""
+    """ratio 0.5 gives 1.737080 by an independent integral; 1.716257 (DESIGN.md) is g(0.45)."""
     g05 = _polar_ce90_factor(0.5)
     assert round(g05, 6) == 1.737080
     assert S.ce90_ratio_factor(0.5) == pytest.approx(g05, rel=1e-8)
-    # DESIGN section 4 lists 1.716257 for ratio 0.5; that value belongs to 0.45.
+    # DESIGN.md once gave 1.716257 for ratio 0.5; that value belongs to 0.45.
     assert round(_polar_ce90_factor(0.45), 6) == 1.716257
     assert round(S.ce90_ratio_factor(0.45), 6) == 1.716257
 
@@ -210,7 +210,7 @@ def test_circular_error_probability_broadcast_and_symmetry():
 
 
 def test_probability_with_bias_vs_adaptive_quadrature():
-    """Brute-force 1-D adaptive quadrature of the DESIGN integral (scipy.quad)."""
+    """Brute-force 1-D adaptive quadrature of the integral of method.md section 4 (scipy.quad)."""
 
     def ref(R, sx, sy, mx, my):
         def f(x):
@@ -610,7 +610,7 @@ def test_chi_square_edge_cases():
 def test_recovery_and_improvement_definitions():
     assert S.recovery_rate(3.57, 3.37) == pytest.approx(3.57 / 3.37)
     assert S.improvement(0.68, 4.81) == pytest.approx(1 - 0.68 / 4.81)
-    assert round(S.improvement(0.68, 4.81), 2) == 0.86  # "86 % better" (DESIGN 1)
+    assert round(S.improvement(0.68, 4.81), 2) == 0.86  # "86 % better" (docs/method.md section 1)
     assert round(S.improvement(0.79, 3.37), 2) == 0.77  # "77 % better"
     assert math.isnan(S.recovery_rate(1.0, 0.0))
     assert math.isnan(S.improvement(1.0, 0.0))

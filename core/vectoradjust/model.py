@@ -272,7 +272,7 @@ class VectorSpec:
     ``identification_sigma`` is the (horizontal, vertical) uncertainty of where the
     analyst's measured point lies relative to the real road vertex (object space, m;
     None: not given). ``offset`` is the systematic offset estimated for the database:
-    ``"shift"`` (horizontal, the default), ``"shift3d"`` or ``"none"`` (DESIGN section 10).
+    ``"shift"`` (horizontal, the default), ``"shift3d"`` or ``"none"`` (docs/method.md section 10).
     """
 
     name: str

@@ -168,7 +168,7 @@ def _identification(out: AdjustmentRun, d, entry: dict, estimates: dict) -> None
 
 
 def _database_error_model(out: AdjustmentRun, solution) -> None:
-    """Offsets and identification error per database in the summary (DESIGN section 10)."""
+    """Offsets and identification error per database in the summary (docs/method.md section 10)."""
     alpha = out.data.settings.alpha
     estimates = identification_estimates(out)
     out.summary["identification_estimates"] = estimates
@@ -205,7 +205,7 @@ def _inputs(out: AdjustmentRun) -> None:
 
 def _conflation(out: AdjustmentRun, solution, report, is_cancelled) -> None:
     """Correct every unmeasured vertex from the measured ones (least-squares collocation,
-    DESIGN section 10; ``[conflation]``), after the statistics of the measured points."""
+    docs/method.md section 10; ``[conflation]``), after the statistics of the measured points."""
     from vectoradjust.accuracy.conflation import conflate_run, settings_from_table
 
     settings = settings_from_table(out.data.conflation, out.data.source)

@@ -1,14 +1,14 @@
 """Accuracy: statistics of the adjusted points and quantities derived from them.
 
 - :mod:`~vectoradjust.accuracy.stats` - CE90/LE90, RMSE, NSSDA, Ager, chi-square
-  (DESIGN section 4).
+  (docs/method.md section 4).
 - :mod:`~vectoradjust.accuracy.tables` - the per-vertex, per-feature and control-point
   tables of a run (the contract's fields).
 - :mod:`~vectoradjust.accuracy.summary` - the run summary (summary.json).
 - :mod:`~vectoradjust.accuracy.statements` - accuracy statements per database, feature
   and check points.
 - :mod:`~vectoradjust.accuracy.propagate` - error propagation to derived quantities
-  (DESIGN section 6).
+  (docs/method.md section 6).
 - :mod:`~vectoradjust.accuracy.derived` - derived quantities of an adjustment (length
   sigma, uncertainty bands, equal-error map, two-step comparison).
 - :mod:`~vectoradjust.accuracy.buffer` - the buffer test (shapely, imported lazily).

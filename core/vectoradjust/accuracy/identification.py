@@ -1,4 +1,4 @@
-"""Estimates of the identification error from the data (DESIGN section 10).
+"""Estimates of the identification error from the data (docs/method.md section 10).
 
 The adjustment estimates the point the analyst measured, ``X_id = X_true + e_id``; the
 identification error ``e_id`` leaves no trace in the image residuals, so it is stated in

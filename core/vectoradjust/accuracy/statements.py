@@ -2,8 +2,8 @@
 
 :func:`accuracy_statements` turns an :class:`~vectoradjust.pipeline.AdjustmentRun`
 into JSON-ready accuracy statements built with the functions of
-:mod:`vectoradjust.accuracy.stats` (DESIGN section 4): the bias (mean error) and its direction,
-Ager's CE90/LE90 with bias (the piecewise formula and the exact numeric value side by
+:mod:`vectoradjust.accuracy.stats` (docs/method.md section 4): the bias (mean error) and its
+direction, Ager's CE90/LE90 with bias (the piecewise formula and the exact numeric value side by
 side), NSSDA at 95 % and ASPRS 2023 RMSE_H / RMSE_V / RMSE_3D with their statement
 text.
 

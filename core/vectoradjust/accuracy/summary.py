@@ -1,4 +1,4 @@
-"""The summary stage: the JSON-ready run summary (summary.json, DESIGN section 9).
+"""The summary stage: the JSON-ready run summary (summary.json, docs/method.md section 9).
 
 :func:`run_summary` gives the contract's fields (sigma0^2, degrees of freedom, chi-square
 test, RMSE of shape, check and control points, the adjusted images) and more (per

@@ -1,4 +1,4 @@
-"""The statistics stage: a run's tables in the contract's fields (DESIGN section 9).
+"""The statistics stage: a run's tables in the contract's fields (docs/method.md section 9).
 
 - :func:`tabulate_control` - control points from the bundle, check points intersected
   from the adjusted exterior orientation (with its covariance), CE90/LE90.
@@ -131,7 +131,7 @@ def _vertex_table(out: AdjustmentRun, d: DatabaseResult):
     cov = np.full((nv, 3, 3), np.nan)
     cov[meas_v] = res.point_cov[vp[meas_v]]
     _, ce_meas, le_meas = cov_stats(cov)  # the measured point (photogrammetry only)
-    # the real road vertex: the identification error is added (DESIGN section 10)
+    # the real road vertex: the identification error is added (docs/method.md section 10)
     cov[meas_v] += np.diag(d.spec.identification_variance)
     sig, ce, le = cov_stats(cov)
     v = np.full((nv, 3), np.nan)

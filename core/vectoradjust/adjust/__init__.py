@@ -3,7 +3,7 @@
 - :mod:`~vectoradjust.adjust.shapepoints` - road vertices as object points (ids, merging).
 - :mod:`~vectoradjust.adjust.dem` - bilinear DEM heights.
 - :mod:`~vectoradjust.adjust.bundle` - Gauss-Newton over the reduced camera system,
-  covariances, intersection (DESIGN section 3).
+  covariances, intersection (docs/method.md section 3).
 - :mod:`~vectoradjust.adjust.classify` - measured ids to control, check, shape and tie
   points, and the bundle problem built from them.
 - :mod:`~vectoradjust.adjust.passes` - the adjustment passes: two-pass reweighting,
@@ -11,7 +11,7 @@
 - :mod:`~vectoradjust.adjust.reliability` - redundancy numbers, w-test, data snooping.
 - :mod:`~vectoradjust.adjust.vce` - variance component estimation.
 - :mod:`~vectoradjust.adjust.orientation` - relative/absolute orientation, 3D conformal,
-  two-step (DESIGN section 6).
+  two-step (docs/method.md section 6).
 - :mod:`~vectoradjust.adjust.intersection` - forward intersection of the rays of a point.
 - :mod:`~vectoradjust.adjust.datum` - what fixes the block in space; the free network.
 - :mod:`~vectoradjust.adjust.offsets` - systematic database offsets as nuisance

@@ -1,4 +1,4 @@
-"""Systematic database offsets as nuisance parameters of the adjustment (DESIGN section 10).
+"""Systematic database offsets as nuisance parameters of the adjustment (docs/method.md section 10).
 
 A road database's vertices are ``X_db = X_true + T_db + s(x) + e_db``: besides the random
 error, a database may be shifted as a whole (a datum or digitising bias ``T_db``). Left

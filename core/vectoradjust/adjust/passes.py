@@ -2,8 +2,8 @@
 
 :func:`solve` runs the bundle adjustment as the project's ``[adjustment]`` asks:
 once (``reweight = "none"``), twice with each database's prior sigma set to the RMS of
-its residuals (``"two-pass"``, DESIGN section 1 step 6), or with variance component
-estimation (``"vce"``, DESIGN section 3), followed by data snooping where
+its residuals (``"two-pass"``, docs/method.md section 1 step 6), or with variance component
+estimation (``"vce"``, docs/method.md section 3), followed by data snooping where
 ``snooping = true``. Numpy only.
 """
 

@@ -2,7 +2,7 @@
 
 For the linearised model ``l + v = A x`` with weights ``P`` (a-priori reference variance
 ``sigma0^2``), the cofactor matrix of the residuals is ``Q_vv = P^-1 - A N^-1 A'`` with
-``N = A'PA``. From it (``DESIGN.md`` section 3, after Baarda 1968 and Foerstner 1987):
+``N = A'PA``. From it (``docs/method.md`` section 3, after Baarda 1968 and Foerstner 1987):
 
 * redundancy numbers ``r_i = (Q_vv P)_ii``, ``0 <= r_i <= 1``, ``sum r_i = n - u``;
 * Baarda's w-test ``w_i = v_i / (sigma0 sqrt(q_vv,ii))``, standard normal when the

@@ -4,7 +4,7 @@ The observations are split into groups that share an unknown variance factor: th
 coordinates, the control points, and each road database's shape points, the latter
 usually split into a horizontal (``"OSM:h"``: X and Y from the database) and a vertical
 group (``"OSM:v"``: Z from a DEM, far better than the XY). Starting from the given
-sigmas, each group's factor is estimated as (``DESIGN.md`` section 3)
+sigmas, each group's factor is estimated as (``docs/method.md`` section 3)
 
     sigma_k^2 = v_k' P_k v_k / r_k,   r_k = sum of the redundancy numbers of group k,
 

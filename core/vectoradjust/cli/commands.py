@@ -1,6 +1,6 @@
 """The ``vectoradjust`` command line.
 
-Subcommands (``DESIGN.md`` section 9): ``demo``, ``adjust``, ``compare``. User errors
+Subcommands (``docs/method.md`` section 9): ``demo``, ``adjust``, ``compare``. User errors
 print one clear message and exit with status 1; usage errors exit with 2; an
 interrupted run exits with 130.
 """

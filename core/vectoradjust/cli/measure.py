@@ -40,7 +40,7 @@ from vectoradjust.errors import ProjectError
 
 __all__ = ["add_parser", "cmd_predict", "cmd_transfer", "CONTRACT_COLUMNS"]
 
-#: the columns of image_points.csv that ``adjust`` reads (DESIGN section 9); the quality
+#: the columns of image_points.csv that ``adjust`` reads (docs/method.md section 9); the quality
 #: columns (source, ncc, lsm_sigma, col, row) go to image_points_quality.csv
 CONTRACT_COLUMNS = ("point_id", "image_id", "x", "y", "sigma_x", "sigma_y")
 

@@ -1,4 +1,4 @@
-"""``vectoradjust qa``: accuracy control of a project's adjustment (``DESIGN.md`` section 7).
+"""``vectoradjust qa``: accuracy control of a project's adjustment (``docs/method.md`` section 7).
 
 ``vectoradjust qa PROJECT.toml --out DIR [--product P] [--scale M] [--contour-interval H]
 [--terrain T] [--pixel-size MM] [--free-model | --no-free-model]`` adjusts the project,

@@ -5,7 +5,7 @@ rasterio; the QGIS plugin with the QGIS API; :mod:`vectoradjust.files.tables` fo
 tables). Everything after the reading is here, once, so that every route gives the
 same arrays:
 
-* the image coordinate refinement (``DESIGN.md`` section 5:
+* the image coordinate refinement (``docs/method.md`` section 5:
   :func:`vectoradjust.sensor.interior.refine_measurements` with the fiducials, the camera
   and the ``[corrections]`` switches);
 * the :class:`~vectoradjust.model.Camera` the collinearity equations use with the

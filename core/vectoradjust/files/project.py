@@ -1,4 +1,4 @@
-"""Reading and validating the project file (TOML, ``DESIGN.md`` section 9).
+"""Reading and validating the project file (TOML, ``docs/method.md`` section 9).
 
 This module parses the file into plain settings (:class:`ProjectSpec`); it reads no
 data files. :func:`vectoradjust.files.readers.load_project_data` then reads the tables, layers

@@ -9,7 +9,7 @@ curvature, principal point, pixel size or fiducial affine - :func:`sensor.refine
 intersection with a height function such as a DEM).
 
 The uncertainty of a prediction is propagated to the image by the partials of the
-collinearity equations (``DESIGN.md`` section 2) and the local Jacobian of the
+collinearity equations (``docs/method.md`` section 2) and the local Jacobian of the
 mm -> pixel mapping: ``C_px = J (A_pt C_xyz A_pt' + A_eo C_eo A_eo') J'``. A search window
 is the ellipse ``d' C_px^-1 d <= k^2``; ``k = 3.717`` holds a 2-D normal error with
 probability 0.999.

@@ -1,4 +1,4 @@
-"""Production accuracy control (DESIGN section 7).
+"""Production accuracy control (docs/method.md section 7).
 
 - :mod:`~vectoradjust.qa.tolerances` - tolerances from the product specification.
 - :mod:`~vectoradjust.qa.verdict` - the pass/fail verdict on an adjustment.

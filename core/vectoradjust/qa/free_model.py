@@ -1,4 +1,4 @@
-"""The free-model stage of the accuracy control (``DESIGN.md`` section 7.5).
+"""The free-model stage of the accuracy control (``docs/method.md`` section 7.5).
 
 Before control pulls on the block, the PHOTOMOD sequence adjusts the free model: the
 image measurements alone, the datum fixed by inner constraints. Its variance factor and

@@ -1,4 +1,4 @@
-"""Tie-point zone coverage and inter-strip ties of a block (``DESIGN.md`` section 7.4).
+"""Tie-point zone coverage and inter-strip ties of a block (``docs/method.md`` section 7.4).
 
 The PHOTOMOD production manual asks, before the block adjustment is accepted, that every
 stereo pair carries tie (pass) points in the standard zones of its overlap and that

@@ -1,11 +1,11 @@
 """The sensor: from pixels to refined photo coordinates and the collinearity model.
 
 - :mod:`~vectoradjust.sensor.collinearity` - rotation matrix, projection, analytic partials
-  (DESIGN sections 2-3).
+  (docs/method.md sections 2-3).
 - :mod:`~vectoradjust.sensor.camera` - the camera calibration file (focal length,
   principal point, distortion, fiducials, pixels).
 - :mod:`~vectoradjust.sensor.refine` - fiducial affine, lens distortion, refraction,
-  earth curvature (DESIGN section 5).
+  earth curvature (docs/method.md section 5).
 - :mod:`~vectoradjust.sensor.interior` - the interior-orientation step applied to a
   project's measurements.
 - :mod:`~vectoradjust.sensor.rpc` - rational polynomial coefficients of satellite images

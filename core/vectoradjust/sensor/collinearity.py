@@ -1,6 +1,6 @@
 """Collinearity equations, rotation matrices and their analytic partials.
 
-Conventions (``DESIGN.md`` section 2): photo coordinates in millimetres, exterior
+Conventions (``docs/method.md`` section 2): photo coordinates in millimetres, exterior
 orientation ``[XL, YL, ZL, omega, phi, kappa]`` with angles in radians,
 ``M = M_kappa M_phi M_omega`` (Wolf & Dewitt). Everything is vectorised over
 observations: pass arrays of shape ``(k, 6)`` for the exterior orientation of the
@@ -63,7 +63,7 @@ def rotation_derivatives(omega, phi, kappa) -> np.ndarray:
     -----
     ``dM/domega`` has the columns ``0, -m_i3, m_i2`` and ``dM/dkappa`` the rows
     ``m_2j, -m_1j, 0``; ``dM/dphi`` is the derivative of the ``cos phi`` / ``sin phi``
-    factors of ``DESIGN.md`` section 2. Computed once per image, they give the angular
+    factors of ``docs/method.md`` section 2. Computed once per image, they give the angular
     partials of every observation of that image (:mod:`vectoradjust.adjust.bundle`).
     """
     o, p, k = np.broadcast_arrays(
@@ -149,7 +149,7 @@ def partials(eo, xyz, focal_length: float):
 
     Notes
     -----
-    Wolf & Dewitt, Appendix D (the ``b`` coefficients in ``DESIGN.md``): the ``b``
+    Wolf & Dewitt, Appendix D (the ``b`` coefficients in ``docs/method.md`` section 2): the ``b``
     terms are the partials of the linearised form ``x_meas = F + b dparam + v``, with
     ``d x / d omega = b11`` etc. and ``d x / d XL = -b14``.
     """

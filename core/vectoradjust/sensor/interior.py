@@ -1,4 +1,4 @@
-"""Image coordinate refinement of a whole project (interior orientation), DESIGN.md 5 and 7.
+"""Interior orientation of a whole project's image coordinates (docs/method.md sections 5, 7).
 
 :func:`refine_measurements` turns the image measurements as the user made them
 (scanner pixels, comparator millimetres or photo millimetres) into the refined photo
@@ -10,7 +10,7 @@ atmospheric refraction (ARDC 1959) -> earth curvature.
 
 It also fits the 6-parameter fiducial affine of every image that has measured
 fiducials, checks the interior orientation (largest fiducial residual <= 1 pixel,
-DESIGN.md section 7), converts image-coordinate sigmas given in pixels to mm and
+docs/method.md section 7), converts image-coordinate sigmas given in pixels to mm and
 returns a JSON-ready report (``summary.json`` ``interior_orientation``).
 
 Heights used by refraction and earth curvature:

@@ -1,6 +1,6 @@
 """The simulated set-up: flight geometry, terrain, DEM and the random streams.
 
-The dissertation's stereo set-up (``DESIGN.md`` sections 1, 9): vertical aerial
+The dissertation's stereo set-up (``docs/method.md`` sections 1, 9): vertical aerial
 photographs of a Wild RC10 (``f = 152.4 mm``, 23 x 23 cm, 1:4000, 609.6 m above a
 terrain at about 188 m, 80 % forward overlap, east-west flight line, EPSG:32616 around
 the Purdue campus), a smooth true terrain (:func:`terrain_height`) and a DEM sampled

@@ -1,4 +1,4 @@
-"""Deterministic simulation of the dissertation's stereo set-up (``DESIGN.md`` sections 1, 9).
+"""Deterministic simulation of the dissertation's stereo set-up (``docs/method.md`` sections 1, 9).
 
 :func:`make_scenario` builds, from a seed, everything an adjustment needs plus the
 truth to judge it by: a strip of vertical aerial photographs (Wild RC10,

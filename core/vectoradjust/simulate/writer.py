@@ -1,4 +1,4 @@
-"""Writing a scenario as a project in the file contract (``DESIGN.md`` 9).
+"""Writing a scenario as a project in the file contract (``docs/method.md`` section 9).
 
 :func:`write_project` writes ``project.toml``, the CSV files, the road layers, the
 truth, the DEM and the README (:func:`vectoradjust.simulate.readme.describe`).
@@ -142,7 +142,7 @@ def _write_csv(path: Path, header: str, columns: list, formats: list) -> None:
 
 def write_project(scenario: Scenario, out_dir, *, format: str = "shp",
                   reweight: str = "none") -> Path:
-    """Write the scenario as a project following the file contract (``DESIGN.md`` 9).
+    """Write the scenario as a project following the file contract (``docs/method.md`` section 9).
 
     Files: ``project.toml``, ``image_points.csv``, ``gcps.csv``, ``<stem>_roads.shp``
     per database (2D LineStrings / MultiLineStrings with every attribute),

@@ -1,7 +1,7 @@
 """Parameters and input assembly shared by "Adjust road vectors" and "Compare road databases".
 
 The camera, images, measurements, control and settings come from a project file
-(TOML, the contract of ``DESIGN.md`` section 9) and/or from parameters. A parameter
+(TOML, the contract of ``docs/method.md`` section 9) and/or from parameters. A parameter
 that is set wins over the project file; what neither gives is an error with the
 core's message. The project file is validated by the core
 (:func:`vectoradjust.files.project.parse_project`), and a parameter-only set-up is validated

@@ -1,6 +1,6 @@
 """Conflation: correct every vertex of a road database by least-squares collocation.
 
-DESIGN section 10: a database vertex is ``X_db = X_true + T_db + s(x) + e_db``. The
+docs/method.md section 10: a database vertex is ``X_db = X_true + T_db + s(x) + e_db``. The
 adjustment measures some vertices; their displacement ``d = X_hat - X_db`` is the
 negative of the database error, seen through the measurement noise (the adjusted point's
 covariance and the identification error). This module predicts the displacement at

@@ -1,4 +1,4 @@
-"""Derived quantities of an adjustment run with their sigmas (``DESIGN.md`` section 6).
+"""Derived quantities of an adjustment run with their sigmas (``docs/method.md`` section 6).
 
 Everything computed from adjusted points - the length of a road, the distance between
 two points, a height profile, the G-band of a road segment, the equal-error map of a

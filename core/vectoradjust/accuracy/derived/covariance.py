@@ -20,7 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["cross_covariance"]
 
 
-DEFAULT_FRAME_MM = 230.0  # 23 x 23 cm aerial film (DESIGN section 1)
+DEFAULT_FRAME_MM = 230.0  # 23 x 23 cm aerial film (docs/method.md section 1)
 _CHUNK = 200_000  # rows of temporary (rows, 3, 3)-sized arrays per chunk
 
 

@@ -151,7 +151,7 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult, dims: int = 2,
         hq = np.stack([np.bincount(pf, weights=hq[:, c], minlength=nf)
                        for c in range(hq.shape[1])], axis=1)
         quad += np.einsum("fq,qr,fr->f", hq, res.offset_cofactor, hq)
-    # the identification error: independent per object point (DESIGN section 10)
+    # the identification error: independent per object point (docs/method.md section 10)
     ident = np.bincount(pf, weights=g ** 2 @ _identification_variance(db), minlength=nf)
     var = res.variance_factor * (diag + quad) + ident
     var_nc = var_nc + ident

@@ -4,7 +4,7 @@ A height interpolated in a DTM is a linear (first-order) function of the quantit
 that define it: the adjusted points' X, Y, Z (a TIN, or a grid whose nodes were
 interpolated from the points) or the heights of a DEM's nodes. Its variance is
 ``F Sigma F'`` with ``F`` the interpolation's Jacobian and ``Sigma`` the FULL
-covariance of those quantities (``DESIGN.md`` section 6). Two further terms are added
+covariance of those quantities (``docs/method.md`` section 6). Two further terms are added
 to the variance:
 
 * **sampling** (Torlegard et al. 1986): photogrammetric heights hold 0.2-0.4 per mille

@@ -3,7 +3,7 @@
 Anything computed from adjusted points - a distance, a road's length, an average
 height, a profile, a DTM height, a contour - gets the covariance
 ``Sigma_f = F Sigma F'`` with ``F`` the Jacobian of the derived function and ``Sigma``
-the FULL covariance of the points involved (``DESIGN.md`` section 6). Neighbouring
+the FULL covariance of the points involved (``docs/method.md`` section 6). Neighbouring
 points of a photogrammetric adjustment are typically 90-97 % correlated, and ignoring
 the covariances BETWEEN points roughly halves or doubles the answer; every function
 here therefore also reports the "without covariances" value, computed with the

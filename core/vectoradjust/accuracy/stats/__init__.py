@@ -4,7 +4,7 @@ Everything here is a numerical heart module (numpy and scipy only) and is vector
 per-point quantities (:func:`ce90`, :func:`ce90_exact`, :func:`le90`,
 :func:`circular_error_probability`) accept arrays of any leading shape.
 
-Conventions (DESIGN section 4)
+Conventions (docs/method.md section 4)
 ------------------------------
 * Horizontal covariances are ``(..., 2, 2)`` arrays in the ground frame (X east,
   Y north). Only their symmetric part is used.
@@ -39,8 +39,8 @@ Conventions (DESIGN section 4)
   :func:`ce90_ratio_factor`).
 
 Check values: ``g(0) = 1.644854`` (= Phi^-1(0.95)), ``g(1) = 2.145966``
-(= sqrt(-2 ln 0.1)), ``g(0.5) = 1.737080``. DESIGN section 4 lists 1.716257 for the
-ratio 0.5; that number is ``g(0.45)`` (three independent computations agree, see
+(= sqrt(-2 ln 0.1)), ``g(0.5) = 1.737080``. The handed-over design (DESIGN.md) once gave 1.716257
+for the ratio 0.5; that number is ``g(0.45)`` (three independent computations agree, see
 ``tests/test_stats.py``).
 
 Undefined values (no data, zero degrees of freedom) are ``None`` in the dictionaries

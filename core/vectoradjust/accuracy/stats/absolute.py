@@ -68,7 +68,7 @@ class AbsoluteAccuracy:
 
 
 def absolute_accuracy(errors, units: str = "m") -> AbsoluteAccuracy:
-    """Absolute accuracy of a set of errors with bias (Ager / NIMA, DESIGN 4).
+    """Absolute accuracy of a set of errors with bias (Ager / NIMA, docs/method.md section 4).
 
     Parameters
     ----------
@@ -203,13 +203,13 @@ def chi_square_test(vtpv: float, dof: int, alpha: float = 0.05) -> dict[str, Any
 
 
 def recovery_rate(residual_rmse, true_rmse):
-    """Recovery rate ``RMSE(residuals) / RMSE(database - truth)`` (DESIGN 4).
+    """Recovery rate ``RMSE(residuals) / RMSE(database - truth)`` (docs/method.md section 4).
 
     A value near 1 means that the adjustment residuals recover the true
     displacement of the database. Note: the dissertation's percentages (3.57 m vs
     3.37 m "94 %", 22.41 m vs 22.52 m "99 %") equal the smaller RMSE over the larger
-    one; this function returns the ratio exactly as DESIGN defines it (3.57 / 3.37 =
-    1.059).
+    one; this function returns the ratio exactly as docs/method.md section 4 defines it
+    (3.57 / 3.37 = 1.059).
 
     Parameters
     ----------

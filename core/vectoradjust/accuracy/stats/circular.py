@@ -437,7 +437,7 @@ def ce90(cov):
 
 
 def ager_ce90(mu, sigma_c):
-    """Ager (NIMA) CE90 of a circular error with bias, piecewise formula of DESIGN 4.
+    """Ager (NIMA) CE90 of a biased circular error, piecewise (docs/method.md section 4).
 
     With ``k = mu / sigma_c``: ``k <= 0.1``: ``2.1460 sigma_c``; ``k <= 3``:
     ``2.1272 sigma_c + 0.1674 mu + 0.3623 mu^2/sigma_c - 0.0550 mu^3/sigma_c^2``;

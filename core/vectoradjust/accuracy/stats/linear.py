@@ -123,7 +123,7 @@ def doucette_ce90(cov):
 
 
 def ager_le90(mu, sigma):
-    """Ager (NIMA) LE90 of a vertical error with bias, formula of DESIGN 4.
+    """Ager (NIMA) LE90 of a vertical error with bias, formula of docs/method.md section 4.
 
     With ``k = |mu| / sigma``: ``k <= 1.4``:
     ``|mu| + sigma (1.6435 - 0.999556 k + 0.923237 k^2 - 0.282533 k^3)``;

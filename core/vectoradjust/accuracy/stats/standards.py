@@ -107,7 +107,7 @@ def rmse(d, axis=0):
 
 
 def rmse_summary(dx, dy, dz=None) -> dict[str, Any]:
-    """RMSE per axis and horizontal, the ``summary.json`` block of DESIGN section 9.
+    """RMSE per axis and horizontal, the ``summary.json`` block of docs/method.md section 9.
 
     A row counts when every given component (dx, dy and, if given, dz) is finite;
     all RMSEs are taken over those rows, so that ``rmse_horizontal^2 =

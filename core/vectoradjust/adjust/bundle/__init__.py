@@ -6,7 +6,7 @@ on object points (control points heavy, road shape points light, tie points none
 optional priors on the exterior orientation. Gauss-Newton iterates on the normal
 equations ``N dx = t`` with ``N = [[N_ee, N_ep], [N_pe, N_pp]]``; the point blocks are
 eliminated (Schur complement) so that only the small reduced camera system
-``S = N_ee - N_ep N_pp^-1 N_pe`` is solved (``DESIGN.md`` section 3).
+``S = N_ee - N_ep N_pp^-1 N_pe`` is solved (``docs/method.md`` section 3).
 
 Nothing here loops over points. Points seen by the same set of ``c`` images form a
 group, cut into blocks (:data:`_CHUNK_OBS` observations) whose arrays are

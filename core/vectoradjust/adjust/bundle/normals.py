@@ -109,7 +109,7 @@ def _linearise(blk: _Block, cams, xyz: np.ndarray, f: float, pp: np.ndarray):
     """Misclosures ``(c, 2, g)`` (observed minus computed), the design rows, the points.
 
     The rows ``(c, 2, 9, g)`` are the partials of ``x, y`` with respect to
-    ``XL, YL, ZL, omega, phi, kappa, XA, YA, ZA`` (DESIGN section 2; with
+    ``XL, YL, ZL, omega, phi, kappa, XA, YA, ZA`` (docs/method.md section 2; with
     ``a = f/q``: ``dx/dtheta = a (r/q dq/dtheta - dr/dtheta)``, ``dx/dXA = a (r/q m3 - m1)``).
     """
     rr, xg = _rays(blk, cams, xyz)

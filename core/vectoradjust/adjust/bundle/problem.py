@@ -126,7 +126,7 @@ class BundleProblem:
         return np.abs(self.prior_weight).reshape(-1, 9).sum(axis=1) > 0
 
     def counts(self) -> tuple[int, int]:
-        """Number of observations ``n`` and of unknowns ``u`` (DESIGN section 3)."""
+        """Number of observations ``n`` and of unknowns ``u`` (docs/method.md section 3)."""
         n = 2 * len(self.obs_point) + 3 * int(self.has_prior.sum())
         fixed = self.eo_fixed
         n += int(((self.eo_weight > 0) & ~fixed).sum())

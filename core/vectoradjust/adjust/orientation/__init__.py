@@ -1,6 +1,6 @@
 """Two-step stereo orientation: relative, then absolute, with error propagation.
 
-The classical alternative to the bundle adjustment (``DESIGN.md`` section 6):
+The classical alternative to the bundle adjustment (``docs/method.md`` section 6):
 
 1. :func:`relative_orientation` - a dependent pair: the left photo is fixed at
    ``(0, 0, f)`` with zero rotations, the right photo's ``XL`` is held at the mean

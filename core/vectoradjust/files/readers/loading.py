@@ -107,7 +107,8 @@ def load_project_data(project, vectors: Optional[list] = None,
     for n in names:
         spec.vector(n)  # raises a clear error for an unknown name
     say("refining the image coordinates")
-    # refinement (DESIGN 5), camera, [qa], truth: vectoradjust.files.assemble, shared with QGIS;
+    # refinement (docs/method.md section 5), camera, [qa], truth: vectoradjust.files.assemble,
+    # shared with QGIS;
     # the project CRS is projected (checked above): earth curvature applies when asked
     data = project_data(spec, raw_meas, control, layers, crs=crs.to_string(), truth=truth,
                         fiducials=fiducials, map_projection=bool(crs.is_projected),

@@ -437,7 +437,7 @@ def _conflation_body(run) -> str:
     parts.append(_note(
         "Every vertex not measured on the images is moved by the database's estimated "
         "offset plus the displacement field predicted by least-squares collocation from "
-        f"its {c.get('k')} nearest measured points ([conflation], DESIGN section 10). "
+        f"its {c.get('k')} nearest measured points ([conflation], docs/method.md section 10). "
         "LOO: each measured point predicted from the others (horizontal RMSE of the "
         "held-out displacement and the share inside its predicted 90 % radius); the "
         "covariance function and the database's own white noise are those whose held-out "

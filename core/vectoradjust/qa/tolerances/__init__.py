@@ -3,7 +3,7 @@
 A production line accepts a block only if every stage is within tolerances that
 follow from the camera, the pixel size, the map scale and the contour interval
 (PHOTOMOD manual, after the Russian 2002 instruction of CNIIGAiK, GKINP-02-036-02;
-``DESIGN.md`` section 7). Nothing here is typed in by the user: every tolerance is
+``docs/method.md`` section 7). Nothing here is typed in by the user: every tolerance is
 computed from the ``[qa]`` product specification (:class:`QASpec`) and the camera.
 
 Stages and their tolerances

@@ -22,7 +22,7 @@ __all__ = [
 
 
 # The published rules, in millimetres at the scale of the product (GKINP-02-036-02 as
-# quoted by the PHOTOMOD manual; DESIGN.md section 7).
+# quoted by the PHOTOMOD manual; docs/method.md section 7).
 _GCP_XY_MM = 0.2
 
 

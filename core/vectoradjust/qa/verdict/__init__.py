@@ -1,4 +1,4 @@
-"""Accuracy control of an adjustment run: the QA verdict (``DESIGN.md`` section 7).
+"""Accuracy control of an adjustment run: the QA verdict (``docs/method.md`` section 7).
 
 :func:`accuracy_control` judges a finished :class:`~vectoradjust.pipeline.AdjustmentRun`
 stage by stage against the tolerances that :mod:`vectoradjust.qa.tolerances` derives from the

@@ -356,7 +356,7 @@ def accuracy_control(
     zone_columns: int = 2,
     free_model: Optional[bool] = None,
 ) -> QAReport:
-    """Judge an adjustment run against the production tolerances (``DESIGN.md`` 7).
+    """Judge an adjustment run against the production tolerances (``docs/method.md`` section 7).
 
     Parameters
     ----------

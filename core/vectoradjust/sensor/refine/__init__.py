@@ -1,4 +1,4 @@
-"""Image coordinate refinement (interior orientation), DESIGN.md section 5.
+"""Image coordinate refinement (interior orientation), docs/method.md section 5.
 
 Measured image coordinates (scanner/camera pixels, or comparator millimetres) are
 turned into refined photo coordinates (mm) by, in this order:

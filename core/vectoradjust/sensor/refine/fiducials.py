@@ -310,7 +310,7 @@ def interior_orientation_check(
 ) -> dict[str, Any]:
     """Interior orientation accuracy control: largest fiducial residual <= 1 pixel.
 
-    DESIGN.md section 7 (PHOTOMOD, after CNIIGAIK 2002).
+    docs/method.md section 7 (PHOTOMOD, after CNIIGAIK 2002).
 
     Parameters
     ----------
