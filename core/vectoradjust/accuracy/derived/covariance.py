@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from vectoradjust.adjust.intersection import _block_sum  # the one definition
 from vectoradjust.errors import ProjectError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -25,17 +26,6 @@ _CHUNK = 200_000  # rows of temporary (rows, 3, 3)-sized arrays per chunk
 
 
 # ---------------------------------------------------------------------------- helpers
-def _block_sum(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """Sum ``values`` (k, ...) into ``n`` bins by ``index`` (k,), vectorised."""
-    k = values.shape[0]
-    inner = values.shape[1:]
-    size = int(np.prod(inner)) if inner else 1
-    if k == 0:
-        return np.zeros((n,) + inner)
-    flat = values.reshape(k, size)
-    idx = (index[:, None] * size + np.arange(size)[None, :]).ravel()
-    out = np.bincount(idx, weights=flat.ravel(), minlength=n * size)
-    return out.reshape((n,) + inner)
 
 
 @dataclass
