@@ -99,8 +99,14 @@ def _assert_passed(name: str, status: int, out: str) -> list:
     return lines
 
 
+#: scripts that read or build geometries with the geodata packages (shapely, geopandas):
+#: not in the leg without them (Debian's Python beside QGIS)
+GEODATA = {"smart_conflation"}
+
+
 def _params():
-    return [pytest.param(n, marks=pytest.mark.io) if n in NEEDS else n for n in SCRIPTS]
+    return [pytest.param(n, marks=pytest.mark.io) if n in NEEDS or n in GEODATA else n
+            for n in SCRIPTS]
 
 
 @pytest.mark.slow
