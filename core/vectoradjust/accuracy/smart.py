@@ -23,6 +23,7 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from itertools import chain
 from typing import Optional
 
 import numpy as np
@@ -285,20 +286,25 @@ def _samples(fs: FeatureSet, step: float) -> list:
 def _candidates(sa: list, sb: list, radius_a: np.ndarray, radius_b: np.ndarray) -> set:
     """Feature pairs with a sample of one within the radius of a sample of the other
     (KD-trees of both sets' samples, each side's query with its own radii)."""
-    pairs: set = set()
+    codes = []
+    n_b = max(len(sb), 1)
     for s_q, r_q, s_t, flip in ((sa, radius_a, sb, False), (sb, radius_b, sa, True)):
         own = np.repeat(np.arange(len(s_q)), [len(s) for s in s_q])
         other = np.repeat(np.arange(len(s_t)), [len(s) for s in s_t])
         if not len(own) or not len(other):
-            return pairs
+            return set()
         tree = cKDTree(np.vstack(s_t))
         pts, rad = np.vstack(s_q), r_q[own]
         for r in np.unique(rad):
             k = np.flatnonzero(rad == r)
-            for i, hits in zip(own[k], tree.query_ball_point(pts[k], r)):
-                for j in set(other[hits]):
-                    pairs.add((int(j), int(i)) if flip else (int(i), int(j)))
-    return pairs
+            hits = tree.query_ball_point(pts[k], r)
+            lens = np.fromiter(map(len, hits), np.int64, len(hits))
+            flat = np.fromiter(chain.from_iterable(hits), np.int64, int(lens.sum()))
+            i, j = np.repeat(own[k], lens), other[flat]
+            a_idx, b_idx = (j, i) if flip else (i, j)
+            codes.append(np.unique(a_idx * n_b + b_idx))
+    both = np.unique(np.concatenate(codes)) if codes else np.zeros(0, np.int64)
+    return set(zip((both // n_b).tolist(), (both % n_b).tolist()))
 
 
 def _bonus(a: FeatureSet, b: FeatureSet, i: int, j: int) -> float:
