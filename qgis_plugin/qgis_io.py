@@ -255,6 +255,50 @@ def read_line_source(source, name, id_field, target_crs, context, where, feedbac
         Layer without CRS.
     """
     wkb = source.wkbType()
+    src_crs, fields, id_idx = _check_line_source(source, wkb, id_field, where)
+    request = QgsFeatureRequest()
+    if src_crs != target_crs:
+        request.setDestinationCrs(target_crs, context.transformContext())
+    names = fields.names()
+    attributes = {n: [] for n in names}
+    ids = []
+    problems = {}
+    vertices = ([], [], [], [])  # coordinates, feature, vertex index, part of each vertex
+    for i, f in enumerate(source.getFeatures(request)):
+        if feedback is not None and i % 1000 == 0:
+            _check_cancelled(feedback)
+        attrs = f.attributes()
+        for n, v in zip(names, attrs):
+            attributes[n].append(None if is_null(v) else v)  # NULL -> None, as headless
+        if id_idx >= 0:
+            v = attrs[id_idx]
+            if is_null(v):
+                raise LayerError(f"{where}: feature {i} (fid {f.id()}) has no value in id field "
+                                 f"{id_field!r}",
+                                 "Give every feature an id, or leave the id field empty to use "
+                                 "the feature index")
+            _check_exact_id(v, where, id_field)
+            ids.append(id_text(v))
+        else:
+            ids.append(str(i))
+        problem = _feature_vertices(i, f.geometry(), vertices)
+        if problem:
+            problems[i] = problem
+    if id_idx >= 0 and ids:
+        u, c = np.unique(np.asarray(ids, dtype=object).astype(str), return_counts=True)
+        if np.any(c > 1):
+            raise LayerError(f"{where}: the id {u[c > 1][0]!r} of field {id_field!r} is used by "
+                             f"{int(c[c > 1][0])} features",
+                             "Use a field with unique values as the id field")
+    layer = LineLayer.from_parts(name, np.asarray(ids, dtype=object).astype(str), attributes,
+                                 *vertices, problems, target_crs.toWkt(), where,
+                                 QgsWkbTypes.displayString(wkb))
+    return layer, fields
+
+
+def _check_line_source(source, wkb, id_field, where):
+    """The source's CRS, fields and the index of ``id_field`` (-1 for none); a source
+    without lines or CRS, or an unknown id field, is an error."""
     if QgsWkbTypes.geometryType(wkb) != QgsWkbTypes.LineGeometry:
         raise LayerError(
             f"{where}: the layer holds {QgsWkbTypes.displayString(wkb) or 'no'} geometries, "
@@ -275,62 +319,30 @@ def read_line_source(source, name, id_field, target_crs, context, where, feedbac
                 f"{', '.join(fields.names()) or 'none'})",
                 "Choose an existing field with unique values as the id field, or leave it empty "
                 "to use the feature index")
-    request = QgsFeatureRequest()
-    if src_crs != target_crs:
-        request.setDestinationCrs(target_crs, context.transformContext())
-    names = fields.names()
-    attributes = {n: [] for n in names}
-    ids = []
-    problems = {}
-    coords, vf, vi, vp = [], [], [], []
-    for i, f in enumerate(source.getFeatures(request)):
-        if feedback is not None and i % 1000 == 0:
-            _check_cancelled(feedback)
-        attrs = f.attributes()
-        for n, v in zip(names, attrs):
-            attributes[n].append(None if is_null(v) else v)  # NULL -> None, as headless
-        if id_idx >= 0:
-            v = attrs[id_idx]
-            if is_null(v):
-                raise LayerError(f"{where}: feature {i} (fid {f.id()}) has no value in id field "
-                                 f"{id_field!r}",
-                                 "Give every feature an id, or leave the id field empty to use "
-                                 "the feature index")
-            _check_exact_id(v, where, id_field)
-            ids.append(id_text(v))
-        else:
-            ids.append(str(i))
-        geom = f.geometry()
-        if geom is None or geom.isNull():
-            problems[i] = "null geometry"
+    return src_crs, fields, id_idx
+
+
+def _feature_vertices(i, geom, vertices):
+    """Append the vertices of feature ``i`` (coordinates, feature, vertex index along the
+    feature across its parts, part) to the four lists of ``vertices``; returns the
+    feature's problem (null, not a line, empty) or None."""
+    if geom is None or geom.isNull():
+        return "null geometry"
+    if QgsWkbTypes.geometryType(geom.wkbType()) != QgsWkbTypes.LineGeometry:
+        return f"geometry type {QgsWkbTypes.displayString(geom.wkbType())} is not a line"
+    if geom.isEmpty():
+        return "empty geometry"
+    coords, vf, vi, vp = vertices
+    count = 0
+    for pnum, xyz in enumerate(_line_parts(geom)):
+        if xyz is None or len(xyz) == 0:
             continue
-        if QgsWkbTypes.geometryType(geom.wkbType()) != QgsWkbTypes.LineGeometry:
-            problems[i] = f"geometry type {QgsWkbTypes.displayString(geom.wkbType())} is not a line"
-            continue
-        if geom.isEmpty():
-            problems[i] = "empty geometry"
-            continue
-        count = 0
-        for pnum, xyz in enumerate(_line_parts(geom)):
-            if xyz is None or len(xyz) == 0:
-                continue
-            coords.append(xyz)
-            vf.append(np.full(len(xyz), i))
-            vi.append(count + np.arange(len(xyz)))
-            vp.append(np.full(len(xyz), pnum))
-            count += len(xyz)
-        if count == 0:
-            problems[i] = "empty geometry"
-    if id_idx >= 0 and ids:
-        u, c = np.unique(np.asarray(ids, dtype=object).astype(str), return_counts=True)
-        if np.any(c > 1):
-            raise LayerError(f"{where}: the id {u[c > 1][0]!r} of field {id_field!r} is used by "
-                             f"{int(c[c > 1][0])} features",
-                             "Use a field with unique values as the id field")
-    layer = LineLayer.from_parts(name, np.asarray(ids, dtype=object).astype(str), attributes,
-                                 coords, vf, vi, vp, problems, target_crs.toWkt(), where,
-                                 QgsWkbTypes.displayString(wkb))
-    return layer, fields
+        coords.append(xyz)
+        vf.append(np.full(len(xyz), i))
+        vi.append(count + np.arange(len(xyz)))
+        vp.append(np.full(len(xyz), pnum))
+        count += len(xyz)
+    return None if count else "empty geometry"
 
 
 def _check_cancelled(feedback):
@@ -410,15 +422,38 @@ def dem_heights(raster, xy, xy_crs, context, where, band=1, report=None):
         return np.zeros(0)
     ct = _transform(xy_crs, dem_crs, context)
     if ct is not None:
-        out = np.full_like(pts, np.nan)
-        for k, (x, y) in enumerate(pts):
-            if np.isfinite(x) and np.isfinite(y):
-                try:
-                    p = ct.transform(QgsPointXY(float(x), float(y)))
-                except Exception:  # QgsCsException: leave NaN (uncovered)
-                    continue
-                out[k] = (p.x(), p.y())
-        pts = out
+        pts = _points_to(ct, pts)
+    window = _dem_window(provider, band, pts, where)
+    if window is None:  # no finite point in a large raster
+        return np.full(len(pts), np.nan)
+    grid, transform, nodata = window
+    if report is not None and ct is None:
+        from vectoradjust.model import DemGrid
+
+        report["grid"] = DemGrid(grid, transform, nodata)
+    return bilinear(grid, transform, pts, nodata=nodata)
+
+
+def _points_to(ct, pts):
+    """``pts`` transformed by the QgsCoordinateTransform ``ct``; NaN where a point is not
+    finite or cannot be transformed (uncovered)."""
+    out = np.full_like(pts, np.nan)
+    for k, (x, y) in enumerate(pts):
+        if np.isfinite(x) and np.isfinite(y):
+            try:
+                p = ct.transform(QgsPointXY(float(x), float(y)))
+            except Exception:  # QgsCsException: leave NaN (uncovered)
+                continue
+            out[k] = (p.x(), p.y())
+    return out
+
+
+def _dem_window(provider, band, pts, where):
+    """The DEM cells around ``pts`` (DEM CRS): the whole raster up to
+    :data:`FULL_READ_MAX_CELLS` cells, else the window around the finite points (None when
+    there is none). Returns ``(grid, GDAL-order transform, nodata)``: the source's nodata
+    value, as rasterio reports it to the headless reader; user nodata ranges set in QGIS
+    are NaN in ``grid``."""
     ext = provider.extent()
     ncol, nrow = provider.xSize(), provider.ySize()
     if ncol < 1 or nrow < 1:
@@ -431,7 +466,7 @@ def dem_heights(raster, xy, xy_crs, context, where, band=1, report=None):
     else:
         ok = np.isfinite(pts).all(axis=1)
         if not ok.any():
-            return np.full(len(pts), np.nan)
+            return None
         col = (pts[ok, 0] - x0) / dx - 0.5
         row = (y0 - pts[ok, 1]) / dy - 0.5
         c_lo = int(np.clip(np.floor(col.min()) - 2, 0, ncol - 1))
@@ -444,19 +479,12 @@ def dem_heights(raster, xy, xy_crs, context, where, band=1, report=None):
     extent = QgsRectangle(wx0, y0 - (r_hi + 1) * dy if r_hi < nrow - 1 else ext.yMinimum(),
                           x0 + (c_hi + 1) * dx if c_hi < ncol - 1 else ext.xMaximum(), wy0)
     grid = _read_block(provider, band, extent, wc, wr, where)
-    # the source's nodata value, as rasterio reports it to the headless reader; user
-    # nodata ranges set in QGIS are honoured too
     nodata = None
     if provider.sourceHasNoDataValue(band):
         nodata = float(provider.sourceNoDataValue(band))
     for rng in provider.userNoDataValues(band):
         grid[(grid >= rng.min()) & (grid <= rng.max())] = np.nan
-    transform = (wx0, dx, 0.0, wy0, 0.0, -dy)
-    if report is not None and ct is None:
-        from vectoradjust.model import DemGrid
-
-        report["grid"] = DemGrid(grid, transform, nodata)
-    return bilinear(grid, transform, pts, nodata=nodata)
+    return grid, (wx0, dx, 0.0, wy0, 0.0, -dy), nodata
 
 
 # --------------------------------------------------------------------------- tables

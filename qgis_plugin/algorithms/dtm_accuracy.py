@@ -1,11 +1,9 @@
 """DTM accuracy: sigma Z and LE90 per cell, contours with their uncertainty buffers."""
 
-import os
 import time
 
 import numpy as np
 from qgis.core import (
-    QgsCoordinateReferenceSystem,
     QgsFeatureSink,
     QgsGeometry,
     QgsLineString,
@@ -18,13 +16,13 @@ from qgis.core import (
     QgsProcessingParameterFeatureSink,
     QgsProcessingParameterNumber,
     QgsProcessingParameterRasterDestination,
-    QgsRasterFileWriter,
     QgsWkbTypes,
 )
 
 from .. import qgis_io
 from . import inputs
 from .base import VectorAdjustAlgorithm
+from .gdal_raster import write_float_bands
 
 HELP = """
 <p>Adjusts the project (as <code>vectoradjust dtm</code> does) and gives the accuracy of a DTM
@@ -72,36 +70,13 @@ def write_dtm_raster(product, path, crs):
     -------
     str
     """
-    from osgeo import gdal
-
-    from vectoradjust.errors import InputFileError
     from vectoradjust.files.dtm_outputs import _BANDS, DTM_NODATA
 
     bands = np.stack([product.height, product.sigma, product.le90,
-                      product.sigma_interpolation, product.tan_slope]).astype(np.float32)
-    bands = np.where(np.isfinite(bands), bands, np.float32(DTM_NODATA))
-    ext = os.path.splitext(path)[1].lstrip(".").lower()
-    driver = gdal.GetDriverByName((QgsRasterFileWriter.driverForExtension(ext) if ext else "")
-                                  or "GTiff")
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    options = ["COMPRESS=DEFLATE"] if driver.ShortName == "GTiff" else []
-    ds = driver.Create(path, int(bands.shape[2]), int(bands.shape[1]), len(_BANDS),
-                       gdal.GDT_Float32, options=options)
-    if ds is None:
-        raise InputFileError(f"Cannot write the DTM accuracy raster {path!r} "
-                             f"({gdal.GetLastErrorMsg()})", "Choose a writable output path",
-                             path=path)
-    ds.SetGeoTransform(tuple(float(v) for v in product.transform))
-    ds.SetProjection(crs.toWkt(QgsCoordinateReferenceSystem.WKT_PREFERRED_GDAL))
-    for i, name in enumerate(_BANDS, start=1):
-        band = ds.GetRasterBand(i)
-        band.SetNoDataValue(DTM_NODATA)
-        band.WriteArray(bands[i - 1])
-        band.SetDescription(name)
-    ds.SetMetadata({"method": product.method, "source": product.model.kind, "units": "m"})
-    ds.FlushCache()
-    ds = None
-    return path
+                      product.sigma_interpolation, product.tan_slope])
+    return write_float_bands(path, bands, product.transform, crs, _BANDS, DTM_NODATA,
+                             {"method": product.method, "source": product.model.kind,
+                              "units": "m"}, "the DTM accuracy raster")
 
 
 class DtmAccuracy(VectorAdjustAlgorithm):

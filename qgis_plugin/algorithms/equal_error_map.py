@@ -1,11 +1,9 @@
 """Equal-error map: sigma X, Y, Z of a ground point intersected from a stereo pair."""
 
-import os
 import time
 
 import numpy as np
 from qgis.core import (
-    QgsCoordinateReferenceSystem,
     QgsProcessingOutputNumber,
     QgsProcessingParameterBoolean,
     QgsProcessingParameterDefinition,
@@ -13,12 +11,12 @@ from qgis.core import (
     QgsProcessingParameterRasterDestination,
     QgsProcessingParameterRasterLayer,
     QgsProcessingParameterString,
-    QgsRasterFileWriter,
 )
 
 from .. import qgis_io
 from . import inputs
 from .base import VectorAdjustAlgorithm
+from .gdal_raster import write_float_bands
 
 HELP = """
 <p>Adjusts the project (every <code>[[vectors]]</code> entry together, as
@@ -74,41 +72,13 @@ def write_equal_error_raster(grid, path, crs, nodata=None):
     -------
     str
     """
-    from osgeo import gdal
-
-    from vectoradjust.errors import InputFileError
     from vectoradjust.files.derived_outputs import EQUAL_ERROR_NODATA
 
     nodata = EQUAL_ERROR_NODATA if nodata is None else float(nodata)
-    bands = np.stack([grid.sigma_x, grid.sigma_y, grid.sigma_z]).astype(np.float32)
-    bands = np.where(np.isfinite(bands), bands, np.float32(nodata))
-    ext = os.path.splitext(path)[1].lstrip(".").lower()
-    driver_name = QgsRasterFileWriter.driverForExtension(ext) if ext else "GTiff"
-    driver = gdal.GetDriverByName(driver_name or "GTiff")
-    if driver is None:
-        raise InputFileError(f"Cannot write {path!r}: GDAL has no driver for .{ext} files",
-                             "Save the equal-error map as a GeoTIFF (.tif)", path=path)
-    options = ["COMPRESS=DEFLATE"] if driver.ShortName == "GTiff" else []
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    ds = driver.Create(path, int(bands.shape[2]), int(bands.shape[1]), 3, gdal.GDT_Float32,
-                       options=options)
-    if ds is None:
-        raise InputFileError(f"Cannot write the equal-error map {path!r} "
-                             f"({gdal.GetLastErrorMsg()})", "Choose a writable output path",
-                             path=path)
+    bands = np.stack([grid.sigma_x, grid.sigma_y, grid.sigma_z])
     a, b, c, dd, e, f = grid.transform  # Affine order -> GDAL geotransform
-    ds.SetGeoTransform((c, a, b, f, dd, e))
-    ds.SetProjection(crs.toWkt(QgsCoordinateReferenceSystem.WKT_PREFERRED_GDAL))
-    for i, name in enumerate(BAND_NAMES, start=1):
-        band = ds.GetRasterBand(i)
-        band.SetNoDataValue(nodata)
-        band.WriteArray(bands[i - 1])
-        band.SetDescription(name)
-    ds.SetMetadata({"units": "m", "quantity": QUANTITY})
-    ds.FlushCache()
-    ds = None
-    return path
+    return write_float_bands(path, bands, (c, a, b, f, dd, e), crs, BAND_NAMES, nodata,
+                             {"units": "m", "quantity": QUANTITY}, "the equal-error map")
 
 
 class EqualErrorMap(VectorAdjustAlgorithm):

@@ -498,9 +498,20 @@ def merge_band_files(run: AdjustmentRun, paths: list) -> LayerTable:
     of every file. The polygons are not memory-mapped, so the writing process holds about
     one batch of them, not the whole layer.
     """
-    import pyarrow as pa
-
     paths = [str(p) for p in paths if p]
+    keys, bounds = _band_file_keys(run, paths)
+    plan = _merge_plan(paths, keys)
+
+    def batches():
+        return _merged_band_batches(paths, bounds, plan)
+
+    return LayerTable(batches, str(run.data.crs), "MultiPolygon", int((~plan["dup"]).sum()))
+
+
+def _band_file_keys(run: AdjustmentRun, paths: list) -> tuple:
+    """Layer keys and record batch bounds of each band file in ``paths``; the bands of
+    conflation segments the files lack (built before the conflation) are written to one
+    more file, appended to ``paths``."""
     keys, bounds, names, nseg, conf = [], [], [], [], []
     for p in paths:
         k, b, nm, ns, c = _file_keys(run, p)
@@ -512,6 +523,14 @@ def merge_band_files(run: AdjustmentRun, paths: list) -> LayerTable:
                                        name="bands_conflated.arrow")
         k, b, *_ = _file_keys(run, extra)
         paths.append(extra), keys.append(k), bounds.append(b)
+    return keys, bounds
+
+
+def _merge_plan(paths: list, keys: list) -> dict:
+    """How the rows of the band files interleave into the layer: ``order`` (rows of all
+    files concatenated, in layer order), ``first`` (each file's first row), ``source``
+    (each row's file), ``cuts`` (batch bounds, a feature's two rows in one batch) and
+    ``dup`` (the second row of a feature, merged into the first)."""
     key = np.concatenate(keys) if keys else np.zeros(0, np.int64)
     order = np.argsort(key, kind="stable")
     first = np.concatenate([[0], np.cumsum([len(k) for k in keys], dtype=np.int64)])
@@ -519,61 +538,67 @@ def merge_band_files(run: AdjustmentRun, paths: list) -> LayerTable:
     for f in range(len(paths)):  # each file in layer order: its rows come as they are
         if np.any(np.diff(keys[f]) <= 0):
             raise ValueError(f"{paths[f]}: the band rows are not in layer order")
-    schema = _band_schema().remove(_band_schema().get_field_index("_feature"))
     skey = key[order]
     cuts = np.arange(0, len(order), BAND_BATCH)
     cuts = np.unique(np.r_[cuts[(cuts == 0) | (skey[cuts] != skey[cuts - 1])],
                            len(order)])  # a feature's two rows in one batch
     dup = np.r_[False, skey[1:] == skey[:-1]]
+    return {"order": order, "first": first, "source": source, "cuts": cuts, "dup": dup}
 
-    def batches():
-        files = [pa.OSFile(p) for p in paths]
-        readers = [pa.ipc.open_file(f) for f in files]
-        cached = [(-1, None)] * len(paths)
-        done = np.zeros(len(paths), np.int64)  # rows of each file already in the layer
 
-        def rows(f, a, b):
-            """Rows ``a .. b - 1`` of file ``f`` as tables (its record batches read once)."""
-            out = []
-            j = int(np.searchsorted(bounds[f], a, side="right")) - 1
-            while a < b:
-                if cached[f][0] != j:
-                    cached[f] = (j, readers[f].get_batch(j))
-                lo, hi = bounds[f][j], bounds[f][j + 1]
-                take = min(b, hi) - a
-                out.append(cached[f][1].slice(a - lo, take))
-                a += take
-                j += 1
-            return out
+def _merged_band_batches(paths: list, bounds: list, plan: dict):
+    """The merged layer as a ``pyarrow.RecordBatchReader``: a batch of the layer is a run
+    of consecutive rows of every file (:func:`_merge_plan`), read when it is asked for."""
+    import pyarrow as pa
 
-        def gen():
-            try:
-                yield from ordered()
-            finally:
-                cached[:] = [(-1, None)] * len(paths)
-                for f in files:
-                    f.close()
+    order, first, source = plan["order"], plan["first"], plan["source"]
+    cuts, dup = plan["cuts"], plan["dup"]
+    schema = _band_schema().remove(_band_schema().get_field_index("_feature"))
+    files = [pa.OSFile(p) for p in paths]
+    readers = [pa.ipc.open_file(f) for f in files]
+    cached = [(-1, None)] * len(paths)
+    done = np.zeros(len(paths), np.int64)  # rows of each file already in the layer
 
-        def ordered():
-            for i, j in zip(cuts[:-1], cuts[1:]):
-                o = order[i:j]
-                src = source[o]
-                n = np.bincount(src, minlength=len(paths))
-                pieces, base = [], np.zeros(len(paths), np.int64)
-                for f in np.flatnonzero(n):
-                    base[f] = sum(len(p) for p in pieces)
-                    pieces += rows(f, int(done[f]), int(done[f] + n[f]))
-                # position of every row of the batch among the pieces: file f's rows come
-                # in its own order, after the rows of the files before it
-                local = base[src] + (o - first[src] - done[src])
-                done[:] += n
-                batch = pa.Table.from_batches(pieces, schema=_band_schema()).drop(["_feature"])
-                batch = batch.take(pa.array(local)).combine_chunks()
-                yield from _merged_rows(batch, dup[i:j]).to_batches()
+    def rows(f, a, b):
+        """Rows ``a .. b - 1`` of file ``f`` as tables (its record batches read once)."""
+        out = []
+        j = int(np.searchsorted(bounds[f], a, side="right")) - 1
+        while a < b:
+            if cached[f][0] != j:
+                cached[f] = (j, readers[f].get_batch(j))
+            lo, hi = bounds[f][j], bounds[f][j + 1]
+            take = min(b, hi) - a
+            out.append(cached[f][1].slice(a - lo, take))
+            a += take
+            j += 1
+        return out
 
-        return pa.RecordBatchReader.from_batches(schema, gen())
+    def gen():
+        try:
+            yield from ordered()
+        finally:
+            cached[:] = [(-1, None)] * len(paths)
+            for f in files:
+                f.close()
 
-    return LayerTable(batches, str(run.data.crs), "MultiPolygon", int((~dup).sum()))
+    def ordered():
+        for i, j in zip(cuts[:-1], cuts[1:]):
+            o = order[i:j]
+            src = source[o]
+            n = np.bincount(src, minlength=len(paths))
+            pieces, base = [], np.zeros(len(paths), np.int64)
+            for f in np.flatnonzero(n):
+                base[f] = sum(len(p) for p in pieces)
+                pieces += rows(f, int(done[f]), int(done[f] + n[f]))
+            # position of every row of the batch among the pieces: file f's rows come
+            # in its own order, after the rows of the files before it
+            local = base[src] + (o - first[src] - done[src])
+            done[:] += n
+            batch = pa.Table.from_batches(pieces, schema=_band_schema()).drop(["_feature"])
+            batch = batch.take(pa.array(local)).combine_chunks()
+            yield from _merged_rows(batch, dup[i:j]).to_batches()
+
+    return pa.RecordBatchReader.from_batches(schema, gen())
 
 
 def _file_keys(run: AdjustmentRun, path: str):

@@ -232,6 +232,36 @@ def parse_table(
         One array per present column (strings stripped; floats for ``numeric``), plus
         ``"_line"`` with the row numbers (``lines``).
     """
+    lookup = _check_header(path, header, required, optional, allow_extra)
+    ncol = len(header)
+    num = (np.arange(2, len(rows) + 2) if lines is None
+           else np.asarray(list(lines), dtype=np.int64).reshape(-1))
+    if len(num) != len(rows):
+        raise ValueError(f"{len(num)} row numbers for {len(rows)} rows")
+    for i, r in enumerate(rows):
+        if len(r) != ncol:
+            raise CSVError(
+                f"{path}, {line_word} {num[i]}: {len(r)} values where the header has {ncol} "
+                "columns",
+                "Give every row one value per column", path=path,
+                details={line_word: int(num[i])},
+            )
+    out: dict[str, np.ndarray] = {"_line": num}
+    for col in (*required, *optional):
+        if col.lower() not in lookup:
+            continue
+        j = lookup[col.lower()]
+        values = [r[j].strip() for r in rows]
+        where = (path, line_word, num)
+        out[col] = (_numeric_column(where, col, values) if col in numeric
+                    else _text_column(where, col, values, col in required))
+    return out
+
+
+def _check_header(path: str, header: Sequence[str], required: Sequence[str],
+                  optional: Sequence[str], allow_extra: bool) -> dict[str, int]:
+    """The column index of each lower-cased header name; duplicate, missing or (unless
+    ``allow_extra``) unknown columns are a :class:`CSVError`."""
     lookup = {h.lower(): i for i, h in enumerate(header)}
     if len(lookup) != len(header):
         dup = sorted({h for h in header if header.count(h) > 1})
@@ -254,49 +284,39 @@ def parse_table(
             f"Remove them or rename them; allowed columns are {', '.join((*required, *optional))}",
             path=path, details={"extra": extra},
         )
-    out: dict[str, np.ndarray] = {}
-    ncol = len(header)
-    num = (np.arange(2, len(rows) + 2) if lines is None
-           else np.asarray(list(lines), dtype=np.int64).reshape(-1))
-    if len(num) != len(rows):
-        raise ValueError(f"{len(num)} row numbers for {len(rows)} rows")
-    for i, r in enumerate(rows):
-        if len(r) != ncol:
+    return lookup
+
+
+def _numeric_column(where: tuple, col: str, values: list) -> np.ndarray:
+    """Column ``col`` as floats; ``where`` is ``(path, line_word, row numbers)`` for the
+    :class:`CSVError` of an empty, non-numeric or non-finite value."""
+    path, line_word, num = where
+    arr = np.empty(len(values))
+    for i, v in enumerate(values):
+        try:
+            arr[i] = float(v)
+        except ValueError:
+            arr[i] = np.nan
+        if not np.isfinite(arr[i]):
             raise CSVError(
-                f"{path}, {line_word} {num[i]}: {len(r)} values where the header has {ncol} "
-                "columns",
-                "Give every row one value per column", path=path,
-                details={line_word: int(num[i])},
+                f"{path}, {line_word} {num[i]}: column {col} is {v!r}, not a finite "
+                "number",
+                "Enter a number (use '.' as the decimal separator)",
+                path=path, details={line_word: int(num[i]), "column": col},
             )
-    out["_line"] = num
-    for col in (*required, *optional):
-        if col.lower() not in lookup:
-            continue
-        j = lookup[col.lower()]
-        values = [r[j].strip() for r in rows]
-        if col in numeric:
-            arr = np.empty(len(values))
-            for i, v in enumerate(values):
-                try:
-                    arr[i] = float(v)
-                except ValueError:
-                    arr[i] = np.nan
-                if not np.isfinite(arr[i]):
-                    raise CSVError(
-                        f"{path}, {line_word} {num[i]}: column {col} is {v!r}, not a finite "
-                        "number",
-                        "Enter a number (use '.' as the decimal separator)",
-                        path=path, details={line_word: int(num[i]), "column": col},
-                    )
-            out[col] = arr
-        else:
-            for i, v in enumerate(values):
-                if col in required and not v:
-                    raise CSVError(f"{path}, {line_word} {num[i]}: column {col} is empty",
-                                   f"Fill in {col}", path=path,
-                                   details={line_word: int(num[i]), "column": col})
-            out[col] = np.array(values, dtype=object)
-    return out
+    return arr
+
+
+def _text_column(where: tuple, col: str, values: list, required: bool) -> np.ndarray:
+    """Column ``col`` as an object array of stripped strings; an empty value of a
+    ``required`` column is a :class:`CSVError` (``where`` as in :func:`_numeric_column`)."""
+    path, line_word, num = where
+    for i, v in enumerate(values):
+        if required and not v:
+            raise CSVError(f"{path}, {line_word} {num[i]}: column {col} is empty",
+                           f"Fill in {col}", path=path,
+                           details={line_word: int(num[i]), "column": col})
+    return np.array(values, dtype=object)
 
 
 def _other_separator(path: str, header: Sequence[str]) -> None:

@@ -30,105 +30,56 @@ algorithms and the tests use (``_is_set``, ``_number``, ``_read_toml``, ``_refus
 ``_REWEIGHT_VALUES``).
 """
 
-from .adjustment import (
-    Adjusted,
-    road_error_model,
-    run_adjustment,
-)
+from . import adjustment, parameters, project_file, road_layers
+from .adjustment import Adjusted as Adjusted
+from .adjustment import road_error_model as road_error_model
+from .adjustment import run_adjustment as run_adjustment
 from .parameters import _REWEIGHT_VALUES as _REWEIGHT_VALUES
-from .parameters import (
-    ALPHA,
-    CONTROL,
-    DEM,
-    FOCAL_LENGTH,
-    GROUND_CRS,
-    ID_FIELD,
-    IDENT_XY,
-    IDENT_Z,
-    IMAGE_HEADERS,
-    IMAGES,
-    INPUT,
-    MAX_ITERATIONS,
-    MEASUREMENT_SIGMA,
-    MEASUREMENTS,
-    NAME,
-    OFFSET,
-    OFFSET_CHOICES,
-    PP_X,
-    PP_Y,
-    PROJECT,
-    PROJECT_HELP,
-    REWEIGHT,
-    REWEIGHT_OPTIONS,
-    ROAD_HELP,
-    SIGMA_XY,
-    SIGMA_Z,
-    add_project_parameters,
-    add_road_parameters,
-)
-from .project_file import (
-    ProjectInputs,
-    matching_vector_spec,
-    project_inputs,
-    raster_from_path,
-)
+from .parameters import ALPHA as ALPHA
+from .parameters import CONTROL as CONTROL
+from .parameters import DEM as DEM
+from .parameters import FOCAL_LENGTH as FOCAL_LENGTH
+from .parameters import GROUND_CRS as GROUND_CRS
+from .parameters import ID_FIELD as ID_FIELD
+from .parameters import IDENT_XY as IDENT_XY
+from .parameters import IDENT_Z as IDENT_Z
+from .parameters import IMAGE_HEADERS as IMAGE_HEADERS
+from .parameters import IMAGES as IMAGES
+from .parameters import INPUT as INPUT
+from .parameters import MAX_ITERATIONS as MAX_ITERATIONS
+from .parameters import MEASUREMENT_SIGMA as MEASUREMENT_SIGMA
+from .parameters import MEASUREMENTS as MEASUREMENTS
+from .parameters import NAME as NAME
+from .parameters import OFFSET as OFFSET
+from .parameters import OFFSET_CHOICES as OFFSET_CHOICES
+from .parameters import PP_X as PP_X
+from .parameters import PP_Y as PP_Y
+from .parameters import PROJECT as PROJECT
+from .parameters import PROJECT_HELP as PROJECT_HELP
+from .parameters import REWEIGHT as REWEIGHT
+from .parameters import REWEIGHT_OPTIONS as REWEIGHT_OPTIONS
+from .parameters import ROAD_HELP as ROAD_HELP
+from .parameters import SIGMA_XY as SIGMA_XY
+from .parameters import SIGMA_Z as SIGMA_Z
+from .parameters import add_project_parameters as add_project_parameters
+from .parameters import add_road_parameters as add_road_parameters
+from .project_file import ProjectInputs as ProjectInputs
 from .project_file import _is_set as _is_set
 from .project_file import _number as _number
 from .project_file import _read_toml as _read_toml
 from .project_file import _refuse_datums as _refuse_datums
-from .road_layers import (
-    RoadDatabase,
-    entry_settings_text,
-    filtered_entry_layer,
-    open_vector_entry,
-    project_data_with,
-    read_project_entry,
-    read_road_layer,
-    shape_point_sigma,
-)
+from .project_file import matching_vector_spec as matching_vector_spec
+from .project_file import project_inputs as project_inputs
+from .project_file import raster_from_path as raster_from_path
+from .road_layers import RoadDatabase as RoadDatabase
+from .road_layers import entry_settings_text as entry_settings_text
+from .road_layers import filtered_entry_layer as filtered_entry_layer
+from .road_layers import open_vector_entry as open_vector_entry
+from .road_layers import project_data_with as project_data_with
+from .road_layers import read_project_entry as read_project_entry
+from .road_layers import read_road_layer as read_road_layer
+from .road_layers import shape_point_sigma as shape_point_sigma
 
-__all__ = [
-    "PROJECT",
-    "MEASUREMENTS",
-    "MEASUREMENT_SIGMA",
-    "CONTROL",
-    "FOCAL_LENGTH",
-    "PP_X",
-    "PP_Y",
-    "IMAGES",
-    "GROUND_CRS",
-    "REWEIGHT",
-    "ALPHA",
-    "MAX_ITERATIONS",
-    "IMAGE_HEADERS",
-    "REWEIGHT_OPTIONS",
-    "PROJECT_HELP",
-    "add_project_parameters",
-    "ROAD_HELP",
-    "INPUT",
-    "ID_FIELD",
-    "NAME",
-    "DEM",
-    "SIGMA_XY",
-    "SIGMA_Z",
-    "IDENT_XY",
-    "IDENT_Z",
-    "OFFSET",
-    "OFFSET_CHOICES",
-    "add_road_parameters",
-    "ProjectInputs",
-    "project_inputs",
-    "matching_vector_spec",
-    "raster_from_path",
-    "RoadDatabase",
-    "shape_point_sigma",
-    "read_road_layer",
-    "open_vector_entry",
-    "filtered_entry_layer",
-    "read_project_entry",
-    "project_data_with",
-    "entry_settings_text",
-    "road_error_model",
-    "Adjusted",
-    "run_adjustment",
-]
+# the submodules' own lists (one place for each name)
+__all__ = [*parameters.__all__, *project_file.__all__, *road_layers.__all__,
+           *adjustment.__all__]

@@ -266,21 +266,7 @@ def read_line_layer(path: str, name: str, id_field: Optional[str], target_crs,
                              "Check the path in the [[vectors]] entry", path=str(p))
     chosen = choose_layer(p, layer, entry)
     gdf = _read_frame(p, chosen, where, entry)
-    if not hasattr(type(gdf), "geometry"):  # pyogrio gives a DataFrame: no geometry column
-        raise LayerError(f"{p} ({entry}): the layer has no geometries (a table: "
-                         f"{', '.join(map(str, gdf.columns)) or 'no fields'})",
-                         "Give the road centrelines as a line layer (shapefile, GeoPackage, "
-                         "GeoJSON ...)", path=str(p))
-    if gdf.crs is None:
-        raise CRSError(f"{p}: the layer has no coordinate reference system",
-                       "Add a .prj file (or define the CRS in your GIS and save again)",
-                       path=str(p))
-    geom = gdf.geometry
-    types = set(t for t in geom.geom_type.dropna().unique())
-    if types and not types & {"LineString", "MultiLineString", "LinearRing"}:
-        raise LayerError(
-            f"{p}: the layer holds {', '.join(sorted(types))} geometries, not lines",
-            "Give the road centrelines as a LineString layer", path=str(p))
+    types = _line_geometry_types(p, gdf, entry)
     attr_cols = [c for c in gdf.columns if c != gdf.geometry.name]
     if id_field is not None and id_field not in attr_cols:  # said before the filter's ids
         _feature_ids(p, gdf, id_field, attr_cols)
@@ -299,6 +285,26 @@ def read_line_layer(path: str, name: str, id_field: Optional[str], target_crs,
     }
     out.reading["fields"] = field_types
     return out
+
+
+def _line_geometry_types(p: Path, gdf, entry: str) -> set:
+    """The geometry types of the frame read from ``p``; a table without geometries, a
+    layer without CRS (:class:`CRSError`) or one without lines is an error."""
+    if not hasattr(type(gdf), "geometry"):  # pyogrio gives a DataFrame: no geometry column
+        raise LayerError(f"{p} ({entry}): the layer has no geometries (a table: "
+                         f"{', '.join(map(str, gdf.columns)) or 'no fields'})",
+                         "Give the road centrelines as a line layer (shapefile, GeoPackage, "
+                         "GeoJSON ...)", path=str(p))
+    if gdf.crs is None:
+        raise CRSError(f"{p}: the layer has no coordinate reference system",
+                       "Add a .prj file (or define the CRS in your GIS and save again)",
+                       path=str(p))
+    types = set(t for t in gdf.geometry.geom_type.dropna().unique())
+    if types and not types & {"LineString", "MultiLineString", "LinearRing"}:
+        raise LayerError(
+            f"{p}: the layer holds {', '.join(sorted(types))} geometries, not lines",
+            "Give the road centrelines as a LineString layer", path=str(p))
+    return types
 
 
 def _feature_ids(p: Path, gdf, id_field: str, attr_cols: list) -> np.ndarray:

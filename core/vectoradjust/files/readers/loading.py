@@ -83,9 +83,30 @@ def load_project_data(project, vectors: Optional[list] = None,
     fid_path = spec.measurements.get("fiducials")
     fiducials = read_fiducials(fid_path, unit) if fid_path else None
     trajectory_warnings = _trajectory(spec, crs, where)
+    names = vectors or [v.name for v in spec.vectors]
+    layers, truth = _read_vectors(spec, crs, where, names, say)
+    for n in names:
+        spec.vector(n)  # raises a clear error for an unknown name
+    say("refining the image coordinates")
+    # refinement (docs/method.md section 5), camera, [qa], truth: vectoradjust.files.assemble,
+    # shared with QGIS;
+    # the project CRS is projected (checked above): earth curvature applies when asked
+    data = project_data(spec, raw_meas, control, layers, crs=crs.to_string(), truth=truth,
+                        fiducials=fiducials, map_projection=bool(crs.is_projected),
+                        source=where)
+    if spec.has_rpc:
+        say("reading the RPCs of the satellite images")
+        read_rpc_images(data, spec, crs.to_string())
+    data.reading_warnings.extend(trajectory_warnings)
+    return data
+
+
+def _read_vectors(spec: ProjectSpec, crs, where: str, names: list, say) -> tuple:
+    """The ``[[vectors]]`` entries named in ``names``: their line layers (with the heights
+    of their DEM in the project's vertical datum) and truth points; ``say(message)``
+    before each step. Returns ``([(entry, LineLayer), ...], {name: truth table})``."""
     layers = []
     truth = {}
-    names = vectors or [v.name for v in spec.vectors]
     for v in spec.vectors:
         if v.name not in names:
             continue
@@ -104,20 +125,7 @@ def load_project_data(project, vectors: Optional[list] = None,
         say(f"reading the truth of {v.name}")
         if v.truth:
             truth[v.name] = read_truth_points(v.truth)
-    for n in names:
-        spec.vector(n)  # raises a clear error for an unknown name
-    say("refining the image coordinates")
-    # refinement (docs/method.md section 5), camera, [qa], truth: vectoradjust.files.assemble,
-    # shared with QGIS;
-    # the project CRS is projected (checked above): earth curvature applies when asked
-    data = project_data(spec, raw_meas, control, layers, crs=crs.to_string(), truth=truth,
-                        fiducials=fiducials, map_projection=bool(crs.is_projected),
-                        source=where)
-    if spec.has_rpc:
-        say("reading the RPCs of the satellite images")
-        read_rpc_images(data, spec, crs.to_string())
-    data.reading_warnings.extend(trajectory_warnings)
-    return data
+    return layers, truth
 
 
 def _trajectory(spec: ProjectSpec, project_crs, where: str) -> list:
