@@ -125,6 +125,18 @@ def buffer_test(
     """
     import shapely
 
+    w = _checked_widths(widths, method, cap_style)
+    tst = _as_geometry_array(tested, "tested")
+    ref = _as_geometry_array(reference, "reference")
+    total = float(np.sum(shapely.length(tst))) if tst.size else 0.0
+    if method == "exact":
+        return _rows(w, _exact_inside(tst, ref, w) if total > 0 else np.zeros(len(w)), total)
+    return _rows(w, _polygon_inside(tst, ref, w, total, quad_segs, cap_style), total)
+
+
+def _checked_widths(widths: Any, method: str, cap_style: str) -> np.ndarray:
+    """The widths of :func:`buffer_test` as a 1-D float array, checked with its
+    ``method`` and ``cap_style`` (ValueError when they do not fit)."""
     w = np.atleast_1d(np.asarray(widths, dtype=float))
     if w.ndim != 1:
         raise ValueError("widths must be a number or a 1-D sequence of numbers")
@@ -134,15 +146,19 @@ def buffer_test(
         raise ValueError(f"method must be 'polygon' or 'exact', got {method!r}")
     if method == "exact" and cap_style != "round":
         raise ValueError("method='exact' measures the round buffer; use cap_style='round'")
-    tst = _as_geometry_array(tested, "tested")
-    ref = _as_geometry_array(reference, "reference")
-    total = float(np.sum(shapely.length(tst))) if tst.size else 0.0
-    if method == "exact":
-        return _rows(w, _exact_inside(tst, ref, w) if total > 0 else np.zeros(len(w)), total)
+    return w
+
+
+def _polygon_inside(tst: np.ndarray, ref: np.ndarray, widths: np.ndarray, total: float,
+                    quad_segs: int, cap_style: str) -> list[float]:
+    """Length of the tested lines inside shapely's buffer of the united reference lines,
+    per width (``method="polygon"`` of :func:`buffer_test`)."""
+    import shapely
+
     ref_parts = [p for g in ref for p in shapely.get_parts(g)]
     ref_lines = shapely.multilinestrings(ref_parts) if ref_parts else None
     results = []
-    for width in w:
+    for width in widths:
         inside = 0.0
         if total > 0 and width > 0 and ref_lines is not None:
             buf = shapely.buffer(ref_lines, float(width), quad_segs=quad_segs, cap_style=cap_style)
@@ -152,7 +168,7 @@ def buffer_test(
                 inter = shapely.intersection(tst[hit], buf)
                 inside = float(np.sum(shapely.length(inter)))
         results.append(inside)
-    return _rows(w, results, total)
+    return results
 
 
 def _rows(widths: np.ndarray, inside, total: float) -> list[dict[str, Any]]:

@@ -395,6 +395,32 @@ def _feature_dicts(fids, n, mean, cols) -> FeatureStatements:
     return FeatureStatements(out)
 
 
+def _check_point_block(run) -> Optional[dict]:
+    """The statement block of adjusted - surveyed at the used check points (with the
+    surveyed sigmas as the reference's), or None when no check point was intersected."""
+    cp = run.control_points
+    if not (cp and len(cp.get("point_id", []))):
+        return None
+    chk = (np.asarray(cp["role"]) == "check") & (np.asarray(cp["Used"]) == 1)
+    if not chk.any():
+        return None
+    e = np.column_stack([cp["Vx"], cp["Vy"], cp["Vz"]]).astype(float)[chk]
+    ctrl = run.data.control
+    if ctrl.cov is not None:
+        sig = np.sqrt(np.einsum("nii->ni", np.asarray(ctrl.cov, float)))[chk]
+    else:
+        sig = np.asarray(ctrl.sigma, float)[chk]
+    block = _statement_block(e, sig, what="adjusted - surveyed",
+                             reference="surveyed check points")
+    block["point_ids"] = [str(p) for p in np.asarray(cp["point_id"])[chk]]
+    btxt = block["bias"]["text"]
+    block["bias"]["statement"] = (
+        f"check points: on average the adjusted block lies {btxt} of the survey"
+        if block["bias"]["direction"] not in ("", "none") else
+        f"check points: {btxt}")
+    return _clean(block)
+
+
 def accuracy_statements(run, *, min_feature_vertices: int = MIN_FEATURE_VERTICES) -> dict:
     """Accuracy statements of an adjustment, JSON-ready.
 
@@ -439,26 +465,7 @@ def accuracy_statements(run, *, min_feature_vertices: int = MIN_FEATURE_VERTICES
     for d in run.databases:
         dbs.append(_clean(_database_block(run, d, _truth_for(run, d))))
         feats[d.name] = _feature_rows(d, min_feature_vertices)
-    cp = run.control_points
-    chk_block = None
-    if cp and len(cp.get("point_id", [])):
-        chk = (np.asarray(cp["role"]) == "check") & (np.asarray(cp["Used"]) == 1)
-        if chk.any():
-            e = np.column_stack([cp["Vx"], cp["Vy"], cp["Vz"]]).astype(float)[chk]
-            ctrl = run.data.control
-            if ctrl.cov is not None:
-                sig = np.sqrt(np.einsum("nii->ni", np.asarray(ctrl.cov, float)))[chk]
-            else:
-                sig = np.asarray(ctrl.sigma, float)[chk]
-            chk_block = _statement_block(e, sig, what="adjusted - surveyed",
-                                         reference="surveyed check points")
-            chk_block["point_ids"] = [str(p) for p in np.asarray(cp["point_id"])[chk]]
-            btxt = chk_block["bias"]["text"]
-            chk_block["bias"]["statement"] = (
-                f"check points: on average the adjusted block lies {btxt} of the survey"
-                if chk_block["bias"]["direction"] not in ("", "none") else
-                f"check points: {btxt}")
-            chk_block = _clean(chk_block)
+    chk_block = _check_point_block(run)
     return {
         "definitions": {
             "databases": "errors = database - adjusted (= -V) at the adjusted vertices; "

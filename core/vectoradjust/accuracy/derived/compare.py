@@ -59,17 +59,8 @@ def compare_two_step(run: AdjustmentRun, image_pair: Optional[Sequence[str]] = N
         only the two images: otherwise the bundle also used the others).
     """
     res = run.result
-    prob = res.problem
     ia, ib = _pair_indices(run, image_pair)
-    npnt = prob.n_points
-    # first observation of each point on each image of the pair
-    obs_a = np.full(npnt, -1, np.int64)
-    obs_b = np.full(npnt, -1, np.int64)
-    ka = np.flatnonzero(prob.obs_image == ia)
-    kb = np.flatnonzero(prob.obs_image == ib)
-    obs_a[prob.obs_point[ka[::-1]]] = ka[::-1]
-    obs_b[prob.obs_point[kb[::-1]]] = kb[::-1]
-    pts = np.flatnonzero((obs_a >= 0) & (obs_b >= 0))
+    obs_a, obs_b, pts = _common_points(res.problem, ia, ib)
     kind = run.point_kind[pts]
     ctrl = pts[kind == "control"]
     if ctrl.size < 3:
@@ -78,21 +69,58 @@ def compare_two_step(run: AdjustmentRun, image_pair: Optional[Sequence[str]] = N
             f"{run.image_ids[ia]!r} and {run.image_ids[ib]!r}; the two-step orientation needs 3",
             "Measure at least 3 control points on both images of the pair",
         )
+    ts = _orient_two_step(run, obs_a[pts], obs_b[pts], pts, ctrl, method)
+    return _comparison(run, (ia, ib), method, ts, pts, _sigmas(res, ts, pts))
+
+
+def _common_points(prob, ia: int, ib: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first observation of every point on image ``ia`` and on ``ib`` (-1: none), and
+    the points observed on both."""
+    npnt = prob.n_points
+    obs_a = np.full(npnt, -1, np.int64)
+    obs_b = np.full(npnt, -1, np.int64)
+    ka = np.flatnonzero(prob.obs_image == ia)
+    kb = np.flatnonzero(prob.obs_image == ib)
+    obs_a[prob.obs_point[ka[::-1]]] = ka[::-1]
+    obs_b[prob.obs_point[kb[::-1]]] = kb[::-1]
+    return obs_a, obs_b, np.flatnonzero((obs_a >= 0) & (obs_b >= 0))
+
+
+def _orient_two_step(run: AdjustmentRun, ka: np.ndarray, kb: np.ndarray, pts: np.ndarray,
+                     ctrl: np.ndarray, method: str):
+    """:func:`two_step` of the points ``pts`` (observations ``ka`` on the left, ``kb`` on
+    the right image) to the control points ``ctrl`` with their prior covariances."""
+    prob = run.result.problem
     pp = np.asarray(prob.principal_point, float)
-    left = prob.obs_xy[obs_a[pts]] - pp
-    right = prob.obs_xy[obs_b[pts]] - pp
-    isig = np.column_stack([prob.obs_sigma[obs_a[pts]], prob.obs_sigma[obs_b[pts]]])
-    ids = run.point_ids[pts]
+    left = prob.obs_xy[ka] - pp
+    right = prob.obs_xy[kb] - pp
+    isig = np.column_stack([prob.obs_sigma[ka], prob.obs_sigma[kb]])
     ccov = np.linalg.inv(prob.prior_weight[ctrl])
-    ts = two_step(left, right, ids, prob.focal_length, run.point_ids[ctrl],
-                  prob.prior_xyz[ctrl], ccov, isig, method=method)
-    vf = res.variance_factor
+    return two_step(left, right, run.point_ids[pts], prob.focal_length, run.point_ids[ctrl],
+                    prob.prior_xyz[ctrl], ccov, isig, method=method)
+
+
+def _sigmas(res, ts, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sigmas (n, 3) of the points: two-step rigorous and classical, and the bundle's
+    a-posteriori ones divided by ``s0`` (the same footing as the a-priori two-step)."""
     bundle_cov = (res.point_cov[pts] if res.point_cov is not None
-                  else cross_covariance(res, pts, pts)) / vf
+                  else cross_covariance(res, pts, pts)) / res.variance_factor
     b_sig = np.sqrt(np.einsum("mii->mi", bundle_cov))
     n = len(pts)
     rig = np.sqrt(np.clip(np.diag(ts.cov), 0, None)).reshape(n, 3)
     cla = np.sqrt(np.clip(np.diag(ts.cov_classical), 0, None)).reshape(n, 3)
+    return rig, cla, b_sig
+
+
+def _comparison(run: AdjustmentRun, pair: tuple[int, int], method: str, ts, pts: np.ndarray,
+                sigmas: tuple[np.ndarray, np.ndarray, np.ndarray]) -> dict:
+    """The dict of :func:`compare_two_step` from the two-step result ``ts`` of the points
+    ``pts`` and their :func:`_sigmas`."""
+    res = run.result
+    rig, cla, b_sig = sigmas
+    kind = run.point_kind[pts]
+    ids = run.point_ids[pts]
+    n = len(pts)
     diff = ts.ground_xyz - res.xyz[pts]
     shape = kind == "shape"
     con = kind == "control"
@@ -104,7 +132,7 @@ def compare_two_step(run: AdjustmentRun, image_pair: Optional[Sequence[str]] = N
         return {ax: _stats(s[m, i] / b_sig[m, i]) for i, ax in enumerate("xyz")}
 
     return {
-        "images": [run.image_ids[ia], run.image_ids[ib]],
+        "images": [run.image_ids[pair[0]], run.image_ids[pair[1]]],
         "method": method,
         "n_points": int(n), "control_points": int(con.sum()), "shape_points": int(shape.sum()),
         "tie_points": int(tie.sum()),

@@ -186,27 +186,10 @@ def equal_error_grid(
     f = prob.focal_length
     fa = image_footprint(eo[0], f, frame, zmean)
     fb = image_footprint(eo[1], f, frame, zmean)
-    x0 = max(fa[:, 0].min(), fb[:, 0].min())
-    x1 = min(fa[:, 0].max(), fb[:, 0].max())
-    y0 = max(fa[:, 1].min(), fb[:, 1].min())
-    y1 = min(fa[:, 1].max(), fb[:, 1].max())
-    xs = np.arange(np.ceil(x0 / spacing), np.floor(x1 / spacing) + 1) * spacing
-    ys = (np.arange(np.ceil(y0 / spacing), np.floor(y1 / spacing) + 1) * spacing)[::-1]
-    if xs.size == 0 or ys.size == 0:
-        raise ProjectError(
-            f"Images {run.image_ids[ia]!r} and {run.image_ids[ib]!r} do not overlap (or the "
-            f"overlap is smaller than the spacing {spacing} m)",
-            "Choose a stereo pair with overlap (--images) or a smaller spacing",
-        )
+    xs, ys = _overlap_nodes(run, (ia, ib), fa, fb, spacing)
     X, Y = np.meshgrid(xs, ys)
     inside = _inside_convex(fa, X, Y) & _inside_convex(fb, X, Y)
-    if z is None:
-        Z = np.full(X.shape, zmean)
-    elif callable(z):
-        Z = np.asarray(z(X, Y), float).reshape(X.shape)
-    else:
-        Z = np.broadcast_to(np.asarray(z, float), X.shape).astype(float)
-    Z = np.where(np.isfinite(Z), Z, zmean)
+    Z = _node_heights(z, X, Y, zmean)
     sx = np.full(X.shape, np.nan)
     sy = np.full(X.shape, np.nan)
     sz = np.full(X.shape, np.nan)
@@ -216,6 +199,44 @@ def equal_error_grid(
     transform = (float(spacing), 0.0, float(xs[0] - spacing / 2), 0.0, -float(spacing),
                  float(ys[0] + spacing / 2))
     return EqualErrorGrid(X, Y, sx, sy, sz, transform)
+
+
+def _overlap_nodes(run: AdjustmentRun, pair: tuple[int, int], fa: np.ndarray, fb: np.ndarray,
+                   spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """The node coordinates (multiples of ``spacing``) over the bounding box of the two
+    footprints' overlap: ``xs`` west to east, ``ys`` north to south.
+
+    Raises
+    ------
+    ProjectError
+        If the footprints do not overlap by at least one node.
+    """
+    x0 = max(fa[:, 0].min(), fb[:, 0].min())
+    x1 = min(fa[:, 0].max(), fb[:, 0].max())
+    y0 = max(fa[:, 1].min(), fb[:, 1].min())
+    y1 = min(fa[:, 1].max(), fb[:, 1].max())
+    xs = np.arange(np.ceil(x0 / spacing), np.floor(x1 / spacing) + 1) * spacing
+    ys = (np.arange(np.ceil(y0 / spacing), np.floor(y1 / spacing) + 1) * spacing)[::-1]
+    if xs.size == 0 or ys.size == 0:
+        ia, ib = pair
+        raise ProjectError(
+            f"Images {run.image_ids[ia]!r} and {run.image_ids[ib]!r} do not overlap (or the "
+            f"overlap is smaller than the spacing {spacing} m)",
+            "Choose a stereo pair with overlap (--images) or a smaller spacing",
+        )
+    return xs, ys
+
+
+def _node_heights(z, X: np.ndarray, Y: np.ndarray, zmean: float) -> np.ndarray:
+    """The terrain height of the nodes from the ``z`` of :func:`equal_error_grid` (NaN and
+    None: ``zmean``)."""
+    if z is None:
+        Z = np.full(X.shape, zmean)
+    elif callable(z):
+        Z = np.asarray(z(X, Y), float).reshape(X.shape)
+    else:
+        Z = np.broadcast_to(np.asarray(z, float), X.shape).astype(float)
+    return np.where(np.isfinite(Z), Z, zmean)
 
 
 def equal_error_range(grid: EqualErrorGrid) -> dict:

@@ -73,8 +73,7 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult, dims: int = 2,
     b S^-1 b']`` with ``b`` accumulated per feature with ``bincount``.
 
     With the vertices tabulated it also sets ``db.features["CE90"]`` / ``["LE90"]``
-    (:func:`feature_vertex_accuracy`; :func:`feature_accuracy` completes them after the
-    conflation).
+    (:func:`feature_vertex_accuracy`; completed after the conflation by :func:`feature_accuracy`).
 
     Parameters
     ----------
@@ -98,7 +97,6 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult, dims: int = 2,
         raise ValueError("dims must be 2 or 3")
     res = run.result
     _check_result(res)
-    prob = res.problem
     layer = db.shape.layer
     nf = layer.n_features
     vp = np.asarray(db.vertex_point, np.int64)
@@ -111,23 +109,50 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult, dims: int = 2,
     a = _segments(db)
     if a.size == 0 or not has.any():
         return sd, sd_nc
-    b, u, length, grad, vert = _segment_gradients(run, db, a, dims)
-    keep = vp[vert] >= 0
-    ent_f = fi[vert][keep]
-    ent_p = vp[vert][keep]
-    grad = grad[keep]
-    n_pts = prob.n_points
-    key = ent_f.astype(np.int64) * n_pts + ent_p
-    uniq, inv = np.unique(key, return_inverse=True)
-    g = _block_sum(np.asarray(inv).reshape(-1), grad, len(uniq))  # (m, 3) per (feature, point)
-    pf = uniq // n_pts
-    pp = uniq % n_pts
+    g, pf, pp = _point_gradients(run, db, a, dims)
     # without covariances between points: each point's own block
     blocks = res.point_cov[pp] if res.point_cov is not None else cross_covariance(res, pp, pp)
     var_nc = np.bincount(pf, weights=np.einsum("mi,mij,mj->m", g, blocks, g), minlength=nf)
     # full: s0^2 [sum g' D g + b S^-1 b']
     h = np.einsum("mij,mj->mi", res.npp_inv[pp], g)
     diag = np.bincount(pf, weights=np.einsum("mi,mi->m", g, h), minlength=nf)
+    quad = _orientation_share(res, h, pf, pp, nf)
+    if res.offset_cofactor is not None:  # the database offsets' share
+        quad += _offset_share(res, g, pf, pp, nf)
+    # the identification error: independent per object point (docs/method.md section 10)
+    ident = np.bincount(pf, weights=g ** 2 @ _identification_variance(db), minlength=nf)
+    var = res.variance_factor * (diag + quad) + ident
+    var_nc = var_nc + ident
+    bias, bias_nc = _lengthening_so_far(run, db, dims, lengthening)
+    sd[has] = np.sqrt(np.clip(var[has], 0.0, None) + bias[has] ** 2)
+    sd_nc[has] = np.sqrt(np.clip(var_nc[has], 0.0, None) + bias_nc[has] ** 2)
+    return sd, sd_nc
+
+
+def _point_gradients(run: AdjustmentRun, db: DatabaseResult, a: np.ndarray, dims: int):
+    """The length gradients of the measured vertices of the segments starting at ``a``,
+    summed per (feature, object point): gradient ``g`` (m, 3), feature ``pf`` (m,) and
+    object point ``pp`` (m,), sorted by feature then point."""
+    vp = np.asarray(db.vertex_point, np.int64)
+    fi = db.shape.layer.vertex_feature
+    b, u, length, grad, vert = _segment_gradients(run, db, a, dims)
+    keep = vp[vert] >= 0
+    ent_f = fi[vert][keep]
+    ent_p = vp[vert][keep]
+    grad = grad[keep]
+    n_pts = run.result.problem.n_points
+    key = ent_f.astype(np.int64) * n_pts + ent_p
+    uniq, inv = np.unique(key, return_inverse=True)
+    g = _block_sum(np.asarray(inv).reshape(-1), grad, len(uniq))  # (m, 3) per (feature, point)
+    return g, uniq // n_pts, uniq % n_pts
+
+
+def _orientation_share(res, h: np.ndarray, pf: np.ndarray, pp: np.ndarray,
+                       nf: int) -> np.ndarray:
+    """``b S^-1 b'`` per feature: the orientations' share of the length's variance (over
+    ``s0^2``), with ``h = N_pp^-1 g`` per (feature, point); the dense ``b`` rows are
+    formed for a chunk of features at a time."""
+    prob = res.problem
     idx = _ObsIndex.of(res)
     ent, obs = idx.expand(pp)
     contrib = np.einsum("kij,kj->ki", res.nep_obs[obs], h[ent])  # (K, 6) at image of obs
@@ -146,19 +171,15 @@ def feature_length_sigma(run: AdjustmentRun, db: DatabaseResult, dims: int = 2,
         bm = _block_sum((feat[sel] - f0) * n + prob.obs_image[obs[sel]], contrib[sel],
                         (f1 - f0) * n).reshape(f1 - f0, 6 * n)
         quad[f0:f1] = np.einsum("fi,fi->f", bm @ res.s_inv, bm)
-    if res.offset_cofactor is not None:  # the database offsets' share
-        hq = np.einsum("mi,miq->mq", g, res.offset_qb[pp])
-        hq = np.stack([np.bincount(pf, weights=hq[:, c], minlength=nf)
-                       for c in range(hq.shape[1])], axis=1)
-        quad += np.einsum("fq,qr,fr->f", hq, res.offset_cofactor, hq)
-    # the identification error: independent per object point (docs/method.md section 10)
-    ident = np.bincount(pf, weights=g ** 2 @ _identification_variance(db), minlength=nf)
-    var = res.variance_factor * (diag + quad) + ident
-    var_nc = var_nc + ident
-    bias, bias_nc = _lengthening_so_far(run, db, dims, lengthening)
-    sd[has] = np.sqrt(np.clip(var[has], 0.0, None) + bias[has] ** 2)
-    sd_nc[has] = np.sqrt(np.clip(var_nc[has], 0.0, None) + bias_nc[has] ** 2)
-    return sd, sd_nc
+    return quad
+
+
+def _offset_share(res, g: np.ndarray, pf: np.ndarray, pp: np.ndarray, nf: int) -> np.ndarray:
+    """The database offsets' share of the length's variance per feature (over ``s0^2``)."""
+    hq = np.einsum("mi,miq->mq", g, res.offset_qb[pp])
+    hq = np.stack([np.bincount(pf, weights=hq[:, c], minlength=nf)
+                   for c in range(hq.shape[1])], axis=1)
+    return np.einsum("fq,qr,fr->f", hq, res.offset_cofactor, hq)
 
 
 def _lengthening_so_far(run: AdjustmentRun, db: DatabaseResult, dims: int, lengthening: bool):

@@ -148,13 +148,28 @@ def g_band(
     if n_samples < 2:
         raise ValueError("g_band needs n_samples >= 2")
     sel = [0, 1, dd, dd + 1]
-    cxy = cj[np.ix_(sel, sel)]
-    k = confidence_scale(confidence, 2)
     delta = b[:2] - a[:2]
     length = float(np.hypot(*delta))
     e_u = delta / length if length > 0 else np.array([1.0, 0.0])
-    e_n = np.array([-e_u[1], e_u[0]])
-    rot = np.vstack([e_u, e_n])  # world -> local
+    rot = np.vstack([e_u, np.array([-e_u[1], e_u[0]])])  # world -> local
+    hulls = _pair_hulls(cj[np.ix_(sel, sel)], rot, length, confidence_scale(confidence, 2),
+                        n_samples, n_theta)
+
+    def to_world(ring_local: np.ndarray) -> np.ndarray:
+        w = a[:2] + ring_local @ rot
+        return np.vstack([w, w[:1]])
+
+    if pieces:
+        return [to_world(h) for h in hulls]
+    return to_world(_envelope(hulls))
+
+
+def _pair_hulls(cxy: np.ndarray, rot: np.ndarray, length: float, k: float, n_samples: int,
+                n_theta: int) -> list[np.ndarray]:
+    """The convex hulls of consecutive pairs of the ``k``-scaled error ellipses along a
+    segment (:func:`g_band`), in the segment's frame (``rot``: world -> local; X along
+    the segment from its start, of ``length``); ``cxy`` the joint XY covariance of
+    the two ends (4, 4)."""
     t = np.linspace(0.0, 1.0, n_samples)
     fmat = np.zeros((n_samples, 2, 4))
     fmat[:, :, :2] = (1 - t)[:, None, None] * np.eye(2)
@@ -163,14 +178,13 @@ def g_band(
     centres = np.column_stack([t * length, np.zeros(n_samples)])
     s = _psd_sqrt(c_t)
     ell = centres[:, None, :] + k * _circumscribed(s, n_theta)
-    hulls = [_hull_ring(np.vstack([ell[j], ell[j + 1]])) for j in range(n_samples - 1)]
+    return [_hull_ring(np.vstack([ell[j], ell[j + 1]])) for j in range(n_samples - 1)]
 
-    def to_world(ring_local: np.ndarray) -> np.ndarray:
-        w = a[:2] + ring_local @ rot
-        return np.vstack([w, w[:1]])
 
-    if pieces:
-        return [to_world(h) for h in hulls]
+def _envelope(hulls: list[np.ndarray]) -> np.ndarray:
+    """The ring (local frame, not closed) between the lowest and the highest hull
+    boundary on every line normal to the segment, at all hull vertices (:func:`g_band`),
+    near-collinear vertices dropped."""
     stations = np.unique(np.concatenate([h[:, 0] for h in hulls]))
     lo = np.full(stations.size, np.inf)
     hi = np.full(stations.size, -np.inf)
@@ -188,7 +202,7 @@ def g_band(
     # drop the repeated points at the two ends where lo == hi
     keep = np.ones(len(ring), bool)
     keep[1:] = np.any(np.abs(np.diff(ring, axis=0)) > 0, axis=1)
-    return to_world(ring[keep])
+    return ring[keep]
 
 
 def _simplify_chain(u: np.ndarray, w: np.ndarray, tol: float) -> np.ndarray:

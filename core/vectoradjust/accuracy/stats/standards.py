@@ -205,16 +205,7 @@ def nssda(
     if rx is not None and ry is not None:
         if rx < 0 or ry < 0:
             raise ValueError("RMSE values must be >= 0")
-        rr = math.hypot(rx, ry)
-        big, small = max(rx, ry), min(rx, ry)
-        ratio = small / big if big > 0 else 1.0
-        exact = circular_error(np.diag([rx * rx, ry * ry]), None, 0.95)
-        if ratio >= 1.0 - 1e-9:
-            h95, method = 1.7308 * rr, "1.7308 RMSE_r (RMSE_x = RMSE_y)"
-        elif ratio > 0.6:
-            h95, method = 2.4477 * 0.5 * (rx + ry), "2.4477 * 0.5 (RMSE_x + RMSE_y)"
-        else:
-            h95, method = exact, "exact 95% circle (RMSE_min/RMSE_max <= 0.6, no NSSDA formula)"
+        rr, ratio, h95, exact, method = _nssda_horizontal(rx, ry)
         out.update(
             rmse_r=rr,
             ratio=ratio,
@@ -236,6 +227,27 @@ def nssda(
             ),
         )
     return out
+
+
+def _nssda_horizontal(rx: float, ry: float) -> tuple[float, float, Any, Any, str]:
+    """NSSDA's horizontal 95 % value (:func:`nssda`).
+
+    Returns
+    -------
+    tuple
+        ``(rmse_r, ratio, horizontal_95, horizontal_95_exact, horizontal_method)``.
+    """
+    rr = math.hypot(rx, ry)
+    big, small = max(rx, ry), min(rx, ry)
+    ratio = small / big if big > 0 else 1.0
+    exact = circular_error(np.diag([rx * rx, ry * ry]), None, 0.95)
+    if ratio >= 1.0 - 1e-9:
+        h95, method = 1.7308 * rr, "1.7308 RMSE_r (RMSE_x = RMSE_y)"
+    elif ratio > 0.6:
+        h95, method = 2.4477 * 0.5 * (rx + ry), "2.4477 * 0.5 (RMSE_x + RMSE_y)"
+    else:
+        h95, method = exact, "exact 95% circle (RMSE_min/RMSE_max <= 0.6, no NSSDA formula)"
+    return rr, ratio, h95, exact, method
 
 
 def asprs2023(

@@ -406,22 +406,10 @@ def accuracy_control(
                      "parallax) and triplet stages are frame camera stages and do not apply; "
                      "the images' bias is in summary.json images[] (estimate, sigma, test)")
     else:
-        stages, io_notes = _interior_orientation_stages(interior, pixel)
-        notes += io_notes
-        ro_stages, ro_notes, pair_stats = _relative_orientation_stages(
-            run, pairs, min_pair_points, pixel)
-        stages += ro_stages
-        notes += ro_notes
-        tr_stages, tr_notes, trip_stats = _triplet_stages(run, f, min_triplet_points, pixel)
-        stages += tr_stages
-        notes += tr_notes
-        if strips is None:
-            strips = _image_strip_labels(data, run.image_ids)
-        pc_stages, pc_notes, production = _production_checks(
-            run, pixel, frame=frame_size, strips=strips, zone_columns=zone_columns,
-            free_model_mode=free_model)
-        stages += pc_stages
-        notes += pc_notes
+        stages, notes, pair_stats, trip_stats, production = _frame_camera_stages(
+            run, f, interior, pixel, notes, pairs=pairs, min_pair_points=min_pair_points,
+            min_triplet_points=min_triplet_points, frame=frame_size, strips=strips,
+            zone_columns=zone_columns, free_model=free_model)
     r_mm = _radius(run, spec, working_radius)
     cqa, used, bl_stages, bl_notes = _block_stages(run, spec, f, r_mm, point_rule, tolerances)
     stages += bl_stages
@@ -429,12 +417,42 @@ def accuracy_control(
     dtm_stages, dtm_notes, dtm_rows = _dtm_stage(run, spec, f, r_mm, point_rule, tolerances)
     stages += dtm_stages
     notes += dtm_notes
+    return QAReport(verdict=qa_verdict(stages), spec=spec, pixel_size=pixel,
+                    pixel_size_source=pixel_src, tolerances=tolerances, stereo_pairs=pair_stats,
+                    triplets=trip_stats, control=cqa, control_rows=used, notes=notes,
+                    dtm_points=dtm_rows, production=production)
 
-    verdict = qa_verdict(stages)
-    return QAReport(verdict=verdict, spec=spec, pixel_size=pixel, pixel_size_source=pixel_src,
-                    tolerances=tolerances, stereo_pairs=pair_stats, triplets=trip_stats,
-                    control=cqa, control_rows=used, notes=notes, dtm_points=dtm_rows,
-                    production=production)
+
+def _frame_camera_stages(run, f: float, interior: dict, pixel: float, notes: list, *,
+                         pairs: str, min_pair_points: int, min_triplet_points: int,
+                         frame: Optional[tuple], strips: Optional[Sequence],
+                         zone_columns: int, free_model: Optional[bool]) -> tuple:
+    """The frame camera's stages of :func:`accuracy_control`: interior orientation,
+    relative orientation (vertical parallax), triplets and the production checks.
+
+    Returns
+    -------
+    tuple
+        ``(stages, notes, pair_stats, trip_stats, production)``; ``notes`` is the given
+        list extended.
+    """
+    stages, io_notes = _interior_orientation_stages(interior, pixel)
+    notes += io_notes
+    ro_stages, ro_notes, pair_stats = _relative_orientation_stages(
+        run, pairs, min_pair_points, pixel)
+    stages += ro_stages
+    notes += ro_notes
+    tr_stages, tr_notes, trip_stats = _triplet_stages(run, f, min_triplet_points, pixel)
+    stages += tr_stages
+    notes += tr_notes
+    if strips is None:
+        strips = _image_strip_labels(run.data, run.image_ids)
+    pc_stages, pc_notes, production = _production_checks(
+        run, pixel, frame=frame, strips=strips, zone_columns=zone_columns,
+        free_model_mode=free_model)
+    stages += pc_stages
+    notes += pc_notes
+    return stages, notes, pair_stats, trip_stats, production
 
 
 def _image_strip_labels(data, image_ids: Sequence) -> Optional[list]:
