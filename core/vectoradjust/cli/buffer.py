@@ -13,9 +13,11 @@ round buffers (``buffer-test --exact``), linear in the size of the data.
 
 from __future__ import annotations
 
+import argparse
 import csv
 from pathlib import Path
 
+from vectoradjust.cli import options
 from vectoradjust.files.truth import parse_widths, project_truth, read_lines, truth_buffer
 from vectoradjust.runner.alongside import TruthBeforeAlongside
 
@@ -154,21 +156,22 @@ def cmd_buffer_test(args) -> int:
     return 0
 
 
-def add_parser(sub, common=None) -> None:
-    """Register ``vectoradjust buffer-test``."""
-    b = sub.add_parser("buffer-test", help="share of a line layer's length inside buffers of a "
-                       "reference line layer (Goodchild & Hunter)")
+def add_parser(sub) -> argparse.ArgumentParser:
+    """Register ``vectoradjust buffer-test``; its parser."""
+    b = options.add_command(sub, "buffer-test", cmd_buffer_test,
+                            "share of a line layer's length inside buffers of a reference "
+                            "line layer (Goodchild & Hunter)")
     b.add_argument("tested", help="the line layer under test (e.g. OSM roads)")
     b.add_argument("reference", help="the reference line layer (e.g. surveyed centrelines)")
-    b.add_argument("--widths", default="1,2,5", help="buffer widths in metres (default 1,2,5)")
+    b.add_argument("--widths", default="1,2,5", help="buffer widths in metres")
     b.add_argument("--tested-layer", help="layer of a multi-layer source (e.g. features)")
     b.add_argument("--reference-layer", help="layer of a multi-layer reference source")
-    b.add_argument("-o", "--out", help="write the table to this CSV file")
-    b.add_argument("--crs", help="projected CRS in metres to measure in (e.g. EPSG:32633); "
-                   "default: the tested layer's, or the UTM zone of its centre when it is in "
-                   "degrees")
+    options.add_out(b, required=False, help="write the table to this CSV file")
+    options.add_crs(b, help="projected CRS in metres to measure in (e.g. EPSG:32633) "
+                            "(default: the tested layer's, or the UTM zone of its centre "
+                            "when it is in degrees)")
     b.add_argument("--exact", action="store_true",
                    help="exact round buffers by segments (linear time, for large layers; "
                         "the default polygon buffers are up to 0.03 %% of the width narrower "
                         "on round caps and joins)")
-    b.set_defaults(func=cmd_buffer_test)
+    return b

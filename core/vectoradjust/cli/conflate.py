@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
 
+from vectoradjust.cli import options
 from vectoradjust.cli.tools import run_alone
 from vectoradjust.errors import ProjectError
 
@@ -75,41 +76,30 @@ def cmd_conflate(args) -> int:
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``conflate`` subcommand.
-
-    Parameters
-    ----------
-    subparsers : argparse._SubParsersAction
-
-    Returns
-    -------
-    argparse.ArgumentParser
-    """
-    c = subparsers.add_parser(
-        "conflate", help="smart conflation: the more accurate feature of each match of "
-                         "two or more adjusted road databases",
-        description="Match the adjusted features of two or more road databases by "
-                    "geometry (names and classes as a bonus), keep per match the one "
-                    "with the smaller CE90 (tie: smaller RMSE), carry unmatched features "
-                    "through; write conflated.gpkg (layer conflated), conflated.csv and "
-                    "summary.json.")
+    """Add the ``conflate`` subcommand; its parser."""
+    c = options.add_command(
+        subparsers, "conflate", cmd_conflate,
+        "smart conflation: the more accurate feature of each match of two or more adjusted "
+        "road databases",
+        "match the adjusted features of two or more road databases by geometry (names and "
+        "classes as a bonus), keep per match the one with the smaller CE90 (tie: smaller "
+        "RMSE), carry unmatched features through; write conflated.gpkg (layer conflated), "
+        "conflated.csv and summary.json")
     c.add_argument("sources", nargs="+", metavar="SOURCE",
                    help="output folder of 'vectoradjust adjust' or vector file of "
                         "adjusted features (with CE90)")
-    c.add_argument("-o", "--out", required=True, help="output directory")
+    options.add_out(c)
     c.add_argument("--databases", nargs="+", metavar="NAME",
-                   help="only these databases of the sources (default all), in this order")
+                   help="only these databases of the sources, in this order (default: all)")
     c.add_argument("--max-distance", type=float, default=None, metavar="M",
-                   help="largest distance of two matching lines in m (default per pair "
+                   help="largest distance of two matching lines in m (default: per pair "
                         "2 x the larger CE90, at least 5 m)")
     c.add_argument("--min-overlap", type=float, default=0.5, metavar="F",
-                   help="least share of each line within the distance of the other "
-                        "(default 0.5)")
+                   help="least share of each line within the distance of the other")
     c.add_argument("--by", choices=("ce90", "rmse"), default="ce90",
-                   help="which uncertainty decides: ce90 (default; tie: RMSE) or rmse "
-                        "(the mean adjusted displacement; tie: CE90)")
-    c.add_argument("-q", "--quiet", action="store_true", help="print nothing")
-    c.set_defaults(func=cmd_conflate)
+                   help="which uncertainty decides: ce90 (tie: RMSE) or rmse (the mean "
+                        "adjusted displacement; tie: CE90)")
+    options.add_quiet(c, help="print nothing")
     return c
 
 

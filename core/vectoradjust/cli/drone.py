@@ -12,29 +12,31 @@ from __future__ import annotations
 
 import argparse
 
+from vectoradjust.cli import options
+
 __all__ = ["add_parser", "cmd_import_images"]
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Add ``import-images`` to the ``vectoradjust`` sub-parsers."""
-    p = subparsers.add_parser(
-        "import-images", help="drone images (EXIF GPS) into a project file",
-        description="Write a project from a folder of drone images: positions from EXIF GPS, "
-                    "approximate attitudes, the camera from EXIF or an OpenSfM/ODM camera.")
+    """Add ``import-images`` to the ``vectoradjust`` sub-parsers; its parser."""
+    p = options.add_command(
+        subparsers, "import-images", cmd_import_images,
+        "drone images (EXIF GPS) into a project file",
+        "write a project from a folder of drone images: positions from EXIF GPS, "
+        "approximate attitudes, the camera from EXIF or an OpenSfM/ODM camera")
     p.add_argument("folder", help="folder of the images (JPEG or TIFF)")
-    p.add_argument("-o", "--out", required=True, help="project file to write (TOML)")
-    p.add_argument("--crs", help="projected CRS of the project (default: the UTM zone of the "
-                                 "images)")
+    options.add_out(p, help="project file to write (TOML)")
+    options.add_crs(p, help="projected CRS of the project (default: the UTM zone of the "
+                            "images)")
     p.add_argument("--height", choices=("ellipsoidal", "geoid"), default=None,
                    help="what the EXIF GPS altitude is: above the WGS84 ellipsoid or above "
                         "the geoid (default: unknown, stated in the project)")
     p.add_argument("--gnss-sigma", nargs=2, type=float, default=(3.0, 5.0),
-                   metavar=("H", "V"), help="GNSS sigma horizontal and vertical (m; default "
-                                            "3 5); the project takes the larger")
+                   metavar=("H", "V"), help="GNSS sigma horizontal and vertical in m; the "
+                                            "project takes the larger")
     p.add_argument("--camera-json", help="OpenSfM reconstruction.json or ODM cameras.json: a "
                                          "Brown camera instead of the EXIF one")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
-    p.set_defaults(func=cmd_import_images)
+    options.add_quiet(p, help="print nothing but errors")
     return p
 
 

@@ -21,6 +21,7 @@ from typing import Optional
 
 import numpy as np
 
+from vectoradjust.cli import options
 from vectoradjust.cli.tools import fmt_number, run_alone, write_json
 from vectoradjust.errors import ProjectError
 
@@ -126,43 +127,32 @@ def cmd_dtm(args) -> int:
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``dtm`` subcommand.
-
-    Parameters
-    ----------
-    subparsers : argparse._SubParsersAction
-
-    Returns
-    -------
-    argparse.ArgumentParser
-    """
-    d = subparsers.add_parser(
-        "dtm", help="DTM accuracy: sigma Z / LE90 per cell, contours with their uncertainty",
-        description="Adjust the project and propagate the full covariance of the adjusted "
-                    "points (or a DEM's stated node sigma) through the DTM interpolation, "
-                    "add the sampling (Torlegard) and terrain (Li) terms; write "
-                    "dtm_accuracy.tif, dtm_contours.gpkg and dtm.json.")
-    d.add_argument("project", help="project file (TOML)")
-    d.add_argument("-o", "--out", required=True, help="output directory")
-    d.add_argument("--cell", type=float, default=5.0, help="cell size in m (default 5)")
+    """Add the ``dtm`` subcommand; its parser."""
+    d = options.add_project_command(
+        subparsers, "dtm", cmd_dtm,
+        "DTM accuracy: sigma Z / LE90 per cell, contours with their uncertainty",
+        "adjust the project and propagate the full covariance of the adjusted points (or a "
+        "DEM's stated node sigma) through the DTM interpolation, add the sampling "
+        "(Torlegard) and terrain (Li) terms; write dtm_accuracy.tif, dtm_contours.gpkg and "
+        "dtm.json")
+    d.add_argument("--cell", type=float, default=5.0, help="cell size in m")
     d.add_argument("--interpolation", choices=("tin", "bilinear", "bicubic"), default="tin",
-                   help="TIN (linear in triangles; default), bilinear or bicubic")
+                   help="TIN (linear in triangles), bilinear or bicubic")
     d.add_argument("--source", choices=("points", "dem"), default="points",
-                   help="the adjusted points (default) or the project's DEM")
+                   help="the adjusted points or the project's DEM")
     d.add_argument("--node-sigma", type=float, metavar="S",
-                   help="sigma of a DEM node (m; --source dem); default the database's Z sigma")
+                   help="sigma of a DEM node in m (--source dem) (default: the database's Z "
+                        "sigma)")
     d.add_argument("--correlation-length", type=float, default=0.0, metavar="L",
-                   help="correlation length of the DEM nodes' errors (m; default 0)")
-    d.add_argument("--contour-interval", type=float, default=1.0, metavar="H",
-                   help="contour interval (m, default 1)")
+                   help="correlation length of the DEM nodes' errors in m")
+    options.add_contour_interval(d, default=1.0)
     d.add_argument("--profile", type=float, nargs="+", metavar="XY",
                    help="profile along the polyline X1 Y1 X2 Y2 ...")
     d.add_argument("--volume", type=float, nargs="+", metavar="XY",
                    help="volume over the polygon X1 Y1 X2 Y2 X3 Y3 ...")
     d.add_argument("--reference-height", type=float, metavar="Z",
-                   help="reference plane of --volume (default the lowest cell inside)")
-    d.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    d.set_defaults(func=cmd_dtm)
+                   help="reference plane of --volume (default: the lowest cell inside)")
+    options.add_quiet(d)
     return d
 
 

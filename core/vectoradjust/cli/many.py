@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from vectoradjust.cli import options
 from vectoradjust.cli.progress import ProgressBar
 
 __all__ = ["add_parser", "cmd_adjust_many"]
@@ -49,19 +50,19 @@ def cmd_adjust_many(args) -> int:
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
-    """Register ``vectoradjust adjust-many``."""
-    m = sub.add_parser("adjust-many", help="adjust many independent projects on Dask (local "
-                       "processes or a distributed scheduler) with one combined summary")
+    """Register ``vectoradjust adjust-many``; its parser."""
+    m = options.add_command(sub, "adjust-many", cmd_adjust_many,
+                            "adjust many independent projects on Dask (local processes or a "
+                            "distributed scheduler) with one combined summary")
     m.add_argument("projects", nargs="+", help="project files (TOML)")
-    m.add_argument("-o", "--out", required=True, help="output directory: DIR/<project name>/ each, "
-                   "and many_summary.csv/.json")
+    options.add_out(m, help="output directory: DIR/<project name>/ each, and "
+                            "many_summary.csv/.json")
     m.add_argument("--scheduler", metavar="ADDRESS",
-                   help="address of a dask.distributed scheduler (tcp://host:8786); default: "
-                        "the local multi-process scheduler")
+                   help="address of a dask.distributed scheduler (tcp://host:8786) (default: "
+                        "the local multi-process scheduler)")
     m.add_argument("--workers", type=int, help="processes of the local scheduler")
-    m.add_argument("--format", choices=("gpkg", "shp"), default="gpkg")
-    m.add_argument("--no-bands", action="store_true", help="no uncertainty_bands layer")
+    options.add_format(m)
+    options.add_no_bands(m)
     m.add_argument("--no-report", action="store_true", help="no report.html per project")
-    m.add_argument("-q", "--quiet", action="store_true", help="no progress or table")
-    m.set_defaults(func=cmd_adjust_many)
+    options.add_quiet(m, help="no progress or table")
     return m

@@ -26,6 +26,7 @@ from typing import Optional
 
 import numpy as np
 
+from vectoradjust.cli import options
 from vectoradjust.cli.tools import fmt_number, run_command, write_json
 
 __all__ = ["add_parsers", "cmd_propagate", "cmd_equal_error", "cmd_two_step", "main"]
@@ -178,6 +179,16 @@ def cmd_two_step(args) -> int:
 
 
 # ---------------------------------------------------------------------------- parsers
+def _pair_command(subparsers, name: str, func, help: str, description: str):
+    """A subcommand on a project's stereo pair: ``project``, ``-o``, ``--images A B``,
+    ``-q`` (``equal-error``, ``two-step``)."""
+    p = options.add_project_command(subparsers, name, func, help, description,
+                                    f"output directory ({name.replace('-', '_')}.json)")
+    options.add_pair(p)
+    options.add_quiet(p)
+    return p
+
+
 def add_parsers(subparsers) -> dict:
     """Add the ``propagate``, ``equal-error`` and ``two-step`` subcommands.
 
@@ -191,14 +202,13 @@ def add_parsers(subparsers) -> dict:
     dict of str to argparse.ArgumentParser
         The three parsers by name (each has its ``func`` default).
     """
-    p = subparsers.add_parser(
-        "propagate", help="a derived quantity (distance, length, mean height, profile) with its "
-                          "sigma with and without covariances",
-        description="Adjust the project and propagate the a-posteriori covariance of the "
-                    "adjusted points (covariances between points included) to a distance, "
-                    "a length, a mean height or a height profile. Writes propagate.json.")
-    p.add_argument("project", help="project file (TOML)")
-    p.add_argument("-o", "--out", required=True, help="output directory (propagate.json)")
+    p = options.add_project_command(
+        subparsers, "propagate", cmd_propagate,
+        "a derived quantity (distance, length, mean height, profile) with its sigma with and "
+        "without covariances",
+        "adjust the project and propagate the a-posteriori covariance of the adjusted points "
+        "(covariances between points included) to a distance, a length, a mean height or a "
+        "height profile; write propagate.json", out_help="output directory (propagate.json)")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--distance", nargs=2, metavar=("ID_A", "ID_B"),
                    help="distance between two points (control, tie or shape point ids)")
@@ -211,37 +221,25 @@ def add_parsers(subparsers) -> dict:
                    help="spatial instead of horizontal distance / length")
     p.add_argument("--database", metavar="NAME",
                    help="road database of --profile (when the id is in several)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_propagate)
+    options.add_quiet(p)
 
-    e = subparsers.add_parser(
-        "equal-error", help="equal-error map of a stereo pair (GeoTIFF of sigma X, Y, Z)",
-        description="Adjust the project and write the sigma X, Y, Z of a point intersected "
-                    "from the stereo pair, on a grid over the overlap (equal_error.tif, "
-                    "equal_error.json).")
-    e.add_argument("project", help="project file (TOML)")
-    e.add_argument("-o", "--out", required=True, help="output directory")
-    e.add_argument("--spacing", type=float, default=10.0, help="grid spacing in m (default 10)")
-    e.add_argument("--images", nargs=2, metavar=("A", "B"),
-                   help="the stereo pair (default: the first two images)")
+    e = _pair_command(
+        subparsers, "equal-error", cmd_equal_error,
+        "equal-error map of a stereo pair (GeoTIFF of sigma X, Y, Z)",
+        "adjust the project and write the sigma X, Y, Z of a point intersected from the "
+        "stereo pair, on a grid over the overlap (equal_error.tif, equal_error.json)")
+    e.add_argument("--spacing", type=float, default=10.0, help="grid spacing in m")
     e.add_argument("--flat", action="store_true",
                    help="use the mean terrain height, not the project's DEM")
-    e.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    e.set_defaults(func=cmd_equal_error)
 
-    t = subparsers.add_parser(
-        "two-step", help="two-step orientation (relative + absolute) vs the bundle adjustment",
-        description="Orient a stereo pair in two steps (relative orientation, 3D similarity "
-                    "to the control) and compare its points and sigmas with the bundle "
-                    "adjustment's. Writes two_step.json.")
-    t.add_argument("project", help="project file (TOML)")
-    t.add_argument("-o", "--out", required=True, help="output directory")
-    t.add_argument("--images", nargs=2, metavar=("A", "B"),
-                   help="the stereo pair (default: the first two images)")
+    t = _pair_command(
+        subparsers, "two-step", cmd_two_step,
+        "two-step orientation (relative + absolute) vs the bundle adjustment",
+        "orient a stereo pair in two steps (relative orientation, 3D similarity to the "
+        "control) and compare its points and sigmas with the bundle adjustment's; write "
+        "two_step.json")
     t.add_argument("--method", choices=("collinearity", "coplanarity"), default="collinearity",
-                   help="relative orientation formulation (default collinearity)")
-    t.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    t.set_defaults(func=cmd_two_step)
+                   help="relative orientation formulation")
     return {"propagate": p, "equal-error": e, "two-step": t}
 
 

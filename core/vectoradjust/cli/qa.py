@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Optional
 
+from vectoradjust.cli import options
 from vectoradjust.cli.tools import run_alone, write_json
 from vectoradjust.errors import VectorAdjustError
 from vectoradjust.qa.free_model import FREE_MODEL_MAX_IMAGES
@@ -30,51 +31,36 @@ __all__ = ["add_parser", "cmd_qa", "format_report", "write_qa_json", "main"]
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``qa`` subcommand to the ``vectoradjust`` sub-parsers.
-
-    Parameters
-    ----------
-    subparsers : argparse._SubParsersAction
-        From ``ArgumentParser.add_subparsers()``.
-
-    Returns
-    -------
-    argparse.ArgumentParser
-        The ``qa`` parser (its ``func`` default is :func:`cmd_qa`).
-    """
-    q = subparsers.add_parser(
-        "qa", help="accuracy control: judge the adjustment against production tolerances",
-        description="Adjust the project and judge every stage (interior and relative "
-                    "orientation, triplets, tie-point zones, inter-strip ties, the free model, "
-                    "control and check points) against the tolerances "
-                    "that follow from the product specification ([qa] in the project; the "
-                    "options below override it). Writes qa.json.")
-    q.add_argument("project", help="project file (TOML)")
-    q.add_argument("-o", "--out", required=True, help="output directory (qa.json is written there)")
+    """Add ``vectoradjust qa`` to ``subparsers``; its parser (``func``: :func:`cmd_qa`)."""
+    q = options.add_project_command(
+        subparsers, "qa", cmd_qa,
+        "accuracy control: judge the adjustment against production tolerances",
+        "adjust the project and judge every stage (interior and relative orientation, "
+        "triplets, tie-point zones, inter-strip ties, the free model, control and check "
+        "points) against the tolerances that follow from the product specification ([qa] in "
+        "the project; the options below override it); write qa.json",
+        out_help="output directory (qa.json is written there)")
     q.add_argument("--product", help='"topographic map" (or topographic-map), "orthophoto" or '
                                      '"orthomosaic"')
     q.add_argument("--scale", help="scale denominator of the product, e.g. 2000 or 1:2000")
-    q.add_argument("--contour-interval", type=float, metavar="H",
-                   help="contour interval of the map (m)")
+    options.add_contour_interval(q, help="contour interval of the map in m")
     q.add_argument("--terrain", help="flat, hilly or mountainous (orthomosaic tolerances)")
     q.add_argument("--pixel-size", type=float, metavar="MM",
-                   help="scanning / sensor pixel size (mm), e.g. 0.012; default [qa] pixel_size "
-                        "or the camera's")
+                   help="scanning / sensor pixel size in mm, e.g. 0.012 (default: [qa] "
+                        "pixel_size or the camera's)")
     q.add_argument("--pairs", choices=("consecutive", "all"), default="consecutive",
-                   help="stereo pairs: consecutive images of [[images]] (default) or every pair "
-                        "with common points")
+                   help="stereo pairs: consecutive images of [[images]] or every pair with "
+                        "common points")
     q.add_argument("--point-rule", choices=("limit", "mean"), default="limit",
-                   help="a control/check point fails over twice the mean tolerance (limit, "
-                        "default) or over the mean tolerance itself")
+                   help="a control/check point fails over twice the mean tolerance (limit) "
+                        "or over the mean tolerance itself (mean)")
     q.add_argument("--free-model", action=argparse.BooleanOptionalAction, default=None,
                    help="adjust the free model (image measurements only, inner constraints) "
-                        "as a QA stage: its sigma0 and image residuals before control. "
-                        f"Default: on for frame blocks of at most {FREE_MODEL_MAX_IMAGES} "
-                        "images (it is a second bundle adjustment)")
-    q.add_argument("--vectors", action="append", metavar="NAME",
-                   help="adjust only this [[vectors]] entry (repeatable)")
-    q.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    q.set_defaults(func=cmd_qa)
+                        "as a QA stage: its sigma0 and image residuals before control "
+                        f"(default: on for frame blocks of at most {FREE_MODEL_MAX_IMAGES} "
+                        "images: it is a second bundle adjustment)")
+    options.add_vectors(q)
+    options.add_quiet(q)
     return q
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from vectoradjust.cli import options
 from vectoradjust.cli.progress import ProgressBar
 from vectoradjust.errors import ProjectError
 from vectoradjust.runner.project_run import truth_tables
@@ -181,47 +182,47 @@ def cmd_identification(args) -> int:
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
-    """Register ``vectoradjust study gcp|shift|identification``."""
-    s = sub.add_parser("study", help="the dissertation's experiments: GCP number/location, "
-                       "shifted database, identification error")
+    """Register ``vectoradjust study gcp|shift|identification``; the ``study`` parser."""
+    s = options.add_command(sub, "study", None, "the dissertation's experiments: GCP "
+                            "number/location, shifted database, identification error")
     ss = s.add_subparsers(dest="study", metavar="STUDY")
     ss.required = True
-    g = ss.add_parser("gcp", help="adjust with subsets of the control points; the held-out "
-                      "ones are scored as check points")
-    g.add_argument("project", help="project file (TOML)")
-    g.add_argument("-o", "--out", required=True, help="output directory")
+    g = options.add_project_command(ss, "gcp", cmd_gcp, "adjust with subsets of the control "
+                                    "points; the held-out ones are scored as check points")
     g.add_argument("--numbers", help="number sweep with well-spread subsets, e.g. 24,12,6,3 "
                    "(default: all, half, quarter ... down to 3, unless --config/--random)")
     g.add_argument("--config", action="append", metavar="NAME",
                    help="named configuration COUNT-PART (3-North, 3-East, 3-SW, 4-Center, "
                         "6-Spread) or NAME=ID1,ID2,ID3 (repeatable)")
     g.add_argument("--random", help="numbers of control points drawn at random, e.g. 3,6,12")
-    g.add_argument("--repeats", type=int, default=10, help="random subsets per number (10)")
-    g.add_argument("--seed", type=int, default=0, help="seed of the random subsets (0)")
-    g.add_argument("--vectors", action="append", metavar="NAME",
-                   help="adjust only this [[vectors]] entry (repeatable)")
-    g.add_argument("-q", "--quiet", action="store_true", help="no progress bar or table")
-    g.set_defaults(func=cmd_gcp)
-    h = ss.add_parser("shift", help="translate a database, adjust, compare with unshifted")
-    h.add_argument("project", help="project file (TOML)")
-    h.add_argument("-o", "--out", required=True, help="output directory")
-    h.add_argument("--dx", type=float, default=15.0, help="shift east (m, default 15)")
-    h.add_argument("--dy", type=float, default=15.0, help="shift north (m, default 15)")
-    h.add_argument("--vectors", action="append", metavar="NAME",
-                   help="shift this [[vectors]] entry (repeatable; default all, each alone)")
-    h.add_argument("-q", "--quiet", action="store_true", help="no progress bar or table")
-    h.set_defaults(func=cmd_shift)
-    i = ss.add_parser("identification", help="simulate with a list of identification errors")
-    i.add_argument("-o", "--out", required=True, help="output directory")
+    options.add_repeats(g, 10, help="random subsets per number")
+    options.add_seed(g, 0, help="seed of the random subsets")
+    options.add_vectors(g)
+    options.add_quiet(g, help="no progress bar or table")
+    h = options.add_project_command(ss, "shift", cmd_shift,
+                                    "translate a database, adjust, compare with unshifted")
+    h.add_argument("--dx", type=float, default=15.0, help="shift east in m")
+    h.add_argument("--dy", type=float, default=15.0, help="shift north in m")
+    options.add_vectors(h, help="shift this [[vectors]] entry (repeatable) (default: all, each "
+                                "alone)")
+    options.add_quiet(h, help="no progress bar or table")
+    _identification_parser(ss)
+    return s
+
+
+def _identification_parser(ss) -> argparse.ArgumentParser:
+    """``study identification``'s parser."""
+    i = options.add_command(ss, "identification", cmd_identification,
+                            "simulate with a list of identification errors")
+    options.add_out(i)
     i.add_argument("--errors", default="0,0.5,1,2", help="identification errors per axis (m)")
-    i.add_argument("--seed", type=int, default=35, help="simulation seed (35: the sample)")
-    i.add_argument("--repeats", type=int, default=1, help="scenarios per error (seed, seed+1..)")
+    options.add_seed(i, 35, help="simulation seed (the sample's is 35)")
+    options.add_repeats(i, 1, help="scenarios per error (seed, seed+1, ...)")
     i.add_argument("--databases", default="OSM,TNM,TIGER", help="simulated databases")
     i.add_argument("--reweight", choices=("none", "two-pass", "vce"), default="two-pass",
-                   help="[adjustment] reweight of the runs (two-pass, as the sample)")
+                   help="[adjustment] reweight of the runs (two-pass: as the sample)")
     i.add_argument("--no-stated-sigma", action="store_true",
                    help="do not state identification_sigma = the simulated error (the "
                         "runs then estimate it from the data, or use the default)")
-    i.add_argument("-q", "--quiet", action="store_true", help="no progress bar or table")
-    i.set_defaults(func=cmd_identification)
-    return s
+    options.add_quiet(i, help="no progress bar or table")
+    return i
