@@ -631,24 +631,11 @@ def data_snooping(
         max_removals = max(1, n_obs0 // 10)
     keep_obs = np.ones(n_obs0, bool)
     keep_pts = np.ones(problem.n_points, bool)
-    has_prior = problem.has_prior
     removed: list = []
     cur, obs_index, point_index = problem, np.arange(n_obs0), np.arange(problem.n_points)
     iterations = 0
     while True:
-        try:
-            res = adjust(cur, **kw)
-        except SingularityError as exc:
-            if not removed:
-                raise
-            last = removed[-1]
-            raise SingularityError(
-                f"Data snooping removed the measurement of point index {last['point']} on "
-                f"image index {last['image']} (|w| = {abs(last['w']):.2f}) and the adjustment "
-                f"became singular: {exc.what}",
-                "Check that measurement and its neighbours by hand, or switch snooping off",
-                details={"removed": removed},
-            ) from exc
+        res = _adjust_after(cur, kw, removed)
         iterations += 1
         rel = reliability(res, sigma0=sigma0, alpha0=alpha0, beta0=beta0)
         aw = np.abs(rel.w_image)
@@ -658,25 +645,54 @@ def data_snooping(
         if len(removed) >= max_removals:
             return SnoopingResult(res, cur, removed, rel, obs_index, point_index, False,
                                   iterations)
-        flat = int(np.nanargmax(aw))
-        kc, comp = divmod(flat, 2)
-        k0 = int(obs_index[kc])
-        j0 = int(problem.obs_point[k0])
-        keep_obs[k0] = False
-        # points left with too few observations
-        cnt = np.bincount(problem.obs_point[keep_obs], minlength=problem.n_points)
-        drop = keep_pts & (((cnt < 2) & ~has_prior) | (cnt == 0))
-        dropped_pts = np.flatnonzero(drop)
-        dropped_obs = np.flatnonzero(keep_obs & drop[problem.obs_point])
-        keep_pts &= ~drop
-        keep_obs &= keep_pts[problem.obs_point]
-        removed.append({
-            "iteration": iterations, "observation": k0, "image": int(problem.obs_image[k0]),
-            "point": j0, "component": "xy"[comp], "w": float(rel.w_image[kc, comp]),
-            "redundancy": float(rel.r_image[kc, comp]),
-            "suspected_error_um": float(1000.0 * rel.suspected_image[kc, comp]),
-            "mdb_um": float(1000.0 * rel.mdb_image[kc, comp]),
-            "dropped_points": dropped_pts.tolist(),
-            "dropped_observations": dropped_obs.tolist(),
-        })
+        kc, comp = divmod(int(np.nanargmax(aw)), 2)
+        removed.append(_remove(problem, rel, kc, comp, obs_index, keep_obs, keep_pts,
+                               iterations))
         cur, obs_index, point_index = subset_problem(problem, keep_obs, keep_pts)
+
+
+def _adjust_after(problem: BundleProblem, kw: dict, removed: list) -> BundleResult:
+    """Adjust ``problem``; a singular system after removals names the last removal."""
+    try:
+        return adjust(problem, **kw)
+    except SingularityError as exc:
+        if not removed:
+            raise
+        last = removed[-1]
+        raise SingularityError(
+            f"Data snooping removed the measurement of point index {last['point']} on "
+            f"image index {last['image']} (|w| = {abs(last['w']):.2f}) and the adjustment "
+            f"became singular: {exc.what}",
+            "Check that measurement and its neighbours by hand, or switch snooping off",
+            details={"removed": removed},
+        ) from exc
+
+
+def _remove(problem: BundleProblem, rel: Reliability, kc: int, comp: int,
+            obs_index: np.ndarray, keep_obs: np.ndarray, keep_pts: np.ndarray,
+            iteration: int) -> dict:
+    """Remove observation ``kc`` of the current problem (component ``comp`` tested largest).
+
+    Clears it in ``keep_obs`` (original indexing, in place), drops the points left with
+    too few observations (fewer than two without a prior, or none) from ``keep_pts``
+    and ``keep_obs``, and returns the record of :attr:`SnoopingResult.removed`.
+    """
+    k0 = int(obs_index[kc])
+    j0 = int(problem.obs_point[k0])
+    keep_obs[k0] = False
+    # points left with too few observations
+    cnt = np.bincount(problem.obs_point[keep_obs], minlength=problem.n_points)
+    drop = keep_pts & (((cnt < 2) & ~problem.has_prior) | (cnt == 0))
+    dropped_pts = np.flatnonzero(drop)
+    dropped_obs = np.flatnonzero(keep_obs & drop[problem.obs_point])
+    keep_pts &= ~drop
+    keep_obs &= keep_pts[problem.obs_point]
+    return {
+        "iteration": iteration, "observation": k0, "image": int(problem.obs_image[k0]),
+        "point": j0, "component": "xy"[comp], "w": float(rel.w_image[kc, comp]),
+        "redundancy": float(rel.r_image[kc, comp]),
+        "suspected_error_um": float(1000.0 * rel.suspected_image[kc, comp]),
+        "mdb_um": float(1000.0 * rel.mdb_image[kc, comp]),
+        "dropped_points": dropped_pts.tolist(),
+        "dropped_observations": dropped_obs.tolist(),
+    }

@@ -313,56 +313,15 @@ def refine_measurements(
     """
     unit = normalize_unit(unit)
     cal = as_calibration(camera)
-    switches, table_terrain = parse_corrections(corrections)
-    notes: list[str] = []
-    if switches["earth_curvature"] and not map_projection:
-        switches["earth_curvature"] = False
-        notes.append("earth curvature switched off: the ground frame is not a map projection")
-    image_ids = [str(im.id) for im in images]
-    zl = {str(im.id): float(np.asarray(im.position, float)[2]) for im in images}
+    su = _set_up(cal, measurements, images, corrections, fiducials, control, terrain_height,
+                 map_projection)
+    done = _refine_images(measurements, fiducials, su.image_ids, su.zl, cal, unit, su.switches,
+                          su.h if su.need_heights else None, io_tolerance_px)
     meas = measurements
-    _check_images(meas.image_id, meas.rows, meas.source, image_ids)
-    if fiducials is not None:
-        _check_images(fiducials.image_id, fiducials.rows, fiducials.source, image_ids)
-
-    need_heights = switches["refraction"] or switches["earth_curvature"]
-    h, h_source = terrain_height_for(control, table_terrain if terrain_height is None
-                                     else terrain_height)
-    if need_heights:
-        _check_heights(switches, h, h_source, image_ids, zl)
-
-    fid_source = fiducials.source if fiducials is not None else None
-    pp_bundle = (0.0, 0.0) if switches["principal_point"] else tuple(cal.principal_point)
-    done = _refine_images(meas, fiducials, image_ids, zl, cal, unit, switches,
-                          h if need_heights else None, io_tolerance_px)
-
     out = Measurements(meas.point_id.copy(), meas.image_id.copy(), done.xy, done.sigma,
                        source=meas.source, rows=None if meas.rows is None else meas.rows.copy())
-    if unit == "pixel" and len(meas.sigma):
-        notes.append("sigmas given in pixels were converted to mm through each image's "
-                     "fiducial affine (or the pixel size)")
-    report: dict[str, Any] = {
-        "input_unit": unit,
-        "camera": _camera_report(cal),
-        "corrections": {
-            "requested": dict(switches),
-            "applied": done.applied,
-            "max_um": {s: done.step_max.get(s) for s in done.applied},
-        },
-        "terrain_height": {"value": h, "source": h_source} if need_heights else None,
-        "principal_point": [float(pp_bundle[0]), float(pp_bundle[1])],
-        "sigma": _sigma_report(unit, meas.sigma, done.sigma),
-        "io_check": {
-            "tolerance_px": float(io_tolerance_px),
-            "images_checked": done.io_checked,
-            "passed": None if done.io_checked == 0 else not done.io_failed,
-            "failed_images": done.io_failed,
-        },
-        "images": done.per_image,
-        "fiducial_source": fid_source,
-        "notes": notes,
-    }
-    return InteriorResult(out, (float(pp_bundle[0]), float(pp_bundle[1])), report)
+    report = _report(su, done, cal, unit, meas.sigma, io_tolerance_px, fiducials)
+    return InteriorResult(out, su.pp, report)
 
 
 def describe_interior(report: Optional[Mapping[str, Any]]) -> list[str]:
@@ -417,6 +376,77 @@ def describe_interior(report: Optional[Mapping[str, Any]]) -> list[str]:
 
 
 # ============================================================================ helpers
+class _SetUp(NamedTuple):
+    """What :func:`_set_up` found for :func:`refine_measurements`."""
+
+    switches: dict  # the [corrections] switches, earth curvature off without a map projection
+    notes: list  # notes for the report
+    image_ids: list
+    zl: dict  # image id -> approximate ZL (flying height, m)
+    h: Optional[float]  # terrain height (m) and where it came from
+    h_source: str
+    need_heights: bool  # refraction or earth curvature switched on
+    pp: tuple  # principal point left for the bundle (mm)
+
+
+def _set_up(cal: CameraCalibration, meas: Measurements, images: Sequence[ImageSpec],
+            corrections: Optional[Mapping[str, Any]],
+            fiducials: Optional[FiducialMeasurements], control: Optional[ControlPoints],
+            terrain_height: Optional[float], map_projection: bool) -> _SetUp:
+    """Parse the switches, check the image ids and find the terrain height (if needed)."""
+    switches, table_terrain = parse_corrections(corrections)
+    notes: list[str] = []
+    if switches["earth_curvature"] and not map_projection:
+        switches["earth_curvature"] = False
+        notes.append("earth curvature switched off: the ground frame is not a map projection")
+    image_ids = [str(im.id) for im in images]
+    zl = {str(im.id): float(np.asarray(im.position, float)[2]) for im in images}
+    _check_images(meas.image_id, meas.rows, meas.source, image_ids)
+    if fiducials is not None:
+        _check_images(fiducials.image_id, fiducials.rows, fiducials.source, image_ids)
+
+    need_heights = switches["refraction"] or switches["earth_curvature"]
+    h, h_source = terrain_height_for(control, table_terrain if terrain_height is None
+                                     else terrain_height)
+    if need_heights:
+        _check_heights(switches, h, h_source, image_ids, zl)
+    pp_bundle = (0.0, 0.0) if switches["principal_point"] else tuple(cal.principal_point)
+    return _SetUp(switches, notes, image_ids, zl, h, h_source, need_heights,
+                  (float(pp_bundle[0]), float(pp_bundle[1])))
+
+
+def _report(su: _SetUp, done: _ImagesDone, cal: CameraCalibration, unit: str,
+            sigma_in: np.ndarray, io_tolerance_px: float,
+            fiducials: Optional[FiducialMeasurements]) -> dict[str, Any]:
+    """The report of :func:`refine_measurements` (see its Returns)."""
+    notes = su.notes
+    if unit == "pixel" and len(sigma_in):
+        notes.append("sigmas given in pixels were converted to mm through each image's "
+                     "fiducial affine (or the pixel size)")
+    return {
+        "input_unit": unit,
+        "camera": _camera_report(cal),
+        "corrections": {
+            "requested": dict(su.switches),
+            "applied": done.applied,
+            "max_um": {s: done.step_max.get(s) for s in done.applied},
+        },
+        "terrain_height": ({"value": su.h, "source": su.h_source} if su.need_heights
+                           else None),
+        "principal_point": [su.pp[0], su.pp[1]],
+        "sigma": _sigma_report(unit, sigma_in, done.sigma),
+        "io_check": {
+            "tolerance_px": float(io_tolerance_px),
+            "images_checked": done.io_checked,
+            "passed": None if done.io_checked == 0 else not done.io_failed,
+            "failed_images": done.io_failed,
+        },
+        "images": done.per_image,
+        "fiducial_source": fiducials.source if fiducials is not None else None,
+        "notes": notes,
+    }
+
+
 class _ImagesDone(NamedTuple):
     """What :func:`_refine_images` hands back to :func:`refine_measurements`."""
 

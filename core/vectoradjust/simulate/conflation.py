@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from vectoradjust.adjust.shapepoints import extract_shape_points, lookup
-from vectoradjust.model import ProjectData
+from vectoradjust.model import Measurements, ProjectData
 from vectoradjust.simulate.roads import DatabaseModel
 from vectoradjust.simulate.scenario import make_scenario
 
@@ -92,6 +92,14 @@ def measured_subset(xy: np.ndarray, fraction: float, rng: np.random.Generator,
     return draw & near
 
 
+def _without_points(meas: Measurements, drop: np.ndarray) -> Measurements:
+    """The measurements less those of the points ``drop``."""
+    keep = ~np.isin(meas.point_id, drop)
+    return replace(meas, point_id=meas.point_id[keep], image_id=meas.image_id[keep],
+                   xy=meas.xy[keep], sigma=meas.sigma[keep],
+                   rows=None if meas.rows is None else meas.rows[keep])
+
+
 def conflation_scenario(seed: int = 1, *, bias=(3.0, -2.0), amplitude: float = 2.0,
                         length: float = 150.0, noise: float = 0.3,
                         measured_fraction: float = 0.3, true_roads=None,
@@ -163,12 +171,7 @@ def conflation_scenario(seed: int = 1, *, bias=(3.0, -2.0), amplitude: float = 2
     coords[:, :2] = true_obj[sp.vertex_object] + err[sp.vertex_object]
     measured_obj = measured_subset(true_obj, measured_fraction, rng, layout, clusters,
                                    cluster_radius)
-    drop = sp.vertex_ids[~measured_obj[sp.vertex_object]]
-    meas = data.measurements
-    keep = ~np.isin(meas.point_id, drop)
-    meas = replace(meas, point_id=meas.point_id[keep], image_id=meas.image_id[keep],
-                   xy=meas.xy[keep], sigma=meas.sigma[keep],
-                   rows=None if meas.rows is None else meas.rows[keep])
+    meas = _without_points(data.measurements, sp.vertex_ids[~measured_obj[sp.vertex_object]])
     st = float(np.hypot(amplitude, max(noise, 0.1)) if stated_sigma is None else stated_sigma)
     spec = replace(spec, sigma=(st, st, 3.0), offset="shift",
                    identification_sigma=tuple(identification_sigma))

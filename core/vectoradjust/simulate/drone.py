@@ -229,13 +229,62 @@ def _observe(seed, camera: DroneCamera, true_eo, xyz, pixel_sigma):
     return pi, ii, obs
 
 
-def _images(seed, true_eo, kappa, gps_sigma, sigma_attitude) -> list:
-    """Approximate EO: GPS positions (truth + noise), the plan's attitude (degrees)."""
+def _images(seed, true_eo, kappa, gps_sigma, sigma_attitude, use_gps: bool = True) -> list:
+    """Approximate EO: GPS positions (truth + noise), the plan's attitude (degrees); without
+    ``use_gps`` no position prior."""
     rng = _rng(seed, "drone-gps")
     pos = true_eo[:, :3] + rng.normal(0.0, gps_sigma, (len(true_eo), 3))
-    return [ImageSpec(f"DJI_{i + 1:04d}", pos[i], np.array([0.0, 0.0, math.degrees(k)]),
-                      gps_sigma, sigma_attitude)
-            for i, k in enumerate(kappa)]
+    images = [ImageSpec(f"DJI_{i + 1:04d}", pos[i], np.array([0.0, 0.0, math.degrees(k)]),
+                        gps_sigma, sigma_attitude)
+              for i, k in enumerate(kappa)]
+    if not use_gps:
+        for im in images:
+            im.sigma_position = None
+    return images
+
+
+def _roads_of(roads, center, name: str, crs: str) -> tuple:
+    """The road lines, the block centre (default: the middle of the roads' bounding box),
+    and the true roads as a layer with the object point of every vertex and the first
+    vertex of every object point (:func:`_road_layer`)."""
+    lines = RoadLines.of(roads)
+    allxy = np.concatenate(lines.lines)
+    if center is None:
+        center = tuple(0.5 * (allxy.min(axis=0) + allxy.max(axis=0)))
+    center = (float(center[0]), float(center[1]))
+    true_roads, _ = _real_roads(lines, 0.5 * (allxy.min(axis=0) + allxy.max(axis=0)))
+    layer, group, group_first = _road_layer(true_roads, name, crs)
+    return lines, center, layer, group, group_first
+
+
+def _database(seed, layer: LineLayer, group: np.ndarray, group_first: np.ndarray, center,
+              sigma, systematic_sigma) -> tuple:
+    """Put the database error into ``layer`` (in place): its true vertices on the terrain
+    plus the systematic and the per-point errors (:func:`_database_errors`).
+
+    Returns the object points' true XY ``(m, 2)`` and XYZ ``(m, 3)`` and the systematic
+    error ``(3,)``.
+    """
+    pts_xy = layer.coords[group_first, :2]
+    true_xyz = np.column_stack([pts_xy, _terrain(pts_xy, center)])
+    shift, noise = _database_errors(seed, len(group_first), sigma, systematic_sigma)
+    layer.coords = true_xyz[group] + shift + noise[group]
+    return pts_xy, true_xyz, shift
+
+
+def _project_data(seed, crs: str, camera: DroneCamera, images: list, meas: Measurements,
+                  spec: VectorSpec, layer: LineLayer, truth: tuple) -> ProjectData:
+    """The block's project data: no control points, the road database as the control."""
+    name = spec.name
+    return ProjectData(
+        crs=crs, camera=Camera(camera.focal_length, (0.0, 0.0)), images=images,
+        measurements=meas,
+        control=ControlPoints(np.zeros(0, str), np.zeros((0, 3)), np.zeros((0, 3)),
+                              np.zeros(0, str), source="<no control>"),
+        vectors=[(spec, layer)], settings=AdjustmentSettings(),
+        truth={name: truth},
+        corrections={"refraction": False, "earth_curvature": False},
+        source=f"<simulated drone block, seed {seed}>")
 
 
 def _vector_spec(name, sigma, systematic_sigma, identification, role) -> VectorSpec:
@@ -249,28 +298,14 @@ def _vector_spec(name, sigma, systematic_sigma, identification, role) -> VectorS
 
 
 def make_drone_block(
-    roads,
-    seed: int = 0,
-    *,
-    n_strips: int = 5,
-    per_strip: int = 10,
-    flying_height: float = 110.0,
-    forward_overlap: float = 0.75,
-    side_overlap: float = 0.65,
-    camera: DroneCamera = DJI_CAMERA,
-    pixel_sigma: float = 1.0,
-    identification: float = 0.2,
-    sigma: tuple = (1.5, 1.5, 3.0),
-    systematic_sigma: tuple = (1.0, 2.0),
-    stated_systematic: Optional[tuple] = None,
-    gps_sigma: float = 3.0,
-    use_gps: bool = True,
-    position_noise: float = 2.0,
-    attitude_noise: float = 1.5,
-    sigma_attitude: Optional[float] = None,
-    center: Optional[tuple] = None,
-    crs: str = "EPSG:32635",
-    name: str = "OSM",
+    roads, seed: int = 0, *, n_strips: int = 5, per_strip: int = 10,
+    flying_height: float = 110.0, forward_overlap: float = 0.75, side_overlap: float = 0.65,
+    camera: DroneCamera = DJI_CAMERA, pixel_sigma: float = 1.0, identification: float = 0.2,
+    sigma: tuple = (1.5, 1.5, 3.0), systematic_sigma: tuple = (1.0, 2.0),
+    stated_systematic: Optional[tuple] = None, gps_sigma: float = 3.0, use_gps: bool = True,
+    position_noise: float = 2.0, attitude_noise: float = 1.5,
+    sigma_attitude: Optional[float] = None, center: Optional[tuple] = None,
+    crs: str = "EPSG:32635", name: str = "OSM",
 ) -> DroneBlock:
     """Simulate a drone block over real roads whose database is the only control.
 
@@ -317,49 +352,49 @@ def make_drone_block(
     -------
     DroneBlock
     """
-    lines = RoadLines.of(roads)
-    allxy = np.concatenate(lines.lines)
-    if center is None:
-        center = tuple(0.5 * (allxy.min(axis=0) + allxy.max(axis=0)))
-    center = (float(center[0]), float(center[1]))
-    true_roads, _ = _real_roads(lines, 0.5 * (allxy.min(axis=0) + allxy.max(axis=0)))
-    layer, group, group_first = _road_layer(true_roads, name, crs)
-    foot = camera.footprint(flying_height)
+    args = dict(locals())  # the arguments as given, for DroneBlock.options
+    lines, center, layer, group, group_first = _roads_of(roads, center, name, crs)
     xy, kappa, strip, column, base, spacing = flight_plan(
-        center, n_strips, per_strip, foot, forward_overlap, side_overlap)
+        center, n_strips, per_strip, camera.footprint(flying_height), forward_overlap,
+        side_overlap)
     true_eo = _true_eo(seed, xy, kappa, flying_height, center, position_noise, attitude_noise)
-    pts_xy = layer.coords[group_first, :2]
-    true_xyz = np.column_stack([pts_xy, _terrain(pts_xy, center)])
-    shift, noise = _database_errors(seed, len(group_first), sigma, systematic_sigma)
-    layer.coords = true_xyz[group] + shift + noise[group]
-    ident_xy = pts_xy + _rng(seed, "drone-identification").normal(
-        0.0, identification, pts_xy.shape)
-    seen_xyz = np.column_stack([ident_xy, _terrain(ident_xy, center)])
-    pi, ii, obs = _observe(seed, camera, true_eo, seen_xyz, pixel_sigma)
-    images = _images(seed, true_eo, kappa, gps_sigma if use_gps else 0.0, sigma_attitude)
-    if not use_gps:
-        for im in images:
-            im.sigma_position = None
+    pts_xy, true_xyz, shift = _database(seed, layer, group, group_first, center, sigma,
+                                        systematic_sigma)
+    pi, ii, obs = _identify_and_observe(seed, camera, true_eo, pts_xy, center, identification,
+                                        pixel_sigma)
+    images = _images(seed, true_eo, kappa, gps_sigma if use_gps else 0.0, sigma_attitude,
+                     use_gps)
     vid = vertex_ids(layer)
     meas = Measurements(vid[group_first[pi]], np.array([im.id for im in images])[ii], obs,
                         pixel_sigma * camera.pixel_size, source="image_points.csv")
     stated = systematic_sigma if stated_systematic is None else stated_systematic
     spec = _vector_spec(name, sigma, stated, identification, "control")
-    data = ProjectData(
-        crs=crs, camera=Camera(camera.focal_length, (0.0, 0.0)), images=images,
-        measurements=meas,
-        control=ControlPoints(np.zeros(0, str), np.zeros((0, 3)), np.zeros((0, 3)),
-                              np.zeros(0, str), source="<no control>"),
-        vectors=[(spec, layer)], settings=AdjustmentSettings(),
-        truth={name: (vid, true_xyz[group])},
-        corrections={"refraction": False, "earth_curvature": False},
-        source=f"<simulated drone block, seed {seed}>")
-    options = {"seed": int(seed), "n_strips": n_strips, "per_strip": per_strip,
-               "flying_height": flying_height, "forward_overlap": forward_overlap,
-               "side_overlap": side_overlap, "camera": camera.name, "pixel_sigma": pixel_sigma,
-               "identification": identification, "sigma": list(sigma),
-               "systematic_sigma": list(systematic_sigma),
-               "stated_systematic": list(stated), "gps_sigma": gps_sigma if use_gps else None,
-               "sigma_attitude": sigma_attitude, "roads": lines.source}
+    data = _project_data(seed, crs, camera, images, meas, spec, layer,
+                         (vid, true_xyz[group]))
+    options = _options(args, stated, lines.source)
     return DroneBlock(data, true_eo, shift, strip, column, base, spacing,
                       int(len(np.unique(pi))), options)
+
+
+def _identify_and_observe(seed, camera: DroneCamera, true_eo: np.ndarray, pts_xy: np.ndarray,
+                          center, identification: float, pixel_sigma: float) -> tuple:
+    """The analyst identifies each object point ``N(0, identification)`` off (per horizontal
+    axis, on the terrain); its observations (:func:`_observe`)."""
+    ident_xy = pts_xy + _rng(seed, "drone-identification").normal(
+        0.0, identification, pts_xy.shape)
+    seen_xyz = np.column_stack([ident_xy, _terrain(ident_xy, center)])
+    return _observe(seed, camera, true_eo, seen_xyz, pixel_sigma)
+
+
+def _options(args: dict, stated, roads_source) -> dict:
+    """The arguments of :func:`make_drone_block` as :attr:`DroneBlock.options` records them."""
+    use_gps = args["use_gps"]
+    return {"seed": int(args["seed"]), "n_strips": args["n_strips"],
+            "per_strip": args["per_strip"], "flying_height": args["flying_height"],
+            "forward_overlap": args["forward_overlap"], "side_overlap": args["side_overlap"],
+            "camera": args["camera"].name, "pixel_sigma": args["pixel_sigma"],
+            "identification": args["identification"], "sigma": list(args["sigma"]),
+            "systematic_sigma": list(args["systematic_sigma"]),
+            "stated_systematic": list(stated),
+            "gps_sigma": args["gps_sigma"] if use_gps else None,
+            "sigma_attitude": args["sigma_attitude"], "roads": roads_source}

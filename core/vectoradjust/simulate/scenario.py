@@ -25,6 +25,36 @@ image measurements, physical effects, scanning), :mod:`~vectoradjust.simulate.co
 Its ``__all__`` names (``write_project``, ``describe``, ``terrain_height``, ...) are
 still importable from here, as when it held the whole simulator.
 
+The options of :func:`make_scenario` in detail:
+
+- ``calibration``: the image coordinates are photo coordinates in the fiducial frame
+  (ideal coordinates about the principal point + the principal point); the default
+  camera is an RC10 with f = 152.4 mm, principal point (0, 0), nothing else (the image
+  coordinates are exactly those without a calibration).
+- ``effects``: each effect is the exact inverse of its correction in
+  :mod:`vectoradjust.sensor.refine`, with each image's TRUE flying height and each
+  point's TRUE terrain height (the correction uses the approximate ZL and the mean
+  terrain height). They are applied after the format test and before the noise, so
+  that the points measured and the noise drawn are those of the same seed without
+  effects.
+- ``scan``: every image gets a random scanner affine (film rotation ~0.3 deg, placement
+  ~40 px, scale 1e-4, shear 1e-4 rad) with the calibration's ``pixel_size``; the image
+  coordinates (with their noise) are converted to pixels and the calibrated fiducials
+  are measured in pixels with ``N(0, fiducial_sigma)`` (mm) noise. ``measurements`` and
+  their sigmas are then in pixels.
+- ``pointing_sigma`` (default 0: the images show exactly the true point): the point
+  measured on every image is the true shape point moved horizontally, the same on
+  every image, with Z = terrain there. Control and tie points are unaffected.
+- ``true_roads`` (``grid`` and ``block_size`` are then ignored): centreline XY in a
+  projected CRS (m), a :class:`RoadLines`, the path of a GeoJSON file of LineStrings
+  (:func:`read_road_lines`) or a sequence of ``(n, 2)`` arrays. Vertices within 1 mm
+  are one vertex and the lines are split into features at the vertices they share
+  (intersections); the roads are translated so that the centre of their bounding box
+  is ``center`` (about 600 m x 600 m fit the inset stereo overlap of a pair; vertices
+  outside the overlap are not measured). With ``n_shape_points`` the vertex spacing is
+  chosen to give about that many measured shape points in all; otherwise
+  ``vertex_spacing`` or each database's own spacing applies.
+
 The numerical part imports only numpy and other heart modules; geopandas, shapely,
 rasterio and pandas are imported inside :func:`write_project`.
 
@@ -38,6 +68,7 @@ import argparse
 import sys
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, NamedTuple
 
@@ -101,32 +132,19 @@ __all__ = [
 
 # --- the scenario --------------------------------------------------------------------
 def make_scenario(
-    seed: int = 0,
-    *,
-    n_images: int = 2,
-    grid: tuple[int, int] = (3, 3),
-    block_size: float = 150.0,
-    vertex_spacing: float | None = None,
-    n_control: int = 24,
-    n_check: int = 6,
-    n_tie: int = 10,
-    sigma_image: float = 0.015,
+    seed: int = 0, *, n_images: int = 2,
+    grid: tuple[int, int] = (3, 3), block_size: float = 150.0, vertex_spacing: float | None = None,
+    n_control: int = 24, n_check: int = 6, n_tie: int = 10, sigma_image: float = 0.015,
     databases: Sequence[str | DatabaseModel] = ("OSM", "TNM", "TIGER"),
     n_shape_points: int | None = None,
     shape_sigma: tuple[float, float, float] = (10.0, 10.0, 10.0),
-    position_noise: float = 3.0,
-    attitude_noise: float = 0.3,
-    dem_noise: float = 0.15,
-    sigma_position: float | None = 100.0,
-    sigma_attitude: float | None = 5.0,
+    position_noise: float = 3.0, attitude_noise: float = 0.3, dem_noise: float = 0.15,
+    sigma_position: float | None = 100.0, sigma_attitude: float | None = 5.0,
     date: str | None = DEFAULT_DATE,
     image_distortion: Callable[[np.ndarray], np.ndarray] | None = None,
-    pointing_sigma: float = 0.0,
-    center: tuple[float, float] = CENTER,
-    calibration: CameraCalibration | None = None,
-    effects: Sequence[str] = (),
-    scan: bool = False,
-    fiducial_sigma: float = FIDUCIAL_SIGMA,
+    pointing_sigma: float = 0.0, center: tuple[float, float] = CENTER,
+    calibration: CameraCalibration | None = None, effects: Sequence[str] = (),
+    scan: bool = False, fiducial_sigma: float = FIDUCIAL_SIGMA,
     true_roads: RoadLines | str | Path | Sequence[np.ndarray] | None = None,
 ) -> Scenario:
     """Simulate the dissertation's set-up, deterministically from ``seed``.
@@ -138,13 +156,12 @@ def make_scenario(
     n_images : int
         Images in the east-west strip (>= 2), 80 % forward overlap; ids ``L, R`` for
         two, ``I01, I02, ...`` otherwise.
-    grid : (int, int)
-        Number of east-west and north-south streets of the default scene.
-    block_size : float
-        Street spacing (m) of the default scene; upper bound in dense mode.
+    grid, block_size : (int, int), float
+        Number of east-west and north-south streets of the default scene; their spacing
+        (m), an upper bound in dense mode.
     vertex_spacing : float, optional
-        Vertex spacing (m) on straight roads for every database (default: each
-        database's own, :data:`DATABASES`). Ignored in dense mode.
+        Vertex spacing (m) on straight roads of every database (default: each database's
+        own, :data:`DATABASES`); ignored in dense mode.
     n_control, n_check, n_tie : int
         Control points (in the adjustment), check points (independent) and tie points.
     sigma_image : float
@@ -152,118 +169,168 @@ def make_scenario(
     databases : sequence of str or DatabaseModel
         Road databases to simulate (names from :data:`DATABASES` or custom models).
     n_shape_points : int, optional
-        Dense mode: a street grid filling the stereo overlap with about this many
-        measured shape points in total (all databases), for benchmarks.
+        Dense mode (benchmarks): a street grid filling the stereo overlap with about this
+        many measured shape points in all databases together.
     shape_sigma : (float, float, float)
         Prior sigma of shape points written to each ``[[vectors]]`` entry (m).
-    position_noise : float
-        Standard deviation (m) of the true exposure stations around the flight plan
-        (X, Y; half of it in Z).
-    attitude_noise : float
-        Standard deviation (degrees) of the true omega, phi, kappa.
-    dem_noise : float
-        Standard deviation (m) of the DEM heights about the true terrain.
+    position_noise, attitude_noise, dem_noise : float
+        Standard deviations of the true exposure stations about the flight plan (m in X
+        and Y, half of it in Z), of the true omega, phi, kappa (degrees) and of the DEM
+        heights about the true terrain (m).
     sigma_position, sigma_attitude : float or None
         Priors of the approximate exterior orientation (m, degrees); None = free.
     date : str or None
         Acquisition date written for every image (provenance).
     image_distortion : callable, optional
-        ``xy_mm (k, 2) -> xy (k, 2)`` applied to the ideal projections before the
-        noise (lens distortion, refraction, ...); the format test uses its output.
+        ``xy_mm (k, 2) -> xy (k, 2)`` applied to the ideal projections before the noise
+        (lens distortion, refraction, ...); the format test uses its output.
     pointing_sigma : float
-        Horizontal error (m, per axis) of the analyst's identification of a shape point:
-        the point measured on the images is the true point moved by ``N(0,
-        pointing_sigma)`` (the same on every image, Z = terrain there). Default 0: the
-        images show exactly the true point. Control and tie points are unaffected.
+        The analyst's identification error of a shape point (m, per horizontal axis): the
+        images show the true point moved by ``N(0, pointing_sigma)`` onto the terrain.
     center : (float, float)
         Model centre (UTM 16N).
     calibration : vectoradjust.sensor.camera.CameraCalibration, optional
-        The camera: its focal length and principal point make the image coordinates
-        (photo coordinates in the fiducial frame = ideal coordinates about the
-        principal point + the principal point); its distortion model, fiducials and
-        pixel size serve ``effects`` and ``scan``. Default: f = 152.4 mm, principal
-        point (0, 0), nothing else (the image coordinates are exactly as without it).
+        The camera (module docstring): its focal length and principal point make the
+        image coordinates; its distortion, fiducials and pixel size serve ``effects``
+        and ``scan``. Default: f = 152.4 mm, principal point (0, 0), nothing else.
     effects : sequence of str
-        Physical effects put into the image coordinates, a subset of :data:`EFFECTS`:
-        ``"distortion"`` (the calibration's lens distortion), ``"refraction"`` (ARDC
-        1959) and ``"earth_curvature"``, each the exact inverse of its correction in
-        :mod:`vectoradjust.sensor.refine`, with each image's TRUE flying height and each
-        point's TRUE terrain height (the correction uses the approximate ZL and the mean
-        terrain height). They are applied after the format test and before the
-        noise, so the points measured and the noise drawn are those of the same seed
-        without effects. Needs ``calibration``.
-    scan : bool
-        Measure in scanner pixels: every image gets a random scanner affine (film
-        rotation ~0.3 deg, placement ~40 px, scale 1e-4, shear 1e-4 rad) with the
-        calibration's ``pixel_size``; the image coordinates (with their noise) are
-        converted to pixels and the calibrated fiducials are measured in pixels with
-        ``N(0, fiducial_sigma)`` (mm) noise. Needs ``calibration`` with fiducials and
-        pixel size. ``measurements`` and their sigmas are then in pixels.
-    fiducial_sigma : float
-        Pointing precision of a fiducial (mm) when ``scan``.
+        Physical effects put into the image coordinates (module docstring), a subset of
+        :data:`EFFECTS` (``distortion, refraction, earth_curvature``); needs ``calibration``.
+    scan, fiducial_sigma : bool, float
+        Measure in scanner pixels (module docstring), the fiducials with ``N(0,
+        fiducial_sigma)`` (mm) noise. Needs ``calibration`` with fiducials and pixel size.
     true_roads : RoadLines, str, pathlib.Path or sequence of (n, 2) arrays, optional
-        Real true roads instead of the street grid (``grid`` and ``block_size`` are then
-        ignored): centreline XY in a projected CRS (m), a :class:`RoadLines` or the path
-        of a GeoJSON file of LineStrings (:func:`read_road_lines`). Vertices within 1 mm
-        are one vertex and the lines are split into features at the vertices they share
-        (intersections); the roads are translated so that the centre of their bounding
-        box is ``center`` (about 600 m x 600 m fit the inset stereo overlap of a pair;
-        vertices outside the overlap are not measured). With ``n_shape_points`` the
-        vertex spacing is chosen to give about that many measured shape points in all;
-        otherwise ``vertex_spacing`` or each database's own spacing applies.
+        Real true roads (projected CRS, m) instead of the street grid (module docstring):
+        a :class:`RoadLines`, a GeoJSON file of LineStrings or the lines' vertices.
 
     Returns
     -------
     Scenario
     """
-    _check_sizes(n_images, n_shape_points)
-    models = _database_models(databases)
-    cx, cy = float(center[0]), float(center[1])
-    n_images = int(n_images)
-    effects = _check_effects(effects, calibration, scan)
-    camera = _camera(calibration)
-    plan_x, true_eo = _exterior_orientation(seed, n_images, cx, cy, position_noise,
-                                            attitude_noise)
-    ids = _image_ids(n_images)
-    imaging = _Imaging.of(camera, true_eo, ids, sigma_image, image_distortion, effects)
-    images = _images(ids, true_eo, sigma_position, sigma_attitude, date)
-    ov_x, in_x, in_y = _stereo_overlap(plan_x, cy)
-    dem_grid, dem_transform = _make_dem(true_eo, (cx, cy), seed, dem_noise)
-    roads, spacing, dense_nseg, real = _true_roads(
-        (cx, cy), grid, block_size, vertex_spacing, n_shape_points, len(models), ov_x, in_x,
-        in_y, true_roads)
-    control, control_true = _control_points(seed, in_x, in_y, n_control, n_check, (cx, cy))
-    tie_ids, tie_true = _tie_points(seed, in_x, in_y, n_tie, (cx, cy))
-    meas_parts = _point_measurements(seed, imaging, control, control_true, tie_ids, tie_true)
-    dbs = [_simulate_database(model, roads, seed, spacing, dense_nseg, imaging,
-                              shape_sigma, pointing_sigma, (cx, cy)) for model in models]
-    measurements, unit, fiducials, scan_affine = _measurements(
-        meas_parts + [db.measurements for db in dbs], ids, sigma_image, seed, scan=scan,
-        calibration=calibration, fiducial_sigma=fiducial_sigma)
-    lines, line_attrs = _truth_lines(roads, (cx, cy))
-    options = _options(
-        seed=seed, n_images=n_images, grid=grid, block_size=block_size,
-        vertex_spacing=vertex_spacing, n_control=n_control, n_check=n_check, n_tie=n_tie,
-        sigma_image=sigma_image, models=models, n_shape_points=n_shape_points,
-        shape_sigma=shape_sigma, position_noise=position_noise, attitude_noise=attitude_noise,
-        dem_noise=dem_noise, image_distortion=image_distortion, pointing_sigma=pointing_sigma,
-        dense_spacing=spacing if n_shape_points is not None else None,
-        calibration=calibration, effects=effects, scan=scan, fiducial_sigma=fiducial_sigma,
-        real_roads=real)
-    return Scenario(
-        seed=int(seed), crs=CRS, camera=camera, images=images, true_eo=true_eo,
-        measurements=measurements, control=control, control_true=control_true,
-        tie_ids=tie_ids, tie_true=tie_true, layers={db.name: db.layer for db in dbs},
-        vector_specs={db.name: db.spec for db in dbs}, truth={db.name: db.truth for db in dbs},
-        measured={db.name: db.measured for db in dbs}, truth_lines=lines,
-        truth_line_attributes=line_attrs, dem_grid=dem_grid, dem_transform=dem_transform,
-        dem_nodata=DEM_NODATA, center=(cx, cy), databases={m.name: m for m in models},
-        sigma_image=float(sigma_image), options=options, unit=unit, fiducials=fiducials,
-        scan_affine=scan_affine, effects=tuple(effects),
-    )
+    args = _Args.of(dict(locals()))  # the arguments as given, checked
+    flight = _flight(args)
+    ground = _ground(args, flight)
+    return _assemble(args, flight, ground)
 
 
 # --- make_scenario, step by step -----------------------------------------------------
+@dataclass(frozen=True)
+class _Args:
+    """The arguments of :func:`make_scenario`, checked: ``n_images`` an int, ``effects``
+    the checked tuple, ``center`` floats, ``models`` the databases' models."""
+
+    seed: int
+    n_images: int
+    grid: tuple
+    block_size: float
+    vertex_spacing: float | None
+    n_control: int
+    n_check: int
+    n_tie: int
+    sigma_image: float
+    models: list
+    n_shape_points: int | None
+    shape_sigma: tuple
+    position_noise: float
+    attitude_noise: float
+    dem_noise: float
+    sigma_position: float | None
+    sigma_attitude: float | None
+    date: str | None
+    image_distortion: Callable[[np.ndarray], np.ndarray] | None
+    pointing_sigma: float
+    center: tuple[float, float]
+    calibration: CameraCalibration | None
+    effects: tuple
+    scan: bool
+    fiducial_sigma: float
+    true_roads: RoadLines | str | Path | Sequence[np.ndarray] | None
+
+    @classmethod
+    def of(cls, kw: dict) -> _Args:
+        """Check the keyword arguments ``kw`` of :func:`make_scenario`."""
+        _check_sizes(kw["n_images"], kw["n_shape_points"])
+        kw["models"] = _database_models(kw.pop("databases"))
+        kw["center"] = (float(kw["center"][0]), float(kw["center"][1]))
+        kw["n_images"] = int(kw["n_images"])
+        kw["effects"] = _check_effects(kw["effects"], kw["calibration"], kw["scan"])
+        return cls(**kw)
+
+
+class _Flight(NamedTuple):
+    camera: Camera
+    true_eo: np.ndarray  # (n, 6) true exterior orientation
+    ids: list  # image ids
+    imaging: _Imaging
+    images: list  # ImageSpec: approximate exterior orientation
+    overlap: tuple  # (ov_x, in_x, in_y) of :func:`_stereo_overlap`
+    dem: tuple  # (grid, transform)
+
+
+def _flight(a: _Args) -> _Flight:
+    """The camera, the true and approximate exterior orientation, the overlap, the DEM."""
+    camera = _camera(a.calibration)
+    cx, cy = a.center
+    plan_x, true_eo = _exterior_orientation(a.seed, a.n_images, cx, cy, a.position_noise,
+                                            a.attitude_noise)
+    ids = _image_ids(a.n_images)
+    imaging = _Imaging.of(camera, true_eo, ids, a.sigma_image, a.image_distortion, a.effects)
+    images = _images(ids, true_eo, a.sigma_position, a.sigma_attitude, a.date)
+    overlap = _stereo_overlap(plan_x, cy)
+    dem = _make_dem(true_eo, a.center, a.seed, a.dem_noise)
+    return _Flight(camera, true_eo, ids, imaging, images, overlap, dem)
+
+
+class _Ground(NamedTuple):
+    spacing: float | None  # the databases' vertex spacing (dense or real roads: chosen)
+    real: dict | None  # the real roads for Scenario.options
+    control: ControlPoints
+    control_true: np.ndarray
+    tie_ids: np.ndarray
+    tie_true: np.ndarray
+    dbs: list  # _SimulatedDatabase per model
+    measured: tuple  # (measurements, unit, fiducials, scan_affine) of :func:`_measurements`
+    lines: tuple  # (truth lines, their attributes)
+
+
+def _ground(a: _Args, fl: _Flight) -> _Ground:
+    """The true roads, control, check and tie points, the databases and the measurements."""
+    ov_x, in_x, in_y = fl.overlap
+    roads, spacing, dense_nseg, real = _true_roads(
+        a.center, a.grid, a.block_size, a.vertex_spacing, a.n_shape_points, len(a.models), ov_x,
+        in_x, in_y, a.true_roads)
+    control, control_true = _control_points(a.seed, in_x, in_y, a.n_control, a.n_check,
+                                            a.center)
+    tie_ids, tie_true = _tie_points(a.seed, in_x, in_y, a.n_tie, a.center)
+    meas_parts = _point_measurements(a.seed, fl.imaging, control, control_true, tie_ids,
+                                     tie_true)
+    dbs = [_simulate_database(model, roads, a.seed, spacing, dense_nseg, fl.imaging,
+                              a.shape_sigma, a.pointing_sigma, a.center) for model in a.models]
+    measured = _measurements(
+        meas_parts + [db.measurements for db in dbs], fl.ids, a.sigma_image, a.seed,
+        scan=a.scan, calibration=a.calibration, fiducial_sigma=a.fiducial_sigma)
+    lines = _truth_lines(roads, a.center)
+    return _Ground(spacing, real, control, control_true, tie_ids, tie_true, dbs, measured,
+                   lines)
+
+
+def _assemble(a: _Args, fl: _Flight, g: _Ground) -> Scenario:
+    """The :class:`Scenario` of the pieces."""
+    measurements, unit, fiducials, scan_affine = g.measured
+    dbs = g.dbs
+    return Scenario(
+        seed=int(a.seed), crs=CRS, camera=fl.camera, images=fl.images, true_eo=fl.true_eo,
+        measurements=measurements, control=g.control, control_true=g.control_true,
+        tie_ids=g.tie_ids, tie_true=g.tie_true, layers={db.name: db.layer for db in dbs},
+        vector_specs={db.name: db.spec for db in dbs}, truth={db.name: db.truth for db in dbs},
+        measured={db.name: db.measured for db in dbs}, truth_lines=g.lines[0],
+        truth_line_attributes=g.lines[1], dem_grid=fl.dem[0], dem_transform=fl.dem[1],
+        dem_nodata=DEM_NODATA, center=a.center, databases={m.name: m for m in a.models},
+        sigma_image=float(a.sigma_image), options=_options(a, g.spacing, g.real), unit=unit,
+        fiducials=fiducials, scan_affine=scan_affine, effects=tuple(a.effects),
+    )
+
+
 def _check_sizes(n_images, n_shape_points) -> None:
     if int(n_images) < 2:
         raise ProjectError(f"n_images = {n_images} cannot form a stereo model",
@@ -431,26 +498,23 @@ def _measurements(meas_parts: list, ids: list, sigma_image: float, seed: int, *,
     return measurements, unit, fiducials, scan_affine
 
 
-def _options(*, seed, n_images, grid, block_size, vertex_spacing, n_control, n_check, n_tie,
-             sigma_image, models, n_shape_points, shape_sigma, position_noise, attitude_noise,
-             dem_noise, image_distortion, pointing_sigma, dense_spacing, calibration, effects,
-             scan, fiducial_sigma, real_roads=None) -> dict:
+def _options(a: _Args, spacing: float | None, real_roads: dict | None) -> dict:
     """The arguments of :func:`make_scenario` as :attr:`Scenario.options` records them."""
+    cal = a.calibration
     return {
-        "seed": int(seed), "n_images": n_images, "grid": list(grid),
-        "block_size": float(block_size), "vertex_spacing": vertex_spacing,
-        "n_control": n_control, "n_check": n_check, "n_tie": n_tie,
-        "sigma_image": sigma_image, "databases": [m.name for m in models],
-        "n_shape_points": n_shape_points, "shape_sigma": list(shape_sigma),
-        "position_noise": position_noise, "attitude_noise": attitude_noise,
-        "dem_noise": dem_noise, "image_distortion": image_distortion is not None,
-        "pointing_sigma": float(pointing_sigma),
-        "dense_spacing": dense_spacing,
-        "camera": None if calibration is None else (calibration.name or "calibrated camera"),
-        "camera_file": None if calibration is None or calibration.source is None
-        else Path(calibration.source).name,
-        "effects": list(effects), "scan": bool(scan),
-        "fiducial_sigma": float(fiducial_sigma) if scan else None,
+        "seed": int(a.seed), "n_images": a.n_images, "grid": list(a.grid),
+        "block_size": float(a.block_size), "vertex_spacing": a.vertex_spacing,
+        "n_control": a.n_control, "n_check": a.n_check, "n_tie": a.n_tie,
+        "sigma_image": a.sigma_image, "databases": [m.name for m in a.models],
+        "n_shape_points": a.n_shape_points, "shape_sigma": list(a.shape_sigma),
+        "position_noise": a.position_noise, "attitude_noise": a.attitude_noise,
+        "dem_noise": a.dem_noise, "image_distortion": a.image_distortion is not None,
+        "pointing_sigma": float(a.pointing_sigma),
+        "dense_spacing": spacing if a.n_shape_points is not None else None,
+        "camera": None if cal is None else (cal.name or "calibrated camera"),
+        "camera_file": None if cal is None or cal.source is None else Path(cal.source).name,
+        "effects": list(a.effects), "scan": bool(a.scan),
+        "fiducial_sigma": float(a.fiducial_sigma) if a.scan else None,
         "true_roads": real_roads,
     }
 

@@ -84,30 +84,44 @@ def intersect(
     for _ in range(max_iterations):
         pred, a_eo, a_pt = _observe(eo, oi, x[op], focal_length, pp, sensors)
         ell = oxy - pred
-        wap = a_pt * w[:, :, None]
-        npp = _block_sum(op, np.einsum("kri,krj->kij", a_pt, wap), n_points)
-        npp[~ok] = np.eye(3)
+        npp, wap = _point_normals(op, a_pt, w, ok, n_points)
         tp = _block_sum(op, np.einsum("kri,kr->ki", wap, ell), n_points)
         dx = np.einsum("mij,mj->mi", inv3x3(npp), tp)
         x += dx
         if np.abs(dx).max(initial=0.0) < tolerance:
             break
     _, a_eo, a_pt = _observe(eo, oi, x[op], focal_length, pp, sensors)
-    wap = a_pt * w[:, :, None]
-    npp = _block_sum(op, np.einsum("kri,krj->kij", a_pt, wap), n_points)
-    npp[~ok] = np.eye(3)
-    npp_inv = inv3x3(npp)
+    npp_inv = inv3x3(_point_normals(op, a_pt, w, ok, n_points)[0])
     cov = variance_factor * npp_inv
     if eo_cov_full is not None:
-        n = eo.shape[0]
-        nep = np.einsum("kri,krj->kij", a_eo * w[:, :, None], a_pt)  # (k, 6, 3)
-        z = np.zeros((n_points, 3, n, 6))
-        np.add.at(z, (op, slice(None), oi), np.transpose(nep, (0, 2, 1)))
-        z = np.einsum("mab,mbc->mac", npp_inv, z.reshape(n_points, 3, 6 * n))
-        cov = cov + np.einsum("mai,ij,mbj->mab", z, eo_cov_full, z)
+        cov = cov + _eo_part(npp_inv, a_eo * w[:, :, None], a_pt, op, oi, eo_cov_full,
+                             eo.shape[0])
     x[~ok] = np.nan
     cov[~ok] = np.nan
     return x, cov
+
+
+def _point_normals(op: np.ndarray, a_pt: np.ndarray, w: np.ndarray, ok: np.ndarray,
+                   n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Normal matrices ``N_pp (n_points, 3, 3)`` of the points (identity where ``~ok``) and
+    the weighted point partials ``W A_p (k, 2, 3)``."""
+    wap = a_pt * w[:, :, None]
+    npp = _block_sum(op, np.einsum("kri,krj->kij", a_pt, wap), n_points)
+    npp[~ok] = np.eye(3)
+    return npp, wap
+
+
+def _eo_part(npp_inv: np.ndarray, wa_eo: np.ndarray, a_pt: np.ndarray, op: np.ndarray,
+             oi: np.ndarray, eo_cov_full: np.ndarray, n: int) -> np.ndarray:
+    """The exterior orientation's share ``Npp^-1 N_pe C_ee N_ep Npp^-1`` of the points'
+    covariance, ``(n_points, 3, 3)``; ``wa_eo`` are the weighted EO partials ``W A_e`` of
+    the ``n`` images."""
+    n_points = npp_inv.shape[0]
+    nep = np.einsum("kri,krj->kij", wa_eo, a_pt)  # (k, 6, 3)
+    z = np.zeros((n_points, 3, n, 6))
+    np.add.at(z, (op, slice(None), oi), np.transpose(nep, (0, 2, 1)))
+    z = np.einsum("mab,mbc->mac", npp_inv, z.reshape(n_points, 3, 6 * n))
+    return np.einsum("mai,ij,mbj->mab", z, eo_cov_full, z)
 
 
 def _observe(eo: np.ndarray, oi: np.ndarray, x: np.ndarray, focal_length: float,

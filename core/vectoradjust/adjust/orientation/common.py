@@ -117,3 +117,21 @@ def _vertical_parallax(l_obs: np.ndarray, eo_l: np.ndarray, eo_r: np.ndarray, f:
     e2 = np.cross(e3, e1)
     return -f * (ray_l @ e2) / (ray_l @ e3) + f * (ray_r @ e2) / (ray_r @ e3)
 
+
+def _check_point_pairs(a: np.ndarray, b: np.ndarray, dim: int, n_min: int, error: type,
+                       messages: tuple) -> None:
+    """Raise ``error`` unless ``a`` and ``b`` are ``(n, dim)`` arrays of ``n >= n_min``
+    finite points.
+
+    ``messages`` are three ``(what, mend)`` pairs, for a shape mismatch (``what``
+    formatted with the shapes ``a`` and ``b``), too few points (with ``n``) and
+    non-finite coordinates.
+    """
+    shape, count, finite = messages
+    if a.ndim != 2 or a.shape[1] != dim or a.shape != b.shape:
+        raise error(shape[0].format(a=a.shape, b=b.shape), shape[1])
+    n = a.shape[0]
+    if n < n_min:
+        raise error(count[0].format(n=n), count[1])
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        raise error(finite[0], finite[1])

@@ -5,20 +5,19 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
 from vectoradjust.adjust.orientation.common import (
     _block_diag,
+    _check_point_pairs,
     _cov3,
     _sandwich,
     rotation_matrix_partials,
 )
-from vectoradjust.adjust.orientation.relative import _converged, _scaled_cond
-from vectoradjust.errors import (
-    ControlError,
-    NonConvergenceError,
-)
+from vectoradjust.adjust.orientation.relative import _iterate, _scaled_cond
+from vectoradjust.errors import ControlError
 from vectoradjust.sensor.collinearity import (
     rotation_matrix,
     rotation_to_angles,
@@ -198,21 +197,14 @@ class Conformal3D:
 
 def _conf_check_points(x: np.ndarray, X: np.ndarray) -> None:
     """Raise :class:`ControlError` unless model and ground are the same >= 3 finite points."""
-    if x.ndim != 2 or x.shape[1] != 3 or x.shape != X.shape:
-        raise ControlError(
-            f"3D conformal transformation: model {x.shape} and ground {X.shape} coordinates "
-            "must both be (n, 3) arrays of the same points",
-            "Give one row of x, y, z per common point in both systems",
-        )
-    n = x.shape[0]
-    if n < 3:
-        raise ControlError(
-            f"3D conformal transformation needs at least 3 common points; got {n}",
-            "Add control points (3 non-collinear, better 4 or more)",
-        )
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(X))):
-        raise ControlError("3D conformal transformation: coordinates contain NaN or inf",
-                           "Complete or remove the incomplete points")
+    _check_point_pairs(x, X, 3, 3, ControlError, (
+        ("3D conformal transformation: model {a} and ground {b} coordinates must both be "
+         "(n, 3) arrays of the same points",
+         "Give one row of x, y, z per common point in both systems"),
+        ("3D conformal transformation needs at least 3 common points; got {n}",
+         "Add control points (3 non-collinear, better 4 or more)"),
+        ("3D conformal transformation: coordinates contain NaN or inf",
+         "Complete or remove the incomplete points")))
 
 
 def _conf_check_collinear(x: np.ndarray) -> None:
@@ -230,11 +222,9 @@ def _conf_iterate(params, x, X, c_m, c_g, max_iter: int, tol: float):
     n = x.shape[0]
     scale_ref = max(float(np.max(np.abs(X))), 1.0)
     v_m = np.zeros((n, 3))
-    it = 0
-    converged = False
-    previous = np.inf
-    while it < max_iter:
-        it += 1
+
+    def update() -> Optional[float]:
+        nonlocal params, v_m
         a, b_m, qw, qw_inv, wv = _conf_gh_terms(params, x, X, v_m, c_m, c_g)
         n_mat = a.T @ qw_inv @ a
         dx = -_solve_conf(n_mat, a.T @ (qw_inv @ wv))
@@ -242,18 +232,12 @@ def _conf_iterate(params, x, X, c_m, c_g, max_iter: int, tol: float):
         v_m = (c_m @ (b_m.T @ kk)).reshape(n, 3)  # zero for "ols" (c_m = 0)
         params = params + dx
         if not np.all(np.isfinite(dx)):
-            break
-        step = max(abs(dx[0]) / max(abs(params[0]), 1e-300), np.max(np.abs(dx[1:4])),
+            return None
+        return max(abs(dx[0]) / max(abs(params[0]), 1e-300), np.max(np.abs(dx[1:4])),
                    np.max(np.abs(dx[4:])) / scale_ref)
-        if _converged(step, previous, tol):
-            converged = True
-            break
-        previous = step
-    if not converged:
-        raise NonConvergenceError(
-            f"3D conformal transformation did not converge in {it} iterations",
-            "Check that the common points are the same points in both systems",
-        )
+
+    it = _iterate(update, max_iter, tol, "3D conformal transformation",
+                  "Check that the common points are the same points in both systems")
     return params, v_m, it
 
 

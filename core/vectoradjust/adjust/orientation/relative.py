@@ -5,11 +5,13 @@ of its model points.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, Optional
 
 import numpy as np
 
 from vectoradjust.adjust.orientation.common import (
     _block_diag,
+    _check_point_pairs,
     _obs_weights,
     _vertical_parallax,
     rotation_matrix_partials,
@@ -176,6 +178,27 @@ def _converged(step: float, previous: float, tol: float) -> bool:
     return step < tol or (step < 1e-7 and step >= 0.5 * previous)
 
 
+def _iterate(update: Callable[[], Optional[float]], max_iter: int, tol: float, what: str,
+             mend: str) -> int:
+    """Repeat ``update`` until :func:`_converged`; the number of iterations run.
+
+    ``update()`` makes one correction and returns its size (None when it is not
+    finite). Raises :class:`NonConvergenceError` (``what`` did not converge; ``mend``)
+    after ``max_iter`` iterations or a correction that is not finite.
+    """
+    it = 0
+    previous = np.inf
+    while it < max_iter:
+        it += 1
+        step = update()
+        if step is None:
+            break
+        if _converged(step, previous, tol):
+            return it
+        previous = step
+    raise NonConvergenceError(f"{what} did not converge in {it} iterations", mend)
+
+
 def _solve_spd(s: np.ndarray, rhs: np.ndarray, what: str) -> np.ndarray:
     cond = _scaled_cond(s)
     if not np.isfinite(cond) or cond > 1e15:
@@ -192,11 +215,9 @@ def _ro_collinearity(l_obs, w, f, bx, max_iter, tol):
     eo_l = np.array([0.0, 0.0, f, 0.0, 0.0, 0.0])
     e = np.array([0.0, 0.0, 0.0, 0.0, f])
     pts = np.column_stack([l_obs[:, 0], l_obs[:, 1], np.zeros(n)])
-    it = 0
-    converged = False
-    previous = np.inf
-    while it < max_iter:
-        it += 1
+
+    def update() -> Optional[float]:
+        nonlocal e, pts
         r, ae, ap = _collinearity_normals(l_obs, w, eo_l, _eo_right(bx, e), pts, f)
         s, rhs, npp_inv, g, ptp = _reduced(ae, ap, w, r)
         de = _solve_spd(s, rhs, "Relative orientation")
@@ -204,18 +225,12 @@ def _ro_collinearity(l_obs, w, f, bx, max_iter, tol):
         e = e + de
         pts = pts + dp
         if not (np.all(np.isfinite(de)) and np.all(np.isfinite(dp))):
-            break
-        step = max(np.max(np.abs(de[:3])), np.max(np.abs(de[3:])) / f, np.max(np.abs(dp)) / f)
-        if _converged(step, previous, tol):
-            converged = True
-            break
-        previous = step
-    if not converged:
-        raise NonConvergenceError(
-            f"Relative orientation did not converge in {it} iterations",
-            "Check the point labels (left/right coordinates of different points) and the "
-            "focal length; the photos must be near-vertical with the base along x",
-        )
+            return None
+        return max(np.max(np.abs(de[:3])), np.max(np.abs(de[3:])) / f, np.max(np.abs(dp)) / f)
+
+    it = _iterate(update, max_iter, tol, "Relative orientation",
+                  "Check the point labels (left/right coordinates of different points) and "
+                  "the focal length; the photos must be near-vertical with the base along x")
     eo_r = _eo_right(bx, e)
     r, ae, ap = _collinearity_normals(l_obs, w, eo_l, eo_r, pts, f)
     s, _, npp_inv, g, _ = _reduced(ae, ap, w, r)
@@ -252,11 +267,9 @@ def _ro_coplanarity(l_obs, w, f, bx, max_iter, tol):
     n = l_obs.shape[0]
     e = np.array([0.0, 0.0, 0.0, 0.0, f])
     v = np.zeros_like(l_obs)
-    it = 0
-    converged = False
-    previous = np.inf
-    while it < max_iter:
-        it += 1
+
+    def update() -> Optional[float]:
+        nonlocal e, v
         big_f, a, b = _coplanarity_terms(l_obs + v, e, f, bx)
         wv = big_f - np.sum(b * v, axis=1)
         qw = np.sum(b * b / w, axis=1)
@@ -271,17 +284,11 @@ def _ro_coplanarity(l_obs, w, f, bx, max_iter, tol):
         v = b * k[:, None] / w
         e = e + dx
         if not np.all(np.isfinite(dx)):
-            break
-        step = max(np.max(np.abs(dx[:3])), np.max(np.abs(dx[3:])) / f)
-        if _converged(step, previous, tol):
-            converged = True
-            break
-        previous = step
-    if not converged:
-        raise NonConvergenceError(
-            f"Relative orientation (coplanarity) did not converge in {it} iterations",
-            "Check the point labels and the focal length",
-        )
+            return None
+        return max(np.max(np.abs(dx[:3])), np.max(np.abs(dx[3:])) / f)
+
+    it = _iterate(update, max_iter, tol, "Relative orientation (coplanarity)",
+                  "Check the point labels and the focal length")
     big_f, a, b = _coplanarity_terms(l_obs + v, e, f, bx)
     qw = np.sum(b * b / w, axis=1)
     q_ee = np.linalg.inv(a.T @ (a / qw[:, None]))
@@ -382,10 +389,9 @@ def relative_orientation(
 ) -> RelativeOrientation:
     """Relative orientation of a dependent stereo pair.
 
-    The left photo is fixed at ``XL = YL = 0, ZL = f`` with zero rotations; the right
-    photo's ``XL`` is fixed to ``bx`` (default: the mean x-parallax ``mean(xL - xR)``,
-    as in Dewitt's ``relor.c``), which makes the model roughly at photo scale (model
-    units = mm). Unknowns: ``omega, phi, kappa, YL, ZL`` of the right photo.
+    The left photo is fixed (``XL = YL = 0, ZL = f``, no rotation), the right photo's ``XL`` at
+    ``bx`` (default: the mean x-parallax ``mean(xL - xR)``, as in Dewitt's ``relor.c``), so
+    that the model is about at photo scale (mm). Unknowns: ``omega, phi, kappa, YL, ZL`` (right).
 
     Parameters
     ----------
@@ -408,9 +414,9 @@ def relative_orientation(
         Scale the covariances by ``s0**2`` (default, as ``relor.c``); with ``False``
         the a-priori variance factor 1 is used (meaningful when ``sigma`` is given).
     max_iter, tol : int, float
-        Iteration limit and convergence threshold (largest correction, radians or
-        relative to ``f``); corrections that stop decreasing below ``1e-7`` (round-off
-        level) also count as converged.
+        Iteration limit and convergence threshold (largest correction, radians or relative
+        to ``f``); corrections that stop decreasing below ``1e-7`` (round-off level) also
+        count as converged.
 
     Returns
     -------
@@ -423,38 +429,15 @@ def relative_orientation(
     SingularityError, NonConvergenceError
         Degenerate geometry or no convergence.
     """
-    lxy = np.asarray(left_xy, float)
-    rxy = np.asarray(right_xy, float)
-    if lxy.ndim != 2 or lxy.shape[1] != 2 or lxy.shape != rxy.shape:
-        raise MeasurementError(
-            f"Relative orientation: left ({lxy.shape}) and right ({rxy.shape}) photo "
-            "coordinates must both be (n, 2) arrays of the same points",
-            "Give one row per point with its x, y on each photo",
-        )
-    n = lxy.shape[0]
-    if n < 5:
-        raise MeasurementError(
-            f"Relative orientation needs at least 5 points measured on both photos; got {n}",
-            "Measure more tie points in the overlap (6 or more, spread like the von Gruber "
-            "points)",
-        )
-    if not (np.all(np.isfinite(lxy)) and np.all(np.isfinite(rxy))):
-        raise MeasurementError("Relative orientation: photo coordinates contain NaN or inf",
-                               "Remove or complete the incomplete measurements")
+    l_obs = _photo_pair(left_xy, right_xy)
     f = float(f)
-    l_obs = np.hstack([lxy, rxy])
-    w = _obs_weights(sigma, n, "Relative orientation")
+    w = _obs_weights(sigma, len(l_obs), "Relative orientation")
     bx = _ro_start(l_obs, f, bx)
-    if method == "collinearity":
-        e, pts, v, q_ee, q_pp, it = _ro_collinearity(l_obs, w, f, bx, max_iter, tol)
-    elif method == "coplanarity":
-        e, pts, v, q_ee, q_pp, it = _ro_coplanarity(l_obs, w, f, bx, max_iter, tol)
-    else:
+    solver = {"collinearity": _ro_collinearity, "coplanarity": _ro_coplanarity}.get(method)
+    if solver is None:
         raise ValueError(f"unknown method {method!r}")
-    dof = n - 5
-    vtpv = float(np.sum(w * v * v))
-    s0 = float(np.sqrt(vtpv / dof)) if dof > 0 else float("nan")
-    scale = s0**2 if a_posteriori else 1.0
+    e, pts, v, q_ee, q_pp, it = solver(l_obs, w, f, bx, max_iter, tol)
+    dof, s0, scale = _variance_factor(w, v, len(l_obs), a_posteriori)
     eo_l = np.array([0.0, 0.0, f, 0.0, 0.0, 0.0])
     eo_r = _eo_right(bx, e)
     return RelativeOrientation(
@@ -473,3 +456,36 @@ def relative_orientation(
         a_posteriori=a_posteriori,
     )
 
+
+def _photo_pair(left_xy, right_xy) -> np.ndarray:
+    """The observations ``(n, 4)``: ``xL, yL, xR, yR`` (mm) of every point, checked.
+
+    Raises :class:`MeasurementError` for arrays of different or wrong shapes, fewer
+    than 5 points or non-finite coordinates.
+    """
+    lxy = np.asarray(left_xy, float)
+    rxy = np.asarray(right_xy, float)
+    _check_point_pairs(lxy, rxy, 2, 5, MeasurementError, _PAIR_MESSAGES)
+    return np.hstack([lxy, rxy])
+
+
+#: messages of :func:`_photo_pair` (:func:`_check_point_pairs`)
+_PAIR_MESSAGES = (
+    ("Relative orientation: left ({a}) and right ({b}) photo coordinates must both be "
+     "(n, 2) arrays of the same points",
+     "Give one row per point with its x, y on each photo"),
+    ("Relative orientation needs at least 5 points measured on both photos; got {n}",
+     "Measure more tie points in the overlap (6 or more, spread like the von Gruber points)"),
+    ("Relative orientation: photo coordinates contain NaN or inf",
+     "Remove or complete the incomplete measurements"),
+)
+
+
+def _variance_factor(w: np.ndarray, v: np.ndarray, n: int,
+                     a_posteriori: bool) -> tuple[int, float, float]:
+    """Degrees of freedom ``n - 5``, ``s0`` and the factor of the covariances."""
+    dof = n - 5
+    vtpv = float(np.sum(w * v * v))
+    s0 = float(np.sqrt(vtpv / dof)) if dof > 0 else float("nan")
+    scale = s0**2 if a_posteriori else 1.0
+    return dof, s0, scale

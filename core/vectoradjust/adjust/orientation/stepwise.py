@@ -115,6 +115,34 @@ def two_step(
     ControlError
         Unknown control ids, fewer than 3 control points, collinear control.
     """
+    ids, cidx, cxyz = _control_index(ids, control_ids, control_xyz)
+    k = len(cidx)
+    ro = relative_orientation(left_xy, right_xy, f, bx=bx, sigma=image_sigma, method=method,
+                              a_posteriori=False)
+    sel = (3 * cidx[:, None] + np.arange(3)).ravel()
+    c_mm = ro.cov_model
+    c_gg = _cov3(control_sigma, k, "Two-step orientation (control)")
+    ao = conformal3d(ro.model_xyz[cidx], cxyz, cov_model=c_mm[np.ix_(sel, sel)],
+                     cov_ground=c_gg, method="gauss-helmert", a_posteriori=False)
+    ground, cov_classical = ao.transform(ro.model_xyz, c_mm, full=True)
+    cov = _rigorous_cov(ro.model_xyz, c_mm, c_gg, ao, sel)
+    return TwoStep(
+        ids=ids,
+        ground_xyz=ground,
+        cov=0.5 * (cov + cov.T),
+        cov_classical=0.5 * (cov_classical + cov_classical.T),
+        relative=ro,
+        absolute=ao,
+        control_index=cidx,
+    )
+
+
+def _control_index(ids, control_ids, control_xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Check the ids and the control; return ``ids``, the control rows and their XYZ.
+
+    Raises :class:`MeasurementError` for duplicate ids and :class:`ControlError` for
+    unknown control ids, fewer than 3 control points or coordinates of the wrong shape.
+    """
     ids = np.asarray(ids)
     n = len(ids)
     if len(np.unique(ids)) != n:
@@ -146,31 +174,26 @@ def two_step(
             f"({k}, 3)",
             "Give X, Y, Z for every control id",
         )
-    ro = relative_orientation(left_xy, right_xy, f, bx=bx, sigma=image_sigma, method=method,
-                              a_posteriori=False)
-    sel = (3 * cidx[:, None] + np.arange(3)).ravel()
-    c_mm = ro.cov_model
-    c_gg = _cov3(control_sigma, k, "Two-step orientation (control)")
-    ao = conformal3d(ro.model_xyz[cidx], cxyz, cov_model=c_mm[np.ix_(sel, sel)],
-                     cov_ground=c_gg, method="gauss-helmert", a_posteriori=False)
-    ground, cov_classical = ao.transform(ro.model_xyz, c_mm, full=True)
-    # rigorous: params = params(model_c, ground_c), so
-    # d ground = (I kron sR + F1 K_m S) d model + F1 K_g d control
-    f1 = ao.jacobian_params(ro.model_xyz)  # (3n, 7)
-    k_m = ao.sensitivity[:, : 3 * k]
-    k_g = ao.sensitivity[:, 3 * k:]
+    return ids, cidx, cxyz
+
+
+def _rigorous_cov(model_xyz: np.ndarray, c_mm: np.ndarray, c_gg: np.ndarray, ao: Conformal3D,
+                  sel: np.ndarray) -> np.ndarray:
+    """Covariance ``(3n, 3n)`` of the ground points, the absolute orientation's
+    parameters being functions of the model and ground control coordinates.
+
+    ``d ground = (I kron sR + F1 K_m S) d model + F1 K_g d control`` with ``F1`` the
+    Jacobian of the transformed points by the 7 parameters, ``K_m, K_g`` the
+    parameters' sensitivities to the model and ground control, ``S`` the selection of
+    the control rows ``sel``.
+    """
+    k3 = len(sel)
+    f1 = ao.jacobian_params(model_xyz)  # (3n, 7)
+    k_m = ao.sensitivity[:, :k3]
+    k_g = ao.sensitivity[:, k3:]
     sr = ao.scale * ao.rotation
     km_sig = k_m @ c_mm[sel, :]  # K_m S Sigma_mm  (7, 3n)
     cross = f1 @ _right_apply(km_sig, sr)  # F1 K_m S Sigma (I kron sR)'
     inner = km_sig[:, sel] @ k_m.T + k_g @ c_gg @ k_g.T
-    cov = _sandwich(sr, c_mm) + cross + cross.T + f1 @ inner @ f1.T
-    return TwoStep(
-        ids=ids,
-        ground_xyz=ground,
-        cov=0.5 * (cov + cov.T),
-        cov_classical=0.5 * (cov_classical + cov_classical.T),
-        relative=ro,
-        absolute=ao,
-        control_index=cidx,
-    )
+    return _sandwich(sr, c_mm) + cross + cross.T + f1 @ inner @ f1.T
 

@@ -226,47 +226,7 @@ def refine(
     ch = _Chain(
         camera, affine, unit, flying_height, terrain_height, corrections, image_id, xy.shape[:-1]
     )
-    steps: dict[str, dict[str, Any]] = {s: {"applied": False, "max_um": None} for s in STEPS}
-
-    def size(a: np.ndarray, b: np.ndarray) -> float:
-        if a.size == 0:
-            return 0.0
-        d = a - b
-        return float(np.max(np.hypot(d[..., 0], d[..., 1]))) * 1000.0
-
-    out = ch.to_photo(xy)
-    if ch.affine is not None:
-        steps["affine"] = {
-            "applied": True,
-            "max_um": None if ch.unit == "pixel" else size(out, xy),
-        }
-    elif ch.digital:
-        steps["pixel_to_photo"] = {"applied": True, "max_um": None}
-    if ch.pp_applied:
-        new = out - ch.pp
-        steps["principal_point"] = {"applied": True, "max_um": size(new, out)}
-        out = new
-    if ch.dist_applied:
-        new = ch.lens(out)
-        steps["distortion"] = {
-            "applied": True,
-            "max_um": size(new, out),
-            "model": ch.cam.distortion_model,
-        }
-        out = new
-    if ch.refr_applied:
-        new = ch.refraction(out)
-        k = np.asarray(ardc_k(ch.H / 1000.0, ch.h / 1000.0))
-        steps["refraction"] = {
-            "applied": True,
-            "max_um": size(new, out),
-            "K_urad": float(np.max(k)) * 1e6 if k.size else None,
-        }
-        out = new
-    if ch.curv_applied:
-        new = ch.curvature(out)
-        steps["earth_curvature"] = {"applied": True, "max_um": size(new, out)}
-        out = new
+    out, steps = _run_steps(ch, xy)
     summary = {
         "image_id": image_id,
         "input_unit": ch.unit,
@@ -275,6 +235,54 @@ def refine(
         "principal_point": (0.0, 0.0) if ch.pp_applied else tuple(ch.cam.principal_point),
     }
     return RefineResult(out, summary)
+
+
+def _step_size(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest shift (um) between the coordinates ``a`` and ``b`` (mm); 0 for none."""
+    if a.size == 0:
+        return 0.0
+    d = a - b
+    return float(np.max(np.hypot(d[..., 0], d[..., 1]))) * 1000.0
+
+
+def _run_steps(ch: _Chain, xy: np.ndarray) -> tuple[np.ndarray, dict[str, dict[str, Any]]]:
+    """Apply the chain's steps in order; the refined coordinates and each step's record
+    (``applied``, ``max_um`` and, for some, ``model`` or ``K_urad``)."""
+    steps: dict[str, dict[str, Any]] = {s: {"applied": False, "max_um": None} for s in STEPS}
+    out = ch.to_photo(xy)
+    if ch.affine is not None:
+        steps["affine"] = {
+            "applied": True,
+            "max_um": None if ch.unit == "pixel" else _step_size(out, xy),
+        }
+    elif ch.digital:
+        steps["pixel_to_photo"] = {"applied": True, "max_um": None}
+    if ch.pp_applied:
+        new = out - ch.pp
+        steps["principal_point"] = {"applied": True, "max_um": _step_size(new, out)}
+        out = new
+    if ch.dist_applied:
+        new = ch.lens(out)
+        steps["distortion"] = {
+            "applied": True,
+            "max_um": _step_size(new, out),
+            "model": ch.cam.distortion_model,
+        }
+        out = new
+    if ch.refr_applied:
+        new = ch.refraction(out)
+        k = np.asarray(ardc_k(ch.H / 1000.0, ch.h / 1000.0))
+        steps["refraction"] = {
+            "applied": True,
+            "max_um": _step_size(new, out),
+            "K_urad": float(np.max(k)) * 1e6 if k.size else None,
+        }
+        out = new
+    if ch.curv_applied:
+        new = ch.curvature(out)
+        steps["earth_curvature"] = {"applied": True, "max_um": _step_size(new, out)}
+        out = new
+    return out, steps
 
 
 def distort(

@@ -178,6 +178,26 @@ def fit_fiducial_affine(
     """
     img = _image_label(image_id)
     unit = _check_unit(unit, img)
+    calibrated, pixel_size = _calibrated_fiducials(calibrated, pixel_size, img, image_id)
+    uv, xy, ids = _fiducial_pairs(measured, calibrated, img, image_id)
+    _check_fiducials(uv, xy, ids, img, image_id)
+    params, v = _solve_affine(uv, xy, ids, img, image_id)
+    stats = _residual_stats(v, pixel_size, img)
+    return AffineFit(
+        params=params,
+        ids=ids,
+        measured=uv,
+        calibrated=xy,
+        residuals=v,
+        unit=unit,
+        image_id=image_id,
+        **stats,
+    )
+
+
+def _calibrated_fiducials(calibrated: Any, pixel_size: Any, img: str,
+                          image_id: str | None) -> tuple[Any, Any]:
+    """A camera's calibrated fiducials and pixel size (when not given); others unchanged."""
     if isinstance(calibrated, CameraCalibration):
         if pixel_size is None:
             pixel_size = calibrated.pixel_size
@@ -188,10 +208,16 @@ def fit_fiducial_affine(
                 details={"image_id": image_id, "key": "fiducials"},
             )
         calibrated = calibrated.fiducials
-    uv, xy, ids = _fiducial_pairs(measured, calibrated, img, image_id)
-    _check_fiducials(uv, xy, ids, img, image_id)
-    n = len(ids)
-    params, v = _solve_affine(uv, xy, ids, img, image_id)
+    return calibrated, pixel_size
+
+
+def _residual_stats(v: np.ndarray, pixel_size: Any, img: str) -> dict[str, Any]:
+    """The fit statistics of :class:`AffineFit` from the residuals ``v (n, 2)`` (mm).
+
+    ``rms_um, max_um, sigma0_um`` (None without redundancy), ``rms_px, max_px`` (None
+    without a pixel size), ``redundancy``, ``pixel_size`` and ``note``.
+    """
+    n = len(v)
     redundancy = 2 * n - 6
     vtv = float(np.sum(v * v))
     rms_um = float(np.sqrt(vtv / (2 * n))) * 1000.0
@@ -209,23 +235,8 @@ def fit_fiducial_affine(
             "exactly 3 fiducials: the affine fits them exactly (no redundancy); the "
             "residuals are zero and do not check the interior orientation"
         )
-    return AffineFit(
-        params=params,
-        ids=ids,
-        measured=uv,
-        calibrated=xy,
-        residuals=v,
-        rms_um=rms_um,
-        max_um=max_um,
-        sigma0_um=sigma0_um,
-        rms_px=rms_px,
-        max_px=max_px,
-        redundancy=redundancy,
-        unit=unit,
-        pixel_size=ps,
-        image_id=image_id,
-        note=note,
-    )
+    return {"rms_um": rms_um, "max_um": max_um, "sigma0_um": sigma0_um, "rms_px": rms_px,
+            "max_px": max_px, "redundancy": redundancy, "pixel_size": ps, "note": note}
 
 
 def _fiducial_pairs(measured: Any, calibrated: Any, img: str,

@@ -100,11 +100,28 @@ def _as_col_row(result) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(col, dtype=float).ravel(), np.asarray(row, dtype=float).ravel()
 
 
+def _normalised(pts, off, scale) -> list:
+    """Ground coordinates ``(lon, lat, h)`` normalised by the RPC offsets and scales."""
+    return [(p - o) / sc for p, o, sc in zip(pts, off, scale)]
+
+
+def _fit_pixel_coordinate(terms, v, check_terms, v_check, v_off: float, v_scale: float,
+                          s: float, ridges, iterations: int):
+    """Fit one image coordinate (line or sample) as a ratio of the ``terms``.
+
+    ``v`` and ``v_check`` are the coordinate (``origin`` convention, shift ``s``) at the
+    nodes and the check points, ``v_off, v_scale`` its RPC offset and scale. Returns
+    the numerator, the denominator and the misfit at the check points (px).
+    """
+    num, den = _fit_coordinate(terms, (v - s - v_off) / v_scale, check_terms,
+                               (v_check - s - v_off) / v_scale, ridges, iterations)
+    misfit = (check_terms @ num) / (check_terms @ den) * v_scale + v_off - (v_check - s)
+    return num, den, misfit
+
+
 def fit_rpc(
     project_fn: Callable,
-    lon_range: Sequence[float],
-    lat_range: Sequence[float],
-    h_range: Sequence[float],
+    lon_range: Sequence[float], lat_range: Sequence[float], h_range: Sequence[float],
     size: tuple[int, int],
     *,
     grid: tuple[int, int, int] = (20, 20, 7),
@@ -163,22 +180,16 @@ def fit_rpc(
     scale = [0.5 * (hi - lo) for lo, hi in ranges]
     samp_off, samp_scale = 0.5 * n_cols, 0.5 * n_cols
     line_off, line_scale = 0.5 * n_rows, 0.5 * n_rows
-
-    def normalised(pts):
-        return [(p - o) / sc for p, o, sc in zip(pts, off, scale)]
-
     ridges = np.atleast_1d(np.asarray(ridge, dtype=float))
     nodes, check = _grid(ranges, grid, False), _grid(ranges, grid, True)
-    terms, t = rpc_terms(*normalised(nodes)), rpc_terms(*normalised(check))
+    terms = rpc_terms(*_normalised(nodes, off, scale))
+    t = rpc_terms(*_normalised(check, off, scale))
     col, row = _as_col_row(project_fn(*nodes))
     col_k, row_k = _as_col_row(project_fn(*check))
-    line_num, line_den = _fit_coordinate(terms, (row - s - line_off) / line_scale, t,
-                                         (row_k - s - line_off) / line_scale, ridges, iterations)
-    samp_num, samp_den = _fit_coordinate(terms, (col - s - samp_off) / samp_scale, t,
-                                         (col_k - s - samp_off) / samp_scale, ridges, iterations)
-    col, row = col_k, row_k
-    d_row = (t @ line_num) / (t @ line_den) * line_scale + line_off - (row - s)
-    d_col = (t @ samp_num) / (t @ samp_den) * samp_scale + samp_off - (col - s)
+    line_num, line_den, d_row = _fit_pixel_coordinate(terms, row, t, row_k, line_off,
+                                                      line_scale, s, ridges, iterations)
+    samp_num, samp_den, d_col = _fit_pixel_coordinate(terms, col, t, col_k, samp_off,
+                                                      samp_scale, s, ridges, iterations)
     radial = np.hypot(d_col, d_row)
     rpc = RpcModel(
         line_off=line_off, samp_off=samp_off, lat_off=off[1], long_off=off[0],

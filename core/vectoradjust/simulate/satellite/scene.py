@@ -257,6 +257,28 @@ def _observe(rpcs, sensors, true_bias, lon, lat, h, sigma_px, rng):
     return tuple(np.concatenate(a) for a in (pts, imgs, cols, rows))
 
 
+def _sensors(area: SceneArea, n_images: int, rng: np.random.Generator, drift_sigma,
+             **geometry) -> list:
+    """The true pushbroom sensors (:func:`stereo_sensors` with ``geometry``: base_to_height,
+    altitude, gsd, size) with random attitude drift and yaw (drawn in that order)."""
+    drift = rng.normal(0.0, 1.0, (n_images, 3, 2)) * np.asarray(drift_sigma, float)
+    return stereo_sensors(area.lon, area.lat, area.h_mean, n_images, drift=drift,
+                          yaw=rng.normal(0.0, 10.0 * drift_sigma[0], n_images), **geometry)
+
+
+def _fit_rpcs(sensors: list, rpc_h_range) -> tuple[list, list, list]:
+    """The RPCs fitted to every sensor over its image domain and their misfits (RMS, max)."""
+    rpcs, rms, worst = [], [], []
+    for s in sensors:
+        lon_r, lat_r = image_domain(s, rpc_h_range)
+        rpc, r, m = fit_rpc(lambda lo, la, hh, s=s: pushbroom_project(s, lo, la, hh),
+                            lon_r, lat_r, rpc_h_range, s.size, source=f"<simulated {s.name}>")
+        rpcs.append(rpc)
+        rms.append(r)
+        worst.append(m)
+    return rpcs, rms, worst
+
+
 def satellite_scenario(
     n_images: int = 2,
     bias: str = "shift",
@@ -264,18 +286,12 @@ def satellite_scenario(
     seed: int = 0,
     ground: Union[SceneArea, GroundPoints, None] = None,
     *,
-    sigma_px: float = 0.3,
-    linear_size_px: Optional[float] = None,
-    base_to_height: float = 0.6,
-    altitude: float = 600e3,
-    gsd: float = 0.5,
+    sigma_px: float = 0.3, linear_size_px: Optional[float] = None,
+    base_to_height: float = 0.6, altitude: float = 600e3, gsd: float = 0.5,
     image_size: tuple[int, int] = (8000, 8000),
     rpc_h_range: tuple[float, float] = (-100.0, 500.0),
     drift_sigma: tuple[float, float] = (1e-5, 1e-5),
-    n_control: int = 6,
-    n_check: int = 10,
-    n_tie: int = 30,
-    n_road: int = 60,
+    n_control: int = 6, n_check: int = 10, n_tie: int = 30, n_road: int = 60,
     geometry_seed: Optional[int] = None,
 ) -> SatelliteScenario:
     """A simulated satellite stereo scene with known truth.
@@ -328,20 +344,9 @@ def satellite_scenario(
     geo_seed = seed if geometry_seed is None else geometry_seed
     area, ids, kinds, lon, lat, h = _ground_points(
         ground, geo_seed, (n_control, n_check, n_tie, n_road))
-    rng = _rng(geo_seed, "attitude")
-    drift = rng.normal(0.0, 1.0, (n_images, 3, 2)) * np.asarray(drift_sigma, float)
-    sensors = stereo_sensors(area.lon, area.lat, area.h_mean, n_images,
-                             base_to_height=base_to_height, altitude=altitude, gsd=gsd,
-                             size=image_size, drift=drift,
-                             yaw=rng.normal(0.0, 10.0 * drift_sigma[0], n_images))
-    rpcs, rms, worst = [], [], []
-    for s in sensors:
-        lon_r, lat_r = image_domain(s, rpc_h_range)
-        rpc, r, m = fit_rpc(lambda lo, la, hh, s=s: pushbroom_project(s, lo, la, hh),
-                            lon_r, lat_r, rpc_h_range, s.size, source=f"<simulated {s.name}>")
-        rpcs.append(rpc)
-        rms.append(r)
-        worst.append(m)
+    sensors = _sensors(area, n_images, _rng(geo_seed, "attitude"), drift_sigma,
+                       base_to_height=base_to_height, altitude=altitude, gsd=gsd, size=image_size)
+    rpcs, rms, worst = _fit_rpcs(sensors, rpc_h_range)
     linear = bias_size_px / 5.0 if linear_size_px is None else linear_size_px
     true_bias = _draw_bias(bias, bias_size_px, linear, n_images, _rng(seed, "bias"))
     obs = _observe(rpcs, sensors, true_bias, lon, lat, h, sigma_px, _rng(seed, "noise"))
