@@ -1,8 +1,11 @@
 """The conflation's covariance fit in closed form (issue 32): the leave-one-out score's
-analytic gradient against central differences, the nugget profile from one
-eigendecomposition against the score evaluated nugget by nugget, the box-constrained
-quasi-Newton search against known minima, and the fit against an independent
-derivative-free search of the same score.
+analytic gradient against central differences, the score from the distinct distances
+against the kriging systems built entry by entry, the expected Hessian's start of the
+quasi-Newton search against the identity's (same models, fewer scores), the downhill
+lattice polish against the full one, the nugget profile from one eigendecomposition
+against the score evaluated nugget by nugget, the box-constrained quasi-Newton search
+against known minima, and the fit against an independent derivative-free search of the
+same score.
 """
 
 from __future__ import annotations
@@ -14,12 +17,14 @@ from vectoradjust.accuracy.conflation import (
     CovarianceModel,
     _fit_white,
     _loo_score,
+    _loo_score_fisher,
     _loo_score_grad,
     _loo_setup,
     _nugget_scores,
     _projected_bfgs,
     fit_covariance,
 )
+from vectoradjust.accuracy.conflation import covariance as conf_cov
 
 
 def _points(seed: int, n: int = 120, shared: bool = False):
@@ -168,3 +173,121 @@ def test_no_field_means_not_conflated(monkeypatch):
     assert e["status"].startswith("not done: 0 of ")
     assert d.conflation is None
     assert not np.isin(d.vertices["Source"], ("interpolated", "extrapolated")).any()
+
+
+def _score_entry_by_entry(theta, kind, setup, resid, noise):
+    """The leave-one-out score as before issue 32's gather: every kriging system built
+    from its own distances (:func:`_system`) and solved."""
+    tgt, dist, idx, dd, corr = setup[:5]
+    cov = CovarianceModel(kind, theta[1], theta[2], theta[0])
+    a, c = conf_cov._system(cov, dd, dist, noise[idx], None if corr is None else corr[idx],
+                            None if corr is None else corr[tgt])
+    w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
+    e = resid[tgt] - np.einsum("bk,bkc->bc", w, resid[idx])
+    sig = cov.sill - np.einsum("bk,bk->b", w, c)
+    s2 = (np.maximum(sig, 0.0) if corr is None else sig) + cov.nugget + noise[tgt]
+    if not np.all(s2 > 0):
+        return float("inf")
+    return float(np.sum(resid.shape[1] * np.log(s2) + (e ** 2).sum(axis=1) / s2))
+
+
+@pytest.mark.parametrize("kind", ["exponential", "gaussian"])
+@pytest.mark.parametrize("shared", [False, True])
+def test_the_score_from_distinct_distances_is_the_systems_score(kind, shared):
+    xy, resid, noise, corr = _points(4, shared=shared)
+    xy[:10] = xy[10:20]  # repeated positions: equal distances, zero distances
+    setup = _loo_setup(xy, 12, 1000, corr=corr)
+    assert len(setup.lags) < setup.dd.size / 2  # the covariance is evaluated far less often
+    finite = 0
+    for theta in ([0.3, 1.2, 60.0], [0.5, 4.0, 150.0], [0.2, 0.0, 0.0], [0.05, 2.0, 30.0]):
+        fast = _loo_score(theta, kind, setup, resid, noise)
+        slow = _score_entry_by_entry(theta, kind, setup, resid, noise)
+        assert fast == pytest.approx(slow, rel=1e-11)  # inf alike (not admissible)
+        finite += np.isfinite(slow)
+    assert finite >= 2
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_the_expected_hessian_is_symmetric_and_positive(shared):
+    xy, resid, noise, corr = _points(5, shared=shared)
+    setup = _loo_setup(xy, 12, 1000, corr=corr)
+    for kind in ("exponential", "gaussian"):
+        x = np.log([0.3, 1.2, 60.0])
+        value, grad, hess = _loo_score_fisher(x, kind, setup, resid, noise)
+        v2, g2 = _loo_score_grad(x, kind, setup, resid, noise)
+        assert value == v2 and np.array_equal(grad, g2)
+        assert np.allclose(hess, hess.T, rtol=1e-12, atol=1e-12)
+        assert np.linalg.eigvalsh(hess).min() > 0
+
+
+def _simulated(seed: int, kind: str, n: int = 200, shared: bool = False):
+    rng = np.random.default_rng(seed)
+    true = CovarianceModel(kind, 3.0, 100.0, 0.2)
+    xy = rng.uniform(0, 700, (n, 2))
+    r = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    z = (np.linalg.cholesky(true(r) + 1e-9 * np.eye(n)) @ rng.normal(size=(n, 2))
+         + rng.normal(0, 0.45, (n, 2)))
+    corr = rng.normal(0, 0.1, (n, 4)) if shared else None
+    return xy, z, np.full(n, 0.05), corr
+
+
+@pytest.mark.parametrize("seed,kind,shared", [(11, "gaussian", False),
+                                              (12, "exponential", False),
+                                              (13, "gaussian", True),
+                                              (14, "exponential", True)])
+def test_the_hessian_start_finds_the_identity_starts_model_with_fewer_scores(
+        seed, kind, shared, monkeypatch):
+    """Issue 32: the quasi-Newton search started from the expected Hessian and the
+    downhill lattice polish choose the model that the search started from the identity
+    with the full polish chose (the fit before), with fewer scores."""
+    xy, z, noise, corr = _simulated(seed, kind, shared=shared)
+    calls = {"n": 0}
+    real_fisher, real_grad, real_score = (conf_cov._loo_score_fisher,
+                                          conf_cov._loo_score_grad, conf_cov._loo_score)
+
+    def counted(fun):
+        def wrapped(*a, **kw):
+            calls["n"] += 1
+            return fun(*a, **kw)
+        return wrapped
+
+    monkeypatch.setattr(conf_cov, "_loo_score_grad", counted(real_grad))
+    monkeypatch.setattr(conf_cov, "_loo_score", counted(real_score))
+    monkeypatch.setattr(conf_cov, "_loo_score_fisher", counted(real_fisher))
+    new = fit_covariance(xy, z, noise, kind, corr=corr)
+    n_new = calls["n"]
+    # before: no Hessian (the identity start), every lattice neighbour scored
+    calls["n"] = 0
+    monkeypatch.setattr(conf_cov, "_loo_score_fisher", lambda *a: counted(real_grad)(*a))
+    plain_lattice = conf_cov._lattice_min
+    monkeypatch.setattr(conf_cov, "_lattice_min",
+                        lambda f, x, lo, hi, max_moves=200, fg=None:
+                        plain_lattice(f, x, lo, hi, max_moves=max_moves))
+    old = fit_covariance(xy, z, noise, kind, corr=corr)
+    n_old = calls["n"]
+    assert new.kind == old.kind and new.fit["status"] == old.fit["status"]
+    for a, b in ((new.fit["nugget_best"], old.fit["nugget_best"]), (new.sill, old.sill),
+                 (new.length, old.length)):
+        assert (a > 0) == (b > 0)
+        if a > 0:  # the same lattice point (5 % steps), or its neighbour on the ridge
+            assert abs(np.log(a / b)) <= 0.051
+    assert abs(new.fit["loo_score"] - old.fit["loo_score"]) <= 0.05
+    assert n_new < n_old
+
+
+def test_the_downhill_lattice_polish_equals_the_full_one():
+    rng = np.random.default_rng(3)
+    lo, hi = np.full(3, -5.0), np.full(3, 5.0)
+    for _ in range(20):
+        centre = rng.uniform(-1, 1, 3)
+        m = rng.normal(size=(3, 3))
+        a = m @ m.T + 0.1 * np.eye(3)
+
+        def fg(x, centre=centre, a=a):
+            d = x - centre
+            return float(d @ a @ d), 2 * a @ d
+
+        x0 = centre + rng.normal(0, 0.03, 3)
+        full = conf_cov._lattice_min(lambda x: fg(x)[0], x0, lo, hi, max_moves=1)
+        down = conf_cov._lattice_min(lambda x: fg(x)[0], x0, lo, hi, max_moves=1, fg=fg)
+        assert np.allclose(full[0], down[0]) and full[1] == pytest.approx(down[1])

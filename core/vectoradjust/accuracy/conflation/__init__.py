@@ -72,6 +72,9 @@ from vectoradjust.accuracy.conflation.covariance import (
     _loo_score as _loo_score,
 )
 from vectoradjust.accuracy.conflation.covariance import (
+    _loo_score_fisher as _loo_score_fisher,
+)
+from vectoradjust.accuracy.conflation.covariance import (
     _loo_score_grad as _loo_score_grad,
 )
 from vectoradjust.accuracy.conflation.covariance import (

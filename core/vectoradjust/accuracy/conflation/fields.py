@@ -178,6 +178,8 @@ class _Field:
     cov: Optional[CovarianceModel]
     cv: dict
     wsum: Optional[np.ndarray] = None  # kriging weights' sums of the trend's design
+    band_factor: Optional[np.ndarray] = None  # variance calibration per distance band
+    # (:func:`band_factors`, set with the sill's prior: the CE90 factor needs it)
 
 
 def _fields(xy_m, resid, noise, xy_u, s: ConflationSettings, report, cancel, carry=None,

@@ -1,5 +1,6 @@
 """Simple kriging from the ``k`` nearest measured points (:func:`krige`) and its
-leave-one-out cross-validation (:func:`cross_validate`).
+leave-one-out cross-validation (:func:`cross_validate`), also at the distance bands' distances
+(:func:`band_factors`, the variance calibration by distance).
 
 Heart module: numpy and scipy only.
 """
@@ -13,7 +14,7 @@ import numpy as np
 from vectoradjust.accuracy.conflation.covariance import CovarianceModel, _neighbours, _system
 from vectoradjust.errors import CancelledError
 
-__all__ = ["krige", "cross_validate"]
+__all__ = ["krige", "cross_validate", "band_factors"]
 
 
 def _solve_chunk(models: list, xy_m, dist, idx, tgt=None) -> list:
@@ -161,3 +162,73 @@ def _cv_stats(cov: CovarianceModel, resid, noise, pred, var, factor: float) -> d
             "rmse_trend_only": float(np.sqrt(np.mean((resid ** 2).sum(axis=1)))),
             "share_within_90": float(np.mean(size <= factor * sig)),
             "mean_sigma": float(np.mean(sig))}
+
+
+def band_factors(cov: CovarianceModel, xy_m: np.ndarray, resid: np.ndarray,
+                 noise: np.ndarray, k: int, edges=(0.0, 50.0, 100.0, 200.0, np.inf),
+                 max_targets: int = 1000, min_count: int = 30, seed: int = 0) -> np.ndarray:
+    """Calibration of the horizontal prediction variance per distance band, from
+    leave-one-out errors at the band's distance (docs/method.md section 10).
+
+    The plug-in kriging variance treats the fitted covariance as known; its CE90
+    factor (:func:`ce90_factor`) adds the sill's and the noise's estimation error, not
+    a covariance function of the wrong shape (a Gaussian of 150 m for a field of
+    300-1500 m waves). So the errors are measured where the vertices are: each measured
+    point (at most ``max_targets``, seeded) is predicted from its ``k`` nearest other
+    points at least the band's lower edge away ("h-block" cross-validation: a point 150
+    m from the nearest measured one is predicted from points >= 100 m away), and the
+    band's factor is the mean standardised square error ``z^2 = |e|^2 / (c kappa^2
+    s2)`` (``s2`` the plug-in variance with the database and the point's own noise,
+    ``kappa`` its CE90 factor, ``c`` components), at least 1: the variances are only
+    widened. A band with fewer than ``min_count`` such predictions takes the factor of
+    the band before it (1 for the first).
+
+    Returns
+    -------
+    numpy.ndarray, shape (len(edges) - 1,)
+        The factor of each band ``[edges[j], edges[j + 1])`` of the nearest measured
+        distance.
+    """
+    from scipy.spatial import cKDTree
+
+    from vectoradjust.accuracy.conflation.ce90 import ce90_factor
+
+    m = len(xy_m)
+    out = np.ones(len(edges) - 1)
+    if cov is None or cov.sill <= 0 or cov.length <= 0 or m < k + 2:
+        return out
+    tgt = np.arange(m)
+    if m > max_targets:
+        tgt = np.sort(np.random.default_rng(seed).choice(m, max_targets, replace=False))
+    tree = cKDTree(xy_m)
+    for j, lo in enumerate(edges[:-1]):
+        z2 = _band_z2(cov, tree, xy_m, resid, noise, tgt, k, float(lo), ce90_factor)
+        prev = out[j - 1] if j else 1.0
+        out[j] = max(float(np.mean(z2)), 1.0) if len(z2) >= min_count else prev
+    return out
+
+
+def _band_z2(cov, tree, xy_m, resid, noise, tgt, k: int, lo: float, ce90_factor):
+    """``z^2`` of :func:`band_factors` of the targets that have ``k`` measured points
+    at least ``lo`` away (and not themselves)."""
+    m = len(xy_m)
+    near = (tree.query_ball_point(xy_m[tgt], lo, return_length=True) if lo > 0
+            else np.ones(len(tgt), int))
+    kk = int(min(m, k + int(np.max(near)) + 1))
+    dist, idx = _neighbours(tree, xy_m[tgt], kk, False)
+    ok = (dist >= lo) & (idx != tgt[:, None]) & (dist > 0 if lo > 0 else True)
+    have = ok.sum(axis=1) >= k
+    if not have.any():
+        return np.zeros(0)
+    ok, dist, idx, t = ok[have], dist[have], idx[have], tgt[have]
+    order = np.argsort(~ok, axis=1, kind="stable")[:, :k]  # the first k valid, nearest first
+    dist, idx = np.take_along_axis(dist, order, 1), np.take_along_axis(idx, order, 1)
+    px, py = xy_m[idx, 0], xy_m[idx, 1]
+    dd = np.hypot(px[:, :, None] - px[:, None, :], py[:, :, None] - py[:, None, :])
+    a, c = _system(cov, dd, dist, noise[idx])
+    w = np.linalg.solve(a, c[:, :, None])[:, :, 0]
+    e = resid[t] - np.einsum("bk,bkc->bc", w, resid[idx])
+    s2 = np.maximum(cov.sill - (w * c).sum(axis=1), 0.0) + cov.nugget + noise[t]
+    kap = ce90_factor(cov, cov.sill * (1.0 - w.sum(axis=1)) ** 2, np.full(len(t), cov.nugget),
+                      s2)
+    return (e ** 2).sum(axis=1) / (resid.shape[1] * kap ** 2 * s2)

@@ -13,6 +13,7 @@ import numpy as np
 
 from vectoradjust.accuracy.conflation.ce90 import ce90_factor
 from vectoradjust.accuracy.conflation.covariance import CovarianceModel
+from vectoradjust.accuracy.conflation.coverage import DISTANCE_BANDS
 from vectoradjust.accuracy.conflation.fields import (
     _fields,
     _Trend,
@@ -28,7 +29,7 @@ from vectoradjust.accuracy.conflation.images import (
     _sill_prior,
     image_only,
 )
-from vectoradjust.accuracy.conflation.kriging import _krige_many
+from vectoradjust.accuracy.conflation.kriging import _krige_many, band_factors
 
 __all__ = ["FieldModel"]
 
@@ -57,6 +58,7 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     wsum_h, fh.wsum = _split_weight_sum(fh.wsum, len(u_obj))
     if fh.cov is not None:
         fh.cov.sill_prior = _sill_prior(d.spec, fh.cov)
+        _calibrate(fh, xy_m, resid[:, :2], noise[:, :2].mean(axis=1), s.k)
     disp = t[u_obj] + np.column_stack([fh.pred, fv.pred])
     extra = _trend_field_cov(g_m, xy_m, (fh.cov, fv.cov))
     cov_field = _trend_cov(replace(tr, c=extra, fixed=np.zeros(3)), u_obj, fh.wsum, fv.wsum)
@@ -68,8 +70,9 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
     cov[:, 1, 1] += fh.var + nug_h
     cov[:, 2, 2] += fv.var + nug_v
     kappa = _horizontal_factor(fh.cov, wsum_h, cov_field, cov)
+    cov = _calibrated(cov, fh.band_factor, fh.nearest)
     model = FieldModel(xy_m, resid, noise, fh.cov, fv.cov, rec, tr.mean, tr.mean_var, s.k,
-                       tr.fixed, extra, corr_v)
+                       tr.fixed, extra, corr_v, fh.band_factor)
     info = {"trend": {"offset": rec.get("kind") if rec else None,
                       "axes_from_offset": [a for a, c in zip("XYZ", covered) if c],
                       "axes_from_mean": [a for a, c in zip("XYZ", covered) if not c],
@@ -82,6 +85,29 @@ def _predicted_objects(out, d, rec, s, obj_pt, report, cancel):
                            "vertical": fv.cov.as_dict() if fv.cov else None},
             "cross_validation": {"horizontal": fh.cv, "vertical": fv.cv}}
     return u_obj, disp, cov, kappa, fh, info, model
+
+
+def _calibrate(fh, xy_m, resid, noise, k: int) -> None:
+    """The horizontal field's variance calibration per distance band
+    (:func:`band_factors`, from the measured points with a finite residual), in
+    ``fh.band_factor`` and its cross-validation figures (summary.json)."""
+    ok = np.isfinite(resid).all(axis=1)
+    fh.band_factor = band_factors(fh.cov, xy_m[ok], resid[ok], noise[ok], k, DISTANCE_BANDS)
+    fh.cv["band_factors"] = {"edges": [float(v) for v in DISTANCE_BANDS[:-1]],
+                             "factors": [float(v) for v in fh.band_factor]}
+
+
+def _calibrated(cov: np.ndarray, factor: Optional[np.ndarray], nearest: np.ndarray):
+    """``cov`` (n, 3, 3) with its horizontal block times the calibration factor of each
+    point's distance band (:func:`band_factors`; the X-Y covariances too, the
+    covariances with Z by its root); unchanged without factors."""
+    if factor is None or not len(cov):
+        return cov
+    band = np.clip(np.searchsorted(np.asarray(DISTANCE_BANDS), nearest, side="right") - 1,
+                   0, len(factor) - 1)
+    r = np.ones((len(cov), 3))
+    r[:, :2] = np.sqrt(np.asarray(factor, float)[band])[:, None]
+    return cov * r[:, :, None] * r[:, None, :]
 
 
 def _split_weight_sum(wsum: Optional[np.ndarray], n: int):
@@ -139,6 +165,8 @@ class FieldModel:
         (:func:`_trend_field_cov`).
     corr_v : numpy.ndarray, shape (m, r), optional
         The images' height error the measured points share (:func:`_orientation_basis`).
+    band_factor : numpy.ndarray, optional
+        The horizontal variance's calibration per distance band (:func:`band_factors`).
     """
 
     xy: np.ndarray
@@ -153,6 +181,7 @@ class FieldModel:
     fixed: np.ndarray = field(default_factory=lambda: np.zeros(3))
     trend_field_cov: Optional[np.ndarray] = None
     corr_v: Optional[np.ndarray] = None
+    band_factor: Optional[np.ndarray] = None
 
     def predict(self, xy: np.ndarray, ce90_factor: bool = False):
         """Displacement (n, 3) and its variance per axis (n, 3) at ``xy`` (n, 2).
@@ -184,15 +213,21 @@ class FieldModel:
             if i == 0:  # and the weights' sum (_split_weight_sum)
                 carry = np.column_stack([carry, np.ones(len(carry))])
             u = None if i == 0 or self.corr_v is None else self.corr_v[ok]
-            ((pred, kv, ws[i]),), _ = _krige_many(
+            ((pred, kv, ws[i]),), near = _krige_many(
                 [(cov, self.resid[ok][:, cols], self.noise[ok][:, cols].mean(axis=1), carry,
                   u)], self.xy[ok], xy, self.k)
             disp[:, cols] += pred
             var[:, cols] += (kv + cov.nugget)[:, None]
             if i == 0:
                 wsum_h, ws[0] = _split_weight_sum(ws[0], len(xy))
+                near_h = near
         tcov = _trend_cov(tr, slice(None), *ws)
         var = var + np.einsum("nii->ni", tcov)
+        plug_in = var
+        if self.cov_h is not None and self.band_factor is not None:
+            # the calibration per distance band (near: that of the horizontal field)
+            var = np.einsum("nii->ni", _calibrated(var[:, :, None] * np.eye(3), self.band_factor,
+                                                    near_h))
         if not ce90_factor:
             return disp, var
         if self.cov_h is None:
@@ -200,6 +235,6 @@ class FieldModel:
         tfield = (np.zeros_like(tr.c) if self.trend_field_cov is None
                   else np.asarray(self.trend_field_cov, float))
         fcov = _trend_cov(replace(tr, c=tfield, fixed=np.zeros(3)), slice(None), *ws)
-        cov = np.zeros((len(xy), 3, 3))
-        cov[:, 0, 0], cov[:, 1, 1] = var[:, 0], var[:, 1]
+        cov = np.zeros((len(xy), 3, 3))  # the factor of the plug-in variance, as the vertices'
+        cov[:, 0, 0], cov[:, 1, 1] = plug_in[:, 0], plug_in[:, 1]
         return disp, var, _horizontal_factor(self.cov_h, wsum_h, fcov, cov)

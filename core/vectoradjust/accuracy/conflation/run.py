@@ -75,16 +75,8 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
                       f"{s.min_points}", **info,
                       "vertices": {k: int((source == k).sum()) for k in SOURCES}})
         return entry
-    nobj = d.shape.n_objects
     db = d.shape.object_xyz
-    adj_o = np.full((nobj, 3), np.nan)
-    cov_o = np.full((nobj, 3, 3), np.nan)
-    near_o = np.full(nobj, np.inf)
-    kappa_o = np.ones(nobj)
-    adj_o[u_obj] = db[u_obj] + np.where(np.isfinite(disp), disp, 0.0)
-    cov_o[u_obj] = cov
-    kappa_o[u_obj] = kappa
-    near_o[u_obj] = fh.nearest
+    adj_o, cov_o, near_o, kappa_o = _per_object(d, u_obj, disp, cov, kappa, fh.nearest)
     cov_m = fh.cov
     if cov_m is None:  # no field fitted (too few finite residuals)
         maxd = s.max_distance or np.inf
@@ -105,6 +97,22 @@ def conflate_database(out, d, rec: Optional[dict], s: ConflationSettings,
                   "vertices": {k: int((source == k).sum()) for k in SOURCES},
                   "truth": _truth_check(out, d, meas_v, source, near_o[vo])})
     return entry
+
+
+def _per_object(d, u_obj, disp, cov, kappa, nearest):
+    """Adjusted position, covariance, nearest measured distance and CE90 factor per
+    object point of ``d`` (the predicted ones ``u_obj``; NaN, inf and 1 elsewhere)."""
+    nobj = d.shape.n_objects
+    db = d.shape.object_xyz
+    adj_o = np.full((nobj, 3), np.nan)
+    cov_o = np.full((nobj, 3, 3), np.nan)
+    near_o = np.full(nobj, np.inf)
+    kappa_o = np.ones(nobj)
+    adj_o[u_obj] = db[u_obj] + np.where(np.isfinite(disp), disp, 0.0)
+    cov_o[u_obj] = cov
+    kappa_o[u_obj] = kappa
+    near_o[u_obj] = nearest
+    return adj_o, cov_o, near_o, kappa_o
 
 
 def inside_hull(points: np.ndarray, query: np.ndarray, chunk: int = 65536) -> np.ndarray:
