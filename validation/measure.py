@@ -49,6 +49,12 @@ A. Transfer L -> R of ``points`` random ground points in the overlap, measured e
 B. Prediction windows: share of true positions inside the 99.9 % ellipse, over 50 draws of
    the orientation error and database errors (3 m horizontal, 2 m vertical).
 C. Road junctions: accepted share and errors (pixels) against the true road crossings.
+D. Transfer search windows (issue 28): over draws of both images' orientation errors
+   (the pair's sigmas), a DEM height error (2 m, one per draw) and 0.5 px of pointing
+   noise on L, the share of homologous points (the true terrain point of the noisy
+   reference pixel, seen on the true R) inside what the transfer searches: the
+   ellipse of :func:`vectoradjust.files.measuring.transfer_window` within the
+   40 px radius cap.
 
 Acceptance (issue 15): A >= 95 % of well-textured points within 0.3 px, no accepted match
 worse than 1 px; B >= 99 %. Checked per pair (exit status 1 when one is missed;
@@ -62,6 +68,8 @@ validation/acceptance.py; shares against the binomial quantile of the ``n`` samp
    points of one draw and image share its orientation error: the design effect is
    measured between the draws);
 5. C: median error of the accepted road junctions at most 0.5 px (README: 0.2-0.3 px).
+6. D: homologous points inside the searched transfer windows at least 99 %, less
+   sampling (design effect between the draws; issue 28).
 """
 
 from __future__ import annotations
@@ -82,6 +90,7 @@ from vectoradjust.files.measuring import (  # noqa: E402
     measure_roads,
     predict,
     transfer,
+    transfer_window,
 )
 from vectoradjust.measure.geometry import (  # noqa: E402
     ImageGeometry,
@@ -406,6 +415,52 @@ def window_study(pair, seed, draws=50, n=500):
     return np.concatenate(inside).mean(), sum(counts), design_effect(hits, counts)
 
 
+def transfer_window_study(pair, seed, draws=20, n=300, sigma_height=2.0, sigma_ref=0.5,
+                          max_radius=40.0):
+    """D: the transfer L -> R's search window holds the homologous point (issue 28).
+
+    Per draw both images' orientations are drawn about the truth with the pair's sigmas,
+    the DEM is off by a height error drawn with ``sigma_height`` (one per draw) and each
+    reference point is measured on L with ``sigma_ref`` px of pointing noise per axis;
+    the homologous point is the true terrain point of that noisy pixel seen on the TRUE
+    R. Returns the share inside the ellipse (:func:`transfer_window`, the window the
+    matching searches before its radius cap), the share inside what is searched (also
+    within ``max_radius`` in the reference geometry), the share of windows clipped, the
+    number of samples, the design effect between the draws and the share inside the
+    90 % ellipse of the same covariance (90 % when the covariance is right; more: the
+    windows are larger than they need be).
+    """
+    from vectoradjust.measure.geometry import WINDOW_K, inv2, window_axes
+
+    rng = np.random.default_rng(seed + 200)
+    _, pl, _ = _points(pair, n, seed + 300)
+    ell, searched, clipped, in90 = [], [], [], []
+    for _ in range(draws):
+        g = {iid: ImageGeometry(iid, t.eo + rng.normal(0, 1, 6) * pair.approx[iid].sigma_eo,
+                                t.camera, t.corrections, None, None, pair.approx[iid].sigma_eo)
+             for iid, t in pair.true.items()}
+        dh = rng.normal(0, sigma_height)
+        ref = pl + rng.normal(0, sigma_ref, pl.shape)
+        target = pair.true["R"].to_pixel(pair.true["L"].to_ground(ref, pair.scene.height))
+        pred, a, cov, _ = transfer_window(g["L"], g["R"], ref,
+                                          lambda xy, dh=dh: pair.scene.height(xy) + dh,
+                                          sigma_height, sigma_ref)
+        d = target - pred
+        c = cov + (0.5 / WINDOW_K) ** 2 * np.eye(2)
+        m2 = np.einsum("ni,nij,nj->n", d, inv2(c), d)
+        inside = m2 <= WINDOW_K**2
+        in90.append(m2 <= -2.0 * np.log(0.1))
+        ref_d = np.einsum("nij,nj->ni", inv2(a), d)
+        ell.append(inside)
+        searched.append(inside & (np.hypot(*ref_d.T) <= max_radius))
+        ai = inv2(a)
+        clipped.append(window_axes(ai @ cov @ np.swapaxes(ai, 1, 2))[:, 0] > max_radius)
+    hits, counts = [int(h.sum()) for h in searched], [len(h) for h in searched]
+    return (np.concatenate(ell).mean(), np.concatenate(searched).mean(),
+            np.concatenate(clipped).mean(), sum(counts), design_effect(hits, counts),
+            np.concatenate(in90).mean())
+
+
 def road_study(pair, seed):
     j = pair.junctions
     n = len(j)
@@ -430,7 +485,7 @@ def criteria(pairs: list) -> Criteria:
     """The acceptance criteria of the module docstring, per pair."""
     a = 0.01 / (3 * len(pairs))
     crit = Criteria(f"measuring on {len(pairs)} rendered pair(s)")
-    for name, ta, tb, tc in pairs:
+    for name, ta, tb, tc, td in pairs:
         crit.add(f"{name} A well-textured within 0.3 px ({ta['n_wt']})", ta["wt_within_0.3"],
                  share_band(ta["n_wt"], 0.95, 1.0, a)[0], 1.0, "issue 15")
         crit.add(f"{name} A worst accepted transfer (px)", ta["worst_accepted"], 0.0, 1.0,
@@ -440,6 +495,8 @@ def criteria(pairs: list) -> Criteria:
         crit.add(f"{name} B windows hold the truth (deff {tb[2]:.0f})", tb[0],
                  share_band(tb[1], 0.99, 1.0, a, tb[2])[0], 1.0, "issue 15")
         crit.add(f"{name} C road junctions: median error (px)", tc[1], 0.0, 0.5, "README")
+        crit.add(f"{name} D transfer windows hold the homologous point (deff {td[4]:.0f})",
+                 td[1], share_band(td[3], 0.99, 1.0, a, td[4])[0], 1.0, "issue 28")
     return crit
 
 
@@ -494,7 +551,8 @@ def main(argv=None) -> int:
             a = transfer_study(pair, points, seed)
             b = window_study(pair, seed, draws=args.draws or (10 if fast else 50))
             c = road_study(pair, seed)
-            pairs.append((f"{texture} {seed}", a, b, c))
+            d = transfer_window_study(pair, seed, draws=args.draws or (10 if fast else 50))
+            pairs.append((f"{texture} {seed}", a, b, c, d))
             jq = f", JPEG quality {args.jpeg}" if args.jpeg else ""
             print(f"{texture} seed {seed} ({size} px{jq}, rendered in {tr:.0f} s)")
             print(f"  A transfer: {a['n']} points, accepted {a['accepted']:.1%}, well-textured "
@@ -506,8 +564,11 @@ def main(argv=None) -> int:
                   f"effect {b[2]:.1f})")
             print(f"  C road junctions: {c[3]} (point, image), accepted {c[0]:.0%}, median error "
                   f"{c[1]:.2f} px, worst accepted {c[2]:.2f} px")
-    return criteria(pairs).report(args.json, {"pairs": [(p[0], p[1], list(p[2]), list(p[3]))
-                                                        for p in pairs]})
+            print(f"  D transfer windows hold the homologous point: {d[1]:.2%} of what is "
+                  f"searched ({d[0]:.2%} of the ellipses, {d[2]:.1%} clipped; {d[3]} samples, "
+                  f"design effect {d[4]:.1f}); {d[5]:.1%} inside the 90 % ellipses")
+    return criteria(pairs).report(args.json, {"pairs": [(p[0], p[1], list(p[2]), list(p[3]),
+                                                         list(p[4])) for p in pairs]})
 
 
 if __name__ == "__main__":

@@ -15,7 +15,10 @@ images, writes every attempt with its quality to ``DIR/transfer.csv`` and the ac
 measurements to ``DIR/image_points.csv`` in the contract format (photo mm) - ready for
 ``vectoradjust adjust`` - and, row for row, with their source (manual, transferred,
 automatic), correlation coefficient, LSM sigma and pixel position to
-``DIR/image_points_quality.csv`` (the contract reader refuses extra columns).
+``DIR/image_points_quality.csv`` (the contract reader refuses extra columns). Every
+field of :class:`vectoradjust.measure.transfer.MatchSettings` is a flag of ``transfer``
+(:func:`add_settings_flags`: name, type, default and help from the dataclass), and the
+values used go to ``DIR/transfer_settings.json``.
 
 Images are named by ``path`` in each ``[[images]]`` entry or by ``--image ID=FILE``; an
 RPC image (``model = "rpc"``) without ``path`` is read from its ``rpc`` file when that is
@@ -36,9 +39,11 @@ from typing import Optional
 
 import numpy as np
 
+from vectoradjust.cli import options
 from vectoradjust.errors import ProjectError
 
-__all__ = ["add_parser", "cmd_predict", "cmd_transfer", "CONTRACT_COLUMNS"]
+__all__ = ["add_parser", "cmd_predict", "cmd_transfer", "CONTRACT_COLUMNS", "SETTINGS_FLAGS",
+           "add_settings_flags", "settings_from_args", "settings_help"]
 
 #: the columns of image_points.csv that ``adjust`` reads (docs/method.md section 9); the quality
 #: columns (source, ncc, lsm_sigma, col, row) go to image_points_quality.csv
@@ -52,45 +57,113 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                           "measurement (transfer by NCC + least-squares "
                                           "matching; road junctions) towards image_points.csv.")
     sub = m.add_subparsers(dest="measure_command", required=True)
-    p = sub.add_parser("predict", help="predicted positions, search windows, chips")
+    p = sub.add_parser("predict", help="predicted positions, search windows, chips",
+                       formatter_class=options.HelpFormatter)
     _common(p)
     p.add_argument("--chips", choices=("png", "tif", "none"), default="png",
-                   help="chip format per point and image (default png)")
+                   help="chip format per point and image")
     p.add_argument("--chip-size", type=int, default=64, help="chip half size (pixels)")
     p.add_argument("--roads", action="store_true",
                    help="also locate junction and corner shape points automatically")
     p.add_argument("--road-width", type=float, default=6.0, help="road surface width (m)")
     p.set_defaults(func=cmd_predict)
-    t = sub.add_parser("transfer", help="find measured points on the other images")
+    t = sub.add_parser("transfer", help="find measured points on the other images",
+                       formatter_class=options.HelpFormatter)
     _common(t)
     t.add_argument("--measured", required=True,
                    help="CSV point_id,image_id,col,row of points measured (pixels)")
     t.add_argument("--automatic", help="automatic_points.csv of predict --roads to include")
-    t.add_argument("--min-ncc", type=float, default=0.8, help="correlation threshold")
-    t.add_argument("--max-sigma", type=float, default=0.07, help="largest LSM sigma (px)")
-    t.add_argument("--max-radius", type=float, default=40.0, help="largest search radius (px)")
-    t.add_argument("--max-anisotropy", type=float, default=5.0,
-                   help="largest ratio of the LSM sigmas of the two axes: a patch textured "
-                        "in one direction only (an edge) slides along it (default 5; "
-                        "inf = off)")
-    t.add_argument("--back-tolerance", type=float, default=0.5,
-                   help="largest distance (px) of a match matched back to the reference "
-                        "image from the reference point (default 0.5; inf = no "
-                        "back-matching)")
+    add_settings_flags(t)
     t.add_argument("--sigma-height", type=float, default=2.0,
                    help="uncertainty of the terrain height (m) for the search window")
     t.set_defaults(func=cmd_transfer)
     return m
 
 
+#: MatchSettings fields whose flag is not ``--field-name``
+SETTINGS_FLAGS = {"k": "--window-k"}
+
+
+def settings_help(cls=None) -> dict:
+    """``{field: text}``: the description of each attribute in the numpydoc ``Attributes``
+    section of a settings dataclass (default :class:`MatchSettings`), reST markup removed.
+
+    The flags' help (:func:`add_settings_flags`) comes from here, so the docstring is
+    the one definition (README's option table is checked against the parser by
+    ``tests/test_measure_sample.py``); an attribute the docstring documents together
+    with another one (``a, b : float``) gets that text under both names.
+    """
+    import inspect
+    import re
+
+    from vectoradjust.measure.transfer import MatchSettings
+
+    doc = inspect.getdoc(cls or MatchSettings) or ""
+    body = doc.split("Attributes\n----------\n", 1)[-1]
+    out: dict = {}
+    names: list = []
+    for line in body.splitlines():
+        head = re.match(r"^([A-Za-z_][\w, ]*) : ", line)
+        if head:
+            names = [n.strip() for n in head.group(1).split(",")]
+            for n in names:
+                out[n] = ""
+        elif line.startswith("    ") and names:
+            for n in names:
+                out[n] = (out[n] + " " + line.strip()).strip()
+    for n, text in out.items():
+        text = re.sub(r"\s*\(:\w+:`[^`]*`\)", "", text)  # a bare cross-reference
+        text = re.sub(r":\w+:`~?(?:[\w.]*\.)?(\w+)`", r"\1", text)
+        out[n] = text.replace("``", "")
+    return out
+
+
+def add_settings_flags(p: argparse.ArgumentParser, cls=None) -> None:
+    """One flag per field of a settings dataclass (default :class:`MatchSettings`), in the
+    order of its fields: ``--field-name`` (:data:`SETTINGS_FLAGS` for the exceptions), the
+    field's type and default, its docstring's description as help; a ``bool`` field gets
+    ``--name`` / ``--no-name``. Read back with :func:`settings_from_args`."""
+    import dataclasses
+
+    from vectoradjust.measure.transfer import MatchSettings
+
+    cls = cls or MatchSettings
+    helps = settings_help(cls)
+    g = p.add_argument_group("matching thresholds (MatchSettings)")
+    for f in dataclasses.fields(cls):
+        flag = SETTINGS_FLAGS.get(f.name, "--" + f.name.replace("_", "-"))
+        text = helps.get(f.name, "").replace("%", "%%")  # HelpFormatter: the default
+        if f.type in ("bool", bool):
+            g.add_argument(flag, dest=f.name, default=f.default, help=text,
+                           action=argparse.BooleanOptionalAction)
+        else:
+            kind = {"int": int, "float": float, "str": str}.get(str(f.type), f.type)
+            if not callable(kind):
+                raise TypeError(f"{cls.__name__}.{f.name}: no flag for type {f.type!r}")
+            g.add_argument(flag, dest=f.name, type=kind, default=f.default, help=text,
+                           metavar="N" if kind is int else "X")
+
+
+def settings_from_args(args, cls=None):
+    """The settings dataclass (default :class:`MatchSettings`) of the parsed flags of
+    :func:`add_settings_flags`."""
+    import dataclasses
+
+    from vectoradjust.measure.transfer import MatchSettings
+
+    cls = cls or MatchSettings
+    return cls(**{f.name: getattr(args, f.name) for f in dataclasses.fields(cls)})
+
+
 def _common(p) -> None:
-    p.add_argument("project", help="project file (TOML)")
-    p.add_argument("-o", "--out", required=True, help="output directory")
-    p.add_argument("--image", action="append", default=[], metavar="ID=FILE",
-                   help="image file of an [[images]] id (overrides its path)")
+    options.add_project(p)
+    options.add_out(p)
+    p.add_argument("--image", action="append", metavar="ID=FILE",
+                   help="image file of an [[images]] id (overrides its path; repeat for "
+                        "more images)")
     p.add_argument("--orientation", help="summary.json of an adjustment: use its adjusted "
                                          "orientation and sigmas")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    options.add_quiet(p)
 
 
 def _image_paths(spec, overrides: list) -> dict:
@@ -103,7 +176,7 @@ def _image_paths(spec, overrides: list) -> dict:
         if im.id not in paths and im.model == "rpc" and im.rpc.path and \
                 Path(im.rpc.path).suffix.lower() not in (".txt", ".rpb"):
             paths[im.id] = str(im.rpc.path)
-    for o in overrides:
+    for o in overrides or ():
         if "=" not in o:
             raise ProjectError(f"--image {o!r} is not ID=FILE", "Write e.g. --image L=left.tif")
         k, v = o.split("=", 1)
@@ -261,18 +334,16 @@ def cmd_transfer(args) -> int:
     from vectoradjust.cli.progress import ProgressBar
     from vectoradjust.files.images import read_pixel_table, write_table
     from vectoradjust.files.measuring import image_points, transfer
-    from vectoradjust.measure.transfer import MatchSettings
 
     bar = ProgressBar("measure", enabled=not args.quiet)
     spec, geoms, readers, points, height = _load(args)
     measured = read_pixel_table(args.measured)
-    st = MatchSettings(min_ncc=args.min_ncc, max_sigma=args.max_sigma,
-                       max_radius=args.max_radius, max_anisotropy=args.max_anisotropy,
-                       back_tolerance=args.back_tolerance)
+    st = settings_from_args(args)
     res = transfer(geoms, readers, measured, height, st, sigma_height=args.sigma_height,
                    progress=bar)
     out = Path(args.out)
     write_table(out / "transfer.csv", res)
+    _write_settings(out / "transfer_settings.json", st, args.sigma_height)
     auto = _read_automatic(args.automatic) if args.automatic else None
     unit = spec.measurements.get("unit", "mm")
     ip = image_points(geoms, measured, res, auto, unit=unit)
@@ -287,6 +358,17 @@ def cmd_transfer(args) -> int:
         kind += ("; RPC images' rows in pixels" if unit != "pixel" else "")
     print(f"  wrote {path} ({len(ip['point_id'])} measurements, {kind})")
     return 0
+
+
+def _write_settings(path: Path, st, sigma_height: float) -> None:
+    """The thresholds of a transfer (every MatchSettings field and ``sigma_height``) as
+    JSON; a non-finite number as its string (``"inf"``)."""
+    import dataclasses
+
+    vals = dict(dataclasses.asdict(st), sigma_height=sigma_height)
+    vals = {k: (str(v) if isinstance(v, float) and not np.isfinite(v) else v)
+            for k, v in vals.items()}
+    path.write_text(json.dumps(vals, indent=1) + "\n", encoding="utf-8")
 
 
 def _read_automatic(path) -> dict:

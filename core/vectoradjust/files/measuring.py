@@ -15,6 +15,7 @@ no raster library.
 * :func:`transfer` - points measured on one image found on the others (NCC + LSM),
   matched back onto the reference image and, on three or more frame images, checked
   against the forward intersection of all their rays;
+* :func:`transfer_window` - a transfer's prediction and search covariance;
 * :func:`measure_roads` - junctions and corners located on every image;
 * :func:`image_points` - the accepted measurements in the contract format.
 
@@ -59,7 +60,8 @@ from vectoradjust.sensor.models import EO_PARAMETERS
 from vectoradjust.sensor.refine import fit_fiducial_affine
 
 __all__ = ["PointSet", "image_geometries", "project_points", "predict", "transfer",
-           "measure_roads", "image_points", "read_chips", "back_tolerance", "BATCH"]
+           "transfer_window", "height_parallax", "measure_roads", "image_points",
+           "read_chips", "back_tolerance", "BATCH"]
 
 #: points matched at once (memory: a few MB per point)
 BATCH = 100
@@ -417,14 +419,8 @@ def _one_way(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float,
     Pixels are the images' own (``px``, ``pred``); chips are read and matched at array
     indices (``pixel - index_offset``: 0.5 for GDAL's pixels of an RPC image).
     """
-    pred, a = local_affine(src, dst, ref_px, height)
-    ground = src.to_ground(ref_px, height)
-    if isinstance(src, ImageGeometry) and isinstance(dst, ImageGeometry):
-        cov = _frame_transfer_cov(src, dst, ground, a, sigma_height, sigma_ref_px)
-        cov_rays = _frame_transfer_cov(src, dst, ground, a, 0.0, sigma_ref_px)
-    else:
-        cov = transfer_covariance(src, dst, ref_px, ground, a, sigma_height, sigma_ref_px)
-        cov_rays = cov
+    pred, a, cov, cov_rays = transfer_window(src, dst, ref_px, height, sigma_height,
+                                             sigma_ref_px)
     o_src, o_dst = src.index_offset, dst.index_offset
     ref_i = ref_px - o_src if o_src else ref_px
     pred_i = pred - o_dst if o_dst else pred
@@ -443,10 +439,51 @@ def _one_way(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float,
             "cov_rays": cov_rays, "inflation": res.inflation}
 
 
-def _frame_transfer_cov(src: ImageGeometry, dst: ImageGeometry, ground, a, sigma_height,
+def transfer_window(src, dst, ref_px: np.ndarray, height, sigma_height: float = 1.0,
+                    sigma_ref_px: float = 0.5) -> tuple:
+    """Where a transfer of ``ref_px`` from ``src`` to ``dst`` searches.
+
+    Parameters
+    ----------
+    src, dst : ImageGeometry or RpcGeometry
+    ref_px : numpy.ndarray, shape (n, 2)
+        Reference pixels on ``src`` (the image's own pixels).
+    height : callable or float
+        Terrain height (:func:`transfer`).
+    sigma_height, sigma_ref_px : float
+        Uncertainty of the terrain height (m) and of the reference pointing (px).
+
+    Returns
+    -------
+    pred : numpy.ndarray, shape (n, 2)
+        Predicted target pixels.
+    affine : numpy.ndarray, shape (n, 2, 2)
+        ``d target / d reference`` over the terrain.
+    cov : numpy.ndarray, shape (n, 2, 2)
+        Covariance of the prediction (target px^2): the search window is the ellipse
+        ``MatchSettings.k`` wide of ``cov + (0.5 / k)^2 I``, clipped to
+        ``MatchSettings.max_radius`` in the reference geometry
+        (:func:`measure.transfer.match_batch`).
+    cov_rays : numpy.ndarray, shape (n, 2, 2)
+        ``cov`` without the terrain height's part between frame images (the
+        consistency check of :func:`transfer`).
+    """
+    pred, a = local_affine(src, dst, ref_px, height)
+    ground = src.to_ground(ref_px, height)
+    if isinstance(src, ImageGeometry) and isinstance(dst, ImageGeometry):
+        cov_rays = _frame_transfer_cov(src, dst, ground, a, sigma_ref_px)
+        g = height_parallax(src, dst, ref_px, height)
+        cov = cov_rays + sigma_height**2 * g[:, :, None] * g[:, None, :]
+    else:
+        cov = transfer_covariance(src, dst, ref_px, ground, a, sigma_height, sigma_ref_px)
+        cov_rays = cov
+    return pred, a, cov, cov_rays
+
+
+def _frame_transfer_cov(src: ImageGeometry, dst: ImageGeometry, ground, a,
                         sigma_ref_px) -> np.ndarray:
-    """The search covariance of a transfer between two frame images (their orientation,
-    the reference pointing and the terrain height's uncertainty in the target's Z)."""
+    """The search covariance of a transfer between two frame images from their
+    orientations and the reference pointing (without the terrain height's part)."""
     src_only = ImageGeometry(src.image_id, src.eo, src.camera, src.corrections,
                              src.terrain_height, src.affine, src.sigma_eo, src.cov_eo)
     c_src = pixel_covariance(src_only, ground, np.zeros((len(ground), 3)))
@@ -454,9 +491,25 @@ def _frame_transfer_cov(src: ImageGeometry, dst: ImageGeometry, ground, a, sigma
     cov = a @ c_src @ np.swapaxes(a, 1, 2)
     dst_only = ImageGeometry(dst.image_id, dst.eo, dst.camera, dst.corrections,
                              dst.terrain_height, dst.affine, dst.sigma_eo, dst.cov_eo)
-    cov += pixel_covariance(dst_only, ground, np.c_[np.zeros((len(ground), 2)),
-                                                   np.full(len(ground), sigma_height)])
-    return cov
+    return cov + pixel_covariance(dst_only, ground, np.zeros((len(ground), 3)))
+
+
+def height_parallax(src, dst, ref_px: np.ndarray, height) -> np.ndarray:
+    """``d target / d h`` (px per m, shape (n, 2)): how the prediction of ``ref_px`` of
+    ``src`` on ``dst`` moves when the terrain is 1 m higher - the ground point sliding
+    along the reference pixel's ray, i.e. along the epipolar line (central difference
+    of +-1 m). A height error moves the target this way, not as the point moved
+    vertically would (that is zero at the target's nadir and twice too large at a
+    wide-angle image's edge)."""
+    def shifted(dz):
+        if callable(height):
+            return lambda xy: np.asarray(height(xy), float) + dz
+        return float(height) + dz
+
+    p = np.asarray(ref_px, float).reshape(-1, 2)
+    up = dst.to_pixel(src.to_ground(p, shifted(1.0)))
+    down = dst.to_pixel(src.to_ground(p, shifted(-1.0)))
+    return 0.5 * (up - down)
 
 
 def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Mapping,
@@ -469,8 +522,9 @@ def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Map
     ----------
     geoms : mapping of image id to ImageGeometry or RpcGeometry
         Any pair of frame and RPC images (the search window:
-        :func:`measure.geometry.transfer_covariance`; between two frame images as
-        before, the terrain height's uncertainty in the target's Z).
+        :func:`measure.geometry.transfer_covariance`; between two frame images
+        :func:`transfer_window`: the terrain height's uncertainty along the epipolar
+        line, :func:`height_parallax`).
     readers : mapping of image id to reader
     measured : mapping
         Columns ``point_id, image_id, col, row`` (pixels; GDAL's on RPC images); the
@@ -520,18 +574,7 @@ def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Map
             b = sel[b0:b0 + BATCH]
             r = _transfer_pair(geoms[s_id], geoms[d_id], readers[s_id], readers[d_id], px[b],
                                _heights(height, geoms[s_id]), sigma_height, sigma_ref_px, st)
-            keep = ~r["off_image"]
-            for key, val in (("point_id", pid[b]), ("image_id", np.full(len(b), d_id)),
-                             ("ref_image", np.full(len(b), s_id)), ("col", r["px"][:, 0]),
-                             ("row", r["px"][:, 1]), ("pred_col", r["pred"][:, 0]),
-                             ("pred_row", r["pred"][:, 1]), ("ncc", r["ncc"]),
-                             ("rho", r["rho"]), ("sigma_col", r["sigma"][:, 0]),
-                             ("sigma_row", r["sigma"][:, 1]), ("back_error", r["back_error"]),
-                             ("entropy", r["texture"]["entropy"]),
-                             ("blockiness", r["texture"]["blockiness"]),
-                             ("roundness", r["texture"]["roundness"]), ("flags", r["flags"]),
-                             ("_cov", r["cov_rays"])):
-                rows[key].append(np.asarray(val)[keep])
+            _append_rows(rows, r, pid[b], s_id, d_id)
     out = {k: np.concatenate(v) if v else np.zeros(0) for k, v in rows.items()}
     out["flags"] = out["flags"].astype(np.int64)
     cov = out.pop("_cov").reshape(-1, 2, 2)
@@ -542,6 +585,22 @@ def transfer(geoms: Mapping[str, ImageGeometry], readers: Mapping, measured: Map
     out["accepted"] = out["flags"] == 0
     _tick(progress, is_cancelled, 1.0, "transferred")
     return out
+
+
+def _append_rows(rows: dict, r: dict, pid: np.ndarray, s_id: str, d_id: str) -> None:
+    """Add the on-image transfers of one batch (:func:`_transfer_pair`) to ``rows``."""
+    keep = ~r["off_image"]
+    n = len(pid)
+    for key, val in (("point_id", pid), ("image_id", np.full(n, d_id)),
+                     ("ref_image", np.full(n, s_id)), ("col", r["px"][:, 0]),
+                     ("row", r["px"][:, 1]), ("pred_col", r["pred"][:, 0]),
+                     ("pred_row", r["pred"][:, 1]), ("ncc", r["ncc"]), ("rho", r["rho"]),
+                     ("sigma_col", r["sigma"][:, 0]), ("sigma_row", r["sigma"][:, 1]),
+                     ("back_error", r["back_error"]), ("entropy", r["texture"]["entropy"]),
+                     ("blockiness", r["texture"]["blockiness"]),
+                     ("roundness", r["texture"]["roundness"]), ("flags", r["flags"]),
+                     ("_cov", r["cov_rays"])):
+        rows[key].append(np.asarray(val)[keep])
 
 
 def _inconsistent(geoms, out: dict, pid, iid, px, cov, sigma_ref_px: float,

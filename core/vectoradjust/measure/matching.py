@@ -421,7 +421,8 @@ def lsm(templates: np.ndarray, chips: np.ndarray, start: np.ndarray,
     v = (vv - (th - 1) / 2.0).ravel()[None, :].repeat(n, 0)
     g1 = t.reshape(n, -1)
     grads = np.gradient(s, axis=(1, 2))
-    scale = np.nanmax(np.abs(s).reshape(n, -1), axis=1) + 1e-12 if n else np.ones(0)
+    scale = np.fmax.reduce(np.abs(s).reshape(n, s[0].size if n else 0), axis=1,
+                           initial=np.nan) + 1e-12  # a chip all NaN: NaN, no warning
     p = np.zeros((n, 9 if quadratic else 8))
     a0 = np.broadcast_to(np.eye(2), (n, 2, 2)) if affine0 is None else np.asarray(affine0, float)
     p[:, :4] = a0.reshape(n, 4)

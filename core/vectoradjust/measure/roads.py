@@ -223,7 +223,9 @@ def centreline_crossing(chips: np.ndarray, origin: np.ndarray, pred: np.ndarray,
     flags[nan_prof] |= ROAD_FLAGS["edge"]
     far = np.hypot(*(px - loc).T) > st.search
     flags[np.nan_to_num(far, nan=True)] |= ROAD_FLAGS["outside_window"]
-    mean_rms = np.nanmean(np.where(armok, rms, np.nan), axis=1) if n else np.zeros(0)
+    use = armok & np.isfinite(rms) if n else np.zeros((0, 1), bool)  # no usable arm: NaN
+    mean_rms = np.where(use, np.nan_to_num(rms), 0.0).sum(axis=1) / np.where(
+        use.any(axis=1), use.sum(axis=1), np.nan) if n else np.zeros(0)
     out = np.where((flags == 0)[:, None], px + np.asarray(origin, float), np.nan)
     return RoadResult(out, narms, mean_rms, flags)
 
@@ -273,9 +275,9 @@ def _profile_peaks(resp, ok, o, step):
     no = r.shape[-1]
     fm = np.take_along_axis(r, np.clip(j - 1, 0, no - 1)[..., None], -1)[..., 0]
     fp = np.take_along_axis(r, np.clip(j + 1, 0, no - 1)[..., None], -1)[..., 0]
-    den = fm - 2 * f0 + fp
-    good = np.isfinite(den) & (den < 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):  # -inf outside the image
+        den = fm - 2 * f0 + fp
+        good = np.isfinite(den) & (den < 0)
         d = np.where(good, 0.5 * (fm - fp) / np.where(good, den, 1.0), 0.0)
     peak = o[j] + np.clip(d, -0.5, 0.5) * step
     valid = np.isfinite(f0)

@@ -25,115 +25,6 @@ __all__ = ["MatchSettings", "MatchResult", "match_batch"]
 
 
 @dataclass
-class MatchSettings:
-    """Thresholds of automatic transfer.
-
-    Attributes
-    ----------
-    half_template : int
-        Template half size (pixels of the reference image); the template is
-        ``2 h + 1`` square.
-    max_radius : float
-        Largest search radius (pixels of the reference geometry); a larger window is
-        clipped to it.
-    min_ncc : float
-        Correlation coefficient threshold (0.8 - 0.95 in production) for NCC and LSM.
-    distinct_factor : float
-        A match whose NCC peak is distinct (every other peak of the window at least
-        ``distinct_gap`` lower) may be ``distinct_factor`` times as far from a perfect
-        correlation: accepted down to ``1 - distinct_factor (1 - min_ncc)`` (NCC and
-        LSM; 0.6 for ``min_ncc`` 0.8). ``1 - rho`` is about the share of noise in the
-        grey-value variance, so this admits about twice the noise where the peak is
-        unique: on compressed images with relief the correlation of a true match drops,
-        but a clear, unique peak is still the right one (1: ``min_ncc`` for all).
-    distinct_gap : float
-        How much lower than the peak every other peak must be for ``distinct_factor``.
-    max_sigma : float
-        Largest accepted LSM standard deviation of the position (pixels).
-    max_lsm_move : float
-        Largest accepted distance between the NCC and the LSM positions (pixels).
-    ambiguity : float
-        A second NCC peak within this of the first flags the match as ambiguous.
-    k : float
-        Scale of the search ellipse.
-    quadratic : bool
-        LSM with a quadratic radiometric term (images with different gamma).
-    max_anisotropy : float
-        Largest ratio of the LSM sigmas of the two axes (above ``max_sigma / 3``): a
-        patch textured in one direction only (an edge, a road) slides along it
-        (``inf``: off).
-    min_grey_levels : int
-        Fewest distinct grey values in the reference template (a flat JPEG block holds
-        two or three).
-    min_entropy : float
-        Smallest entropy (bits, 32 bins) of the template's grey values.
-    max_blockiness : float
-        Largest ratio of the grey differences across the 8 x 8 JPEG block lines to
-        those inside the blocks (natural texture about 1, flat JPEG blocks far above).
-    min_roundness : float
-        Smallest Foerstner roundness of the template (0: a straight edge or stripe).
-        These four reject the template as ``no_texture``
-        (:func:`~vectoradjust.measure.matching.texture_measures`).
-    grey_step : float
-        Resolution of the grey values (1 for 8-bit images): the LSM residual RMS is
-        taken as at least ``grey_step / sqrt(12)`` (quantisation).
-    min_sigma : float
-        Floor of the reported LSM sigma (px): a precision is never 0.
-    back_tolerance : float
-        Largest distance (px) between the reference point and the target match
-        matched back to the reference image (``inf``: no back-matching); used by
-        :func:`vectoradjust.files.measuring.transfer`. With ``back_k`` the smallest
-        tolerance: noisier matches get ``back_k`` times the standard deviation of the
-        back-match's distance, up to twice ``back_tolerance``
-        (:func:`vectoradjust.files.measuring.back_tolerance`).
-    back_k : float
-        Tolerance of the back-matching in standard deviations of its distance (from
-        the LSM sigmas inflated for correlated residuals; 0: ``back_tolerance``
-        alone).
-    max_ray_misfit : float
-        A point accepted on three or more frame images: the forward intersection of
-        all its rays must reproduce each match within about this many pixels (more
-        where the orientations are uncertain; ``inf``: no check; the flag
-        ``inconsistent``, :func:`vectoradjust.files.measuring.transfer`).
-    lsm_tol_sigma : float
-        LSM still moving after its iterations is converged when its last step is below
-        this fraction of its own standard deviation (noisy images; 0: off;
-        :func:`~vectoradjust.measure.matching.lsm`).
-    pyramid_levels : int
-        Coarse-to-fine search (:func:`~vectoradjust.measure.matching.ncc_pyramid`):
-        the peak is found at ``1 / 2^pyramid_levels`` of the resolution in the whole
-        window and followed down, each finer level searching only near the coarser
-        peak (0: the best full-resolution NCC of the whole window).
-    pyramid_radius : float
-        Search radius around a coarser level's peak (pixels of that level).
-    """
-
-    half_template: int = 20
-    max_radius: float = 40.0
-    min_ncc: float = 0.8
-    distinct_factor: float = 2.0
-    distinct_gap: float = 0.1
-    max_sigma: float = 0.07
-    max_lsm_move: float = 1.5
-    ambiguity: float = 0.02
-    k: float = WINDOW_K
-    quadratic: bool = True
-    max_anisotropy: float = 5.0
-    min_grey_levels: int = 8
-    min_entropy: float = 2.5
-    max_blockiness: float = 5.0
-    min_roundness: float = 0.1
-    grey_step: float = 1.0
-    min_sigma: float = 0.01
-    back_tolerance: float = 0.5
-    back_k: float = 3.0
-    max_ray_misfit: float = 1.0
-    lsm_tol_sigma: float = 0.2
-    pyramid_levels: int = 2
-    pyramid_radius: float = 1.5
-
-
-@dataclass
 class MatchResult:
     """Matched target pixels and their quality.
 
@@ -169,6 +60,119 @@ class MatchResult:
     def accepted(self) -> np.ndarray:
         """Matches without any flag."""
         return self.flags == 0
+
+
+@dataclass
+class MatchSettings:
+    """Thresholds of automatic transfer, in the order the matching uses them.
+
+    Each is a flag of ``vectoradjust measure transfer`` (``--half-template``,
+    ``--min-grey-levels``, ...; ``k`` is ``--window-k``, ``quadratic`` ``--quadratic`` /
+    ``--no-quadratic``) whose help is the description below.
+
+    Attributes
+    ----------
+    half_template : int
+        Template half size (pixels of the reference image); the template is
+        ``2 h + 1`` square.
+    min_grey_levels : int
+        Fewest distinct grey values in the reference template (a flat JPEG block holds
+        two or three).
+    min_entropy : float
+        Smallest entropy (bits, 32 bins) of the template's grey values.
+    max_blockiness : float
+        Largest ratio of the grey differences across the 8 x 8 JPEG block lines to
+        those inside the blocks (natural texture about 1, flat JPEG blocks far above).
+    min_roundness : float
+        Smallest Foerstner roundness of the template (0: a straight edge or stripe).
+        These four reject the template as ``no_texture``
+        (:func:`~vectoradjust.measure.matching.texture_measures`).
+    max_radius : float
+        Largest search radius (pixels of the reference geometry); a larger window is
+        clipped to it.
+    k : float
+        Scale of the search ellipse in standard deviations of the prediction (the
+        default holds 99.9 % of a normal distribution in two dimensions).
+    pyramid_levels : int
+        Coarse-to-fine search (:func:`~vectoradjust.measure.matching.ncc_pyramid`):
+        the peak is found at ``1 / 2^pyramid_levels`` of the resolution in the whole
+        window and followed down, each finer level searching only near the coarser
+        peak (0: the best full-resolution NCC of the whole window).
+    pyramid_radius : float
+        Search radius around a coarser level's peak (pixels of that level).
+    min_ncc : float
+        Correlation coefficient threshold (0.8 - 0.95 in production) for NCC and LSM.
+    distinct_factor : float
+        A match whose NCC peak is distinct (every other peak of the window at least
+        ``distinct_gap`` lower) may be ``distinct_factor`` times as far from a perfect
+        correlation: accepted down to ``1 - distinct_factor (1 - min_ncc)`` (NCC and
+        LSM; 0.6 for ``min_ncc`` 0.8). ``1 - rho`` is about the share of noise in the
+        grey-value variance, so this admits about twice the noise where the peak is
+        unique: on compressed images with relief the correlation of a true match drops,
+        but a clear, unique peak is still the right one (1: ``min_ncc`` for all).
+    distinct_gap : float
+        How much lower than the peak every other peak must be for ``distinct_factor``.
+    ambiguity : float
+        A second NCC peak within this of the first flags the match as ambiguous.
+    quadratic : bool
+        LSM with a quadratic radiometric term (images with different gamma).
+    grey_step : float
+        Resolution of the grey values (1 for 8-bit images): the LSM residual RMS is
+        taken as at least ``grey_step / sqrt(12)`` (quantisation).
+    lsm_tol_sigma : float
+        LSM still moving after its iterations is converged when its last step is below
+        this fraction of its own standard deviation (noisy images; 0: off;
+        :func:`~vectoradjust.measure.matching.lsm`).
+    max_lsm_move : float
+        Largest accepted distance between the NCC and the LSM positions (pixels).
+    max_sigma : float
+        Largest accepted LSM standard deviation of the position (pixels).
+    min_sigma : float
+        Floor of the reported LSM sigma (px): a precision is never 0.
+    max_anisotropy : float
+        Largest ratio of the LSM sigmas of the two axes (above ``max_sigma / 3``): a
+        patch textured in one direction only (an edge, a road) slides along it
+        (``inf``: off).
+    back_tolerance : float
+        Largest distance (px) between the reference point and the target match
+        matched back to the reference image (``inf``: no back-matching). With
+        ``back_k`` the smallest tolerance: noisier matches get ``back_k`` times the
+        standard deviation of the back-match's distance, up to twice ``back_tolerance``
+        (:func:`vectoradjust.files.measuring.back_tolerance`).
+    back_k : float
+        Tolerance of the back-matching in standard deviations of its distance (from
+        the LSM sigmas inflated for correlated residuals; 0: ``back_tolerance``
+        alone).
+    max_ray_misfit : float
+        A point accepted on three or more frame images: the forward intersection of
+        all its rays must reproduce each match within about this many pixels (more
+        where the orientations are uncertain; ``inf``: no check); else flag
+        ``inconsistent`` (:func:`vectoradjust.files.measuring.transfer`).
+    """
+
+    half_template: int = 20
+    min_grey_levels: int = 8
+    min_entropy: float = 2.5
+    max_blockiness: float = 5.0
+    min_roundness: float = 0.1
+    max_radius: float = 40.0
+    k: float = WINDOW_K
+    pyramid_levels: int = 2
+    pyramid_radius: float = 1.5
+    min_ncc: float = 0.8
+    distinct_factor: float = 2.0
+    distinct_gap: float = 0.1
+    ambiguity: float = 0.02
+    quadratic: bool = True
+    grey_step: float = 1.0
+    lsm_tol_sigma: float = 0.2
+    max_lsm_move: float = 1.5
+    max_sigma: float = 0.07
+    min_sigma: float = 0.01
+    max_anisotropy: float = 5.0
+    back_tolerance: float = 0.5
+    back_k: float = 3.0
+    max_ray_misfit: float = 1.0
 
 
 def match_batch(ref_chips: np.ndarray, ref_origin: np.ndarray, ref_px: np.ndarray,
@@ -224,8 +228,9 @@ def match_batch(ref_chips: np.ndarray, ref_origin: np.ndarray, ref_px: np.ndarra
     wc = ploc[:, 0, None, None] + a[:, 0, 0, None, None] * su + a[:, 0, 1, None, None] * sv
     wr = ploc[:, 1, None, None] + a[:, 1, 0, None, None] * su + a[:, 1, 1, None, None] * sv
     warped = sample(tgt_chips, wc, wr)
-    fill = np.nanmean(np.where(np.isfinite(warped), warped, np.nan), axis=(1, 2))
-    warped = np.where(np.isfinite(warped), warped, np.nan_to_num(fill)[:, None, None])
+    seen = np.isfinite(warped)
+    fill = np.where(seen, warped, 0.0).sum(axis=(1, 2)) / np.maximum(seen.sum(axis=(1, 2)), 1)
+    warped = np.where(seen, warped, fill[:, None, None])
 
     dr = np.arange(-rad, rad + 1, dtype=float)
     dv, du = np.meshgrid(dr, dr, indexing="ij")
