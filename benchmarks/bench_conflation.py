@@ -8,7 +8,7 @@ Builds a synthetic road database (straight and wiggly lines on a square, 10 m ve
 spacing, a constant shift + a smooth field + noise) and an adjustment-like result in
 which a share of the object points (``--measured``, default 10 %) is "measured" (the
 database position minus the error plus image noise, with a covariance and a prior
-weight), then times :func:`vectoradjust.accuracy.conflation.conflate_database`: the
+weight), then times :func:`vectoradjust.conflation.conflate_database`: the
 semivariogram fit, the k-nearest collocation at every unmeasured vertex, the
 leave-one-out cross-validation and the table updates. Prints the time per stage call
 and the peak memory. The bundle adjustment is not part of it (``bench_adjust.py``).
@@ -28,9 +28,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "core"))
 
-from vectoradjust.accuracy.conflation import ConflationSettings, conflate_database  # noqa: E402
 from vectoradjust.accuracy.tables import cov_stats  # noqa: E402
 from vectoradjust.adjust.shapepoints import extract_shape_points  # noqa: E402
+from vectoradjust.conflation import ConflationSettings, conflate_database  # noqa: E402
 from vectoradjust.model import LineLayer, VectorSpec  # noqa: E402
 from vectoradjust.results import DatabaseResult  # noqa: E402
 from vectoradjust.simulate.conflation import smooth_field  # noqa: E402

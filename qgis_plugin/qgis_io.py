@@ -12,7 +12,7 @@ semantics as the headless reader:
   feature index;
 * DEM heights by :func:`vectoradjust.adjust.dem.bilinear` on band 1 read with
   ``QgsRasterDataProvider.block``;
-* measurement and control tables through :mod:`vectoradjust.files.tables` (a CSV file is
+* measurement and control tables through :mod:`vectoradjust.files.csv_tables` (a CSV file is
   read by it directly; a table layer's contract columns go to its ``*_from_rows``
   functions, the same checks, with messages naming the layer and the row).
 
@@ -530,7 +530,7 @@ def is_csv_path(value):
 def read_measurements_source(value, source, default_sigma, where, unit="mm"):
     """Measurements from a CSV path (``tables.read_measurements``) or a table source
     (as read: not refined yet; ``unit`` as ``[measurements] unit``)."""
-    from vectoradjust.files import tables
+    from vectoradjust.files import csv_tables as tables
 
     if is_csv_path(value):
         return tables.read_measurements(value, default_sigma, unit=unit)
@@ -547,7 +547,7 @@ def read_control_source(value, source, target_crs, context, where):
     transformed to the ground CRS and used (Z from the geometry when the layer has no
     ``Z`` field).
     """
-    from vectoradjust.files import tables
+    from vectoradjust.files import csv_tables as tables
 
     if is_csv_path(value):
         return tables.read_control(value)
@@ -591,7 +591,7 @@ def read_control_source(value, source, target_crs, context, where):
 
 def read_truth_source(value, source, where):
     """Truth points ``point_id,X,Y,Z`` from a CSV path or a table layer."""
-    from vectoradjust.files import tables
+    from vectoradjust.files import csv_tables as tables
 
     if is_csv_path(value):
         return tables.read_truth_points(value)

@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 from scipy.linalg import solve
 
-from vectoradjust.accuracy.conflation import (
+from vectoradjust.adjust.shapepoints import lookup
+from vectoradjust.conflation import (
     CE90_CIRCULAR,
     ConflationSettings,
     CovarianceModel,
@@ -33,7 +34,6 @@ from vectoradjust.accuracy.conflation import (
     krige,
     settings_from_table,
 )
-from vectoradjust.adjust.shapepoints import lookup
 from vectoradjust.errors import CancelledError, ProjectError
 from vectoradjust.pipeline import run
 from vectoradjust.simulate import read_road_lines
@@ -164,7 +164,7 @@ def test_database_noise_as_its_mean_given_the_data_covers_new_points():
 
 def test_mean_variance_is_that_of_the_joint_covariance():
     """Definition: Var(mean) = 1' C 1 / p^2 of the points' joint covariance."""
-    from vectoradjust.accuracy.conflation import _mean_variance
+    from vectoradjust.conflation import _mean_variance
 
     _, out, _ = _runs("shift")
     res = out.result
@@ -345,7 +345,7 @@ def test_field_model_predicts_what_the_vertices_got():
 
 
 def test_report_has_the_conflation_section_and_figure():
-    from vectoradjust.accuracy.conflation import field_grid
+    from vectoradjust.conflation import field_grid
     from vectoradjust.files.report import conflation_figure, report_html
 
     _, out, ref = _runs("smooth")
@@ -363,7 +363,7 @@ def test_report_has_the_conflation_section_and_figure():
 
 def test_conflation_raster_is_written_with_the_field(tmp_path):
     rasterio = pytest.importorskip("rasterio")
-    from vectoradjust.accuracy.conflation import field_grid
+    from vectoradjust.conflation import field_grid
     from vectoradjust.files.derived_outputs import write_conflation_rasters
 
     _, out, _ = _runs("shift")

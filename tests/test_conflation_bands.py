@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from vectoradjust.accuracy.conflation import DISTANCE_BANDS, band_coverage
 from vectoradjust.adjust.shapepoints import lookup
+from vectoradjust.conflation import DISTANCE_BANDS, band_coverage
 from vectoradjust.pipeline import run
 from vectoradjust.simulate import read_road_lines
 from vectoradjust.simulate.conflation import (
@@ -163,7 +163,7 @@ def test_ce90_factor_with_the_sill_prior_by_quadrature():
     from scipy.optimize import brentq
     from scipy.stats import chi2
 
-    from vectoradjust.accuracy.conflation import CovarianceModel, ce90_factor
+    from vectoradjust.conflation import CovarianceModel, ce90_factor
 
     def factor(q, dof):
         def tail(rho):
@@ -192,7 +192,7 @@ def test_far_vertices_take_the_stated_variance(monkeypatch):
     almost no field (sill 0.04 m^2 fitted, the truth 4); vertices > 200 m from them
     were covered 54 % by the fit alone, the database's stated variance as the sill's
     prior brings them to 85-95 % and more (1.0 measured)."""
-    import vectoradjust.accuracy.conflation as conf
+    import vectoradjust.conflation as conf
 
     data = conflation_scenario(8, true_roads=read_road_lines(ROADS), length=500.0,
                                layout="clusters")

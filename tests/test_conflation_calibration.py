@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from vectoradjust.accuracy.conflation import CovarianceModel
-from vectoradjust.accuracy.conflation.coverage import DISTANCE_BANDS
-from vectoradjust.accuracy.conflation.kriging import band_factors
-from vectoradjust.accuracy.conflation.prediction import _calibrated
+from vectoradjust.conflation import CovarianceModel
+from vectoradjust.conflation.coverage import DISTANCE_BANDS
+from vectoradjust.conflation.kriging import band_factors
+from vectoradjust.conflation.prediction import _calibrated
 
 
 def _field(seed: int, model: CovarianceModel, n: int = 400, side: float = 1500.0,

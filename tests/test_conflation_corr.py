@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vectoradjust.accuracy.conflation import (
+from vectoradjust.conflation import (
     LE90,
     CovarianceModel,
     _krige_many,

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vectoradjust.accuracy.conflation import (
+from vectoradjust.conflation import (
     CovarianceModel,
     _fit_white,
     _loo_score,
@@ -24,7 +24,7 @@ from vectoradjust.accuracy.conflation import (
     _projected_bfgs,
     fit_covariance,
 )
-from vectoradjust.accuracy.conflation import covariance as conf_cov
+from vectoradjust.conflation import covariance as conf_cov
 
 
 def _points(seed: int, n: int = 120, shared: bool = False):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from vectoradjust.accuracy.conflation import (
+from vectoradjust.conflation import (
     CE90_CIRCULAR,
     CovarianceModel,
     _ce90_table,

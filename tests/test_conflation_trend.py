@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vectoradjust.accuracy.conflation import (
+from vectoradjust.adjust.shapepoints import lookup
+from vectoradjust.conflation import (
     CE90_CIRCULAR,
     CovarianceModel,
     _krige_many,
@@ -24,7 +25,6 @@ from vectoradjust.accuracy.conflation import (
     _trend_design,
     _trend_field_cov,
 )
-from vectoradjust.adjust.shapepoints import lookup
 from vectoradjust.pipeline import run
 from vectoradjust.simulate.conflation import conflation_scenario
 
@@ -160,7 +160,7 @@ def test_field_part_of_the_trend_variance_is_that_of_the_least_squares_estimate(
 
 
 def test_inside_hull_against_a_square_and_degenerate_sets():
-    from vectoradjust.accuracy.conflation import inside_hull
+    from vectoradjust.conflation import inside_hull
 
     sq = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0], [5.0, 5.0]])
     q = np.array([[5.0, 5.0], [0.0, 5.0], [10.0, 10.0], [10.1, 5.0], [-1.0, -1.0],
@@ -184,7 +184,7 @@ def test_vertices_beyond_every_measured_point_are_extrapolated():
     """A predicted vertex outside the measured points' hull is labelled extrapolated,
     even within the practical range (seed 13 of the smooth scenario had such vertices
     labelled interpolated)."""
-    from vectoradjust.accuracy.conflation import inside_hull
+    from vectoradjust.conflation import inside_hull
     from vectoradjust.pipeline import run
     from vectoradjust.simulate.conflation import conflation_scenario
 

@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("pandas")
 
 from vectoradjust.errors import CSVError  # noqa: E402
-from vectoradjust.files import tables  # noqa: E402
+from vectoradjust.files import csv_tables as tables  # noqa: E402
 
 
 @pytest.fixture(autouse=True, params=["pyarrow", "pandas"])

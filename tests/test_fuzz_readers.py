@@ -32,13 +32,13 @@ from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from vectoradjust.errors import VectorAdjustError  # noqa: E402
-from vectoradjust.files.project import PROJECT_SCHEMA, ProjectSpec, load_project, parse_project  # noqa: E402,E501
-from vectoradjust.files.tables import (  # noqa: E402
+from vectoradjust.files.csv_tables import (  # noqa: E402
     _read_rows,
     measurements_from_rows,
     read_control,
     read_measurements,
 )
+from vectoradjust.files.project import PROJECT_SCHEMA, ProjectSpec, load_project, parse_project  # noqa: E402,E501
 from vectoradjust.model import ControlPoints, Measurements  # noqa: E402
 from vectoradjust.sensor.camera import CameraCalibration  # noqa: E402
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from vectoradjust.errors import CameraError, CSVError, InputFileError, ProjectError
+from vectoradjust.files.csv_tables import read_control, read_measurements
 from vectoradjust.files.project import load_project, parse_project
-from vectoradjust.files.tables import read_control, read_measurements
 from vectoradjust.sensor import camera as camera_module
 from vectoradjust.sensor.camera import CameraCalibration
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vectoradjust.accuracy.smart import (
+from vectoradjust.conflation.smart import (
     FeatureSet,
     choose,
     default_max_distance,

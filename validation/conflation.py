@@ -298,8 +298,8 @@ def use_true_covariance(nugget_only: bool = False) -> None:
     fit's noise. The scenarios must keep their default field (all of them here do).
     ``nugget_only`` (``--true-nugget``): only the database noise is the true 0.09 m^2,
     the signal's sill and length stay fitted (which parameter's error moves a seed)."""
-    import vectoradjust.accuracy.conflation as conf
-    import vectoradjust.accuracy.conflation.fields as conf_fields  # where it is looked up
+    import vectoradjust.conflation as conf
+    import vectoradjust.conflation.fields as conf_fields  # where it is looked up
 
     fit = conf_fields.fit_covariance
 

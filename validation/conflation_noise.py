@@ -55,7 +55,7 @@ sys.path.insert(0, str(ROOT / "core"))
 
 from acceptance import Criteria, mean_band  # noqa: E402
 
-import vectoradjust.accuracy.conflation.fields as conf_fields  # noqa: E402
+import vectoradjust.conflation.fields as conf_fields  # noqa: E402
 from vectoradjust.adjust.shapepoints import extract_shape_points, lookup  # noqa: E402
 from vectoradjust.pipeline import run  # noqa: E402
 from vectoradjust.simulate.conflation import conflation_scenario  # noqa: E402

@@ -23,7 +23,7 @@ adjusted lines and their CE90):
   ``name``, ``B`` a ``fullname`` in capitals; 5 % of the pieces are missing from ``A``
   and another 5 % from ``B`` (each is then unmatched and must be carried through).
 
-The conflation (:func:`vectoradjust.accuracy.smart.smart_conflate`, defaults: maximum
+The conflation (:func:`vectoradjust.conflation.smart.smart_conflate`, defaults: maximum
 distance 2 x the larger CE90 with a 5 m floor, min overlap 0.5, by CE90) is scored
 against the true lines: the true RMSE is the RMS of each vertex's distance to the nearest
 true line (as the ``[truth]`` table measures it).
@@ -62,7 +62,7 @@ sys.path.insert(0, str(ROOT / "core"))
 
 from acceptance import Criteria  # noqa: E402
 
-from vectoradjust.accuracy.smart import (  # noqa: E402
+from vectoradjust.conflation.smart import (  # noqa: E402
     FeatureSet,
     _candidates,
     normalise_name,

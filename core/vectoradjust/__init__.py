@@ -4,6 +4,8 @@ The subpackages follow the data through the program (``docs/architecture.md``):
 :mod:`~vectoradjust.sensor` (image coordinates and the sensor model) ->
 :mod:`~vectoradjust.adjust` (shape points and the bundle adjustment) ->
 :mod:`~vectoradjust.accuracy` (statistics and derived quantities) ->
+:mod:`~vectoradjust.conflation` (the databases corrected: unmeasured vertices, several
+databases feature by feature) ->
 :mod:`~vectoradjust.qa` (production accuracy control); :mod:`vectoradjust.pipeline` runs
 one adjustment on in-memory data by calling those stages; :mod:`~vectoradjust.files`
 reads and writes, :mod:`~vectoradjust.runner` takes a project file to a finished output

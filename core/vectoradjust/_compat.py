@@ -4,7 +4,8 @@
 vectoradjust.bundle`` still works: it returns the module ``vectoradjust.adjust.bundle``
 itself (same object, so attributes and monkeypatching behave as before) and warns with
 a :class:`DeprecationWarning` naming the new place. Likewise the 0.1 names of the
-``accuracy``, ``qa`` and ``cli`` packages (their ``__getattr__``).
+``accuracy``, ``qa`` and ``cli`` packages (their ``__getattr__``), and 0.2's
+``vectoradjust.accuracy.conflation`` and ``accuracy.smart``, now :mod:`vectoradjust.conflation`.
 
 They were announced "for one release" in 0.2 and are still here in 0.3: they stay for
 scripts written against 0.1 until a release whose notes say they are gone. Nothing in
@@ -30,12 +31,16 @@ MOVED = {
     "stats": "accuracy.stats", "propagate": "accuracy.propagate",
     "derived": "accuracy.derived", "buffer_test": "accuracy.buffer",
     "qa_run": "qa.verdict",
-    "project": "files.project", "tables": "files.tables", "assemble": "files.assemble",
+    "project": "files.project", "tables": "files.csv_tables", "assemble": "files.assemble",
     "io": "files.readers", "outputs": "files.outputs", "report": "files.report",
     "derived_io": "files.derived_outputs",
     "cli_buffer": "cli.buffer", "cli_propagate": "cli.propagate", "cli_qa": "cli.qa",
     "clitools": "cli.tools",
 }
+#: old package -> new package: the package and every module below it (0.3: conflation
+#: corrects the databases and left ``accuracy``)
+MOVED_PACKAGES = {"accuracy.conflation": "conflation"}
+MOVED.update({"accuracy.smart": "conflation.smart", "files.tables": "files.csv_tables"})
 # ``accuracy``, ``qa``, ``cli`` and ``simulate`` are packages now; their __init__ modules
 # give the old modules' public names.
 
@@ -59,7 +64,11 @@ class _AliasFinder(importlib.abc.MetaPathFinder):
     def find_spec(self, fullname, path=None, target=None):
         if not fullname.startswith(_PREFIX):
             return None
-        new = MOVED.get(fullname[len(_PREFIX):])
+        name = fullname[len(_PREFIX):]
+        new = MOVED.get(name)
+        for old_pkg, new_pkg in MOVED_PACKAGES.items():
+            if name == old_pkg or name.startswith(old_pkg + "."):
+                new = new_pkg + name[len(old_pkg):]
         if new is None:
             return None
         return importlib.machinery.ModuleSpec(fullname, _AliasLoader(_PREFIX + new))
@@ -68,4 +77,5 @@ class _AliasFinder(importlib.abc.MetaPathFinder):
 def install() -> None:
     """Put the alias finder on ``sys.meta_path`` (once)."""
     if not any(isinstance(f, _AliasFinder) for f in sys.meta_path):
-        sys.meta_path.append(_AliasFinder())
+        sys.meta_path.insert(0, _AliasFinder())  # before the path finder: a moved
+        # package's old name must not load its modules a second time from the new folder

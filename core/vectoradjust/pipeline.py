@@ -206,7 +206,7 @@ def _inputs(out: AdjustmentRun) -> None:
 def _conflation(out: AdjustmentRun, solution, report, is_cancelled) -> None:
     """Correct every unmeasured vertex from the measured ones (least-squares collocation,
     docs/method.md section 10; ``[conflation]``), after the statistics of the measured points."""
-    from vectoradjust.accuracy.conflation import conflate_run, settings_from_table
+    from vectoradjust.conflation import conflate_run, settings_from_table
 
     settings = settings_from_table(out.data.conflation, out.data.source)
     rec = conflate_run(out, solution.offsets, settings,

@@ -42,7 +42,7 @@ class DatabaseResult:
     truth : dict or None
         Truth comparison (simulations).
     conflation : FieldModel or None
-        The fitted displacement field (:mod:`vectoradjust.accuracy.conflation`), None
+        The fitted displacement field (:mod:`vectoradjust.conflation`), None
         when the database was not conflated.
     """
 

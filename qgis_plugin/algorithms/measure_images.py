@@ -164,9 +164,9 @@ class MeasureOnImages(VectorAdjustAlgorithm):
         self.addOutput(QgsProcessingOutputNumber("FLAGGED", "Flagged automatic measurements"))
 
     def _inputs(self, parameters, context, feedback):
+        from vectoradjust.files.csv_tables import read_control
         from vectoradjust.files.measuring import image_geometries, project_points
         from vectoradjust.files.project import load_project
-        from vectoradjust.files.tables import read_control
 
         spec = load_project(self.parameterAsFile(parameters, self.PROJECT, context))
         where = str(spec.path)
@@ -202,7 +202,7 @@ class MeasureOnImages(VectorAdjustAlgorithm):
         points = project_points(control, layers, spec.settings.merge_tolerance)
         fiducials = None
         if spec.measurements.get("fiducials") and spec.measurements.get("unit") == "pixel":
-            from vectoradjust.files.tables import read_fiducials
+            from vectoradjust.files.csv_tables import read_fiducials
 
             fiducials = read_fiducials(spec.measurements["fiducials"], "pixel")
         geoms = image_geometries(spec, image_sizes={k: r.size for k, r in readers.items()},

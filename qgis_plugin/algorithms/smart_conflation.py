@@ -163,7 +163,7 @@ class SmartConflation(VectorAdjustAlgorithm):
         return dbs, crs
 
     def run_algorithm(self, parameters, context, feedback):
-        from vectoradjust.accuracy.smart import smart_conflate, summarise
+        from vectoradjust.conflation.smart import smart_conflate, summarise
         from vectoradjust.files.smart_outputs import feature_set, summary_table
 
         dbs, crs = self._read(parameters, context, feedback)

@@ -2,7 +2,7 @@
 
 Road layers and the DEM are read with GDAL's own Python bindings (``osgeo``: the same
 GDAL library QGIS uses, so nothing second is loaded), the tables with the core's
-plain-Python readers (:mod:`vectoradjust.files.tables`), the project with
+plain-Python readers (:mod:`vectoradjust.files.csv_tables`), the project with
 :func:`vectoradjust.files.project.load_project`. Feeding these arrays to
 :func:`vectoradjust.pipeline.run` in the QGIS test process gives the numbers the plugin
 must reproduce exactly: it checks the plugin's layer -> array conversion.
@@ -12,13 +12,13 @@ import numpy as np
 
 from vectoradjust.adjust.dem import bilinear
 from vectoradjust.files.assemble import project_data as assemble_project_data
-from vectoradjust.files.project import load_project
-from vectoradjust.files.tables import (
+from vectoradjust.files.csv_tables import (
     read_control,
     read_fiducials,
     read_measurements,
     read_truth_points,
 )
+from vectoradjust.files.project import load_project
 from vectoradjust.model import LineLayer
 
 

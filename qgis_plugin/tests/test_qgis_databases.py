@@ -1,7 +1,7 @@
 """Road databases and tables: every ``[[vectors]]`` entry of the project is read (so that
 the other databases' measurements are left out, as on the command line), a road layer that
 is not in the project is one more database, and table layers go through
-``vectoradjust.files.tables`` without a temporary CSV, their rows named in messages."""
+``vectoradjust.files.csv_tables`` without a temporary CSV, their rows named in messages."""
 
 import json
 
@@ -92,7 +92,7 @@ def test_other_databases_are_left_out_not_tied(qgis_app, sample):
     left_out = [w for w in warnings if "were left out" in w]
     assert len(left_out) == 1
     # OSM's and TIGER's measured vertices: every measurement of an id of those databases
-    from vectoradjust.files.tables import read_measurements
+    from vectoradjust.files.csv_tables import read_measurements
 
     from .plain_reference import read_lines
 
@@ -155,7 +155,7 @@ def test_tables_from_rows_equal_the_csv_readers(sample):
     """``*_from_rows`` on a CSV's cells give the CSV readers' arrays."""
     import csv
 
-    from vectoradjust.files import tables
+    from vectoradjust.files import csv_tables as tables
 
     def cells(path):
         with open(path, newline="", encoding="utf-8") as fh:

@@ -97,7 +97,7 @@ def test_selected_features_only(file_run, sample):
     exactly two per left-out measurement)."""
     from qgis.core import QgsProcessingFeatureSourceDefinition, QgsProcessingFeedback, QgsProject
 
-    from vectoradjust.files.tables import read_measurements
+    from vectoradjust.files.csv_tables import read_measurements
 
     layer = osm_layer(sample)
     QgsProject.instance().addMapLayer(layer)

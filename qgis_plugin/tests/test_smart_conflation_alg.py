@@ -74,7 +74,7 @@ def _core(layers):
     """The core's product from the layers' arrays (as the algorithm reads them)."""
     from qgis.core import QgsCoordinateTransformContext, QgsProcessingContext
 
-    from vectoradjust.accuracy.smart import smart_conflate
+    from vectoradjust.conflation.smart import smart_conflate
     from vectoradjust.files.smart_outputs import feature_set
 
     from ..algorithms.smart_conflation import _databases

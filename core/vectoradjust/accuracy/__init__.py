@@ -19,10 +19,6 @@
 - :mod:`~vectoradjust.accuracy._bandkernel`, :mod:`~vectoradjust.accuracy._unionkernel` -
   the compiled (numba) G-band rings and band unions, used by ``derived`` when numba is
   installed.
-- :mod:`~vectoradjust.accuracy.conflation` - conflation: every vertex of a database
-  corrected by least-squares collocation.
-- :mod:`~vectoradjust.accuracy.smart` - smart conflation: adjusted databases matched
-  feature by feature, the more accurate feature prevailing.
 - :mod:`~vectoradjust.accuracy.consistency` - do the road databases and the control
   agree.
 - :mod:`~vectoradjust.accuracy.identification` - the identification error estimated from

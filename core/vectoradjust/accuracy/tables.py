@@ -149,7 +149,7 @@ def _vertex_table(out: AdjustmentRun, d: DatabaseResult):
         "NImages": nimg, "Adjusted": meas_v.astype(np.int64),
         "Database": np.full(nv, d.name, dtype=object),
         # how the vertex got its position; the conflation stage adds interpolated and
-        # extrapolated (accuracy/conflation/)
+        # extrapolated (conflation/)
         "Source": np.where(meas_v, "measured", "unchanged").astype(object),
     }
     return adj, v, ce, le, meas_v

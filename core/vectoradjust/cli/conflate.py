@@ -4,7 +4,7 @@
 [--max-distance M] [--min-overlap F] [--by ce90|rmse] [--quiet]`` reads the adjusted
 features of each SOURCE (an output folder of ``vectoradjust adjust``, all its databases
 or those named by ``--databases``, or a vector file of adjusted features), matches them
-feature by feature (:mod:`vectoradjust.accuracy.smart`), keeps the more accurate feature
+feature by feature (:mod:`vectoradjust.conflation.smart`), keeps the more accurate feature
 of each match and every unmatched one, and writes ``DIR/conflated.gpkg`` (layer
 ``conflated``), ``DIR/conflated.csv`` and ``DIR/summary.json``.
 """
@@ -42,7 +42,7 @@ def _check(args) -> None:
 
 def cmd_conflate(args) -> int:
     """Run ``vectoradjust conflate`` (see :func:`add_parser` for the arguments)."""
-    from vectoradjust.accuracy.smart import smart_conflate, summarise
+    from vectoradjust.conflation.smart import smart_conflate, summarise
     from vectoradjust.files.smart_outputs import (
         conflated_frame,
         feature_sets,

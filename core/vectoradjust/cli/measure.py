@@ -195,6 +195,7 @@ def _image_paths(spec, overrides: list) -> dict:
 def _load(args):
     """Project, geometries, readers, points and height function."""
     from vectoradjust.adjust.dem import bilinear
+    from vectoradjust.files.csv_tables import read_control
     from vectoradjust.files.images import RasterioImage
     from vectoradjust.files.measuring import image_geometries, project_points
     from vectoradjust.files.project import load_project
@@ -206,7 +207,6 @@ def _load(args):
         read_line_layer,
         sample_dem,
     )
-    from vectoradjust.files.tables import read_control
 
     spec = load_project(args.project)
     where = str(spec.path)
@@ -221,7 +221,7 @@ def _load(args):
     fid_path = spec.measurements.get("fiducials")
     fiducials = None
     if fid_path and spec.measurements.get("unit", "mm") == "pixel":
-        from vectoradjust.files.tables import read_fiducials
+        from vectoradjust.files.csv_tables import read_fiducials
 
         fiducials = read_fiducials(fid_path, "pixel")
     geoms = image_geometries(spec, orientation,

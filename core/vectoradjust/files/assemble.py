@@ -1,7 +1,7 @@
 """Assembling a project's inputs (as read) into :class:`~vectoradjust.model.ProjectData`.
 
 Reading files is the readers' business (:mod:`vectoradjust.files.readers` with geopandas and
-rasterio; the QGIS plugin with the QGIS API; :mod:`vectoradjust.files.tables` for the CSV
+rasterio; the QGIS plugin with the QGIS API; :mod:`vectoradjust.files.csv_tables` for the CSV
 tables). Everything after the reading is here, once, so that every route gives the
 same arrays:
 

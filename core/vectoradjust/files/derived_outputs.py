@@ -746,7 +746,7 @@ def write_conflation_rasters(run: AdjustmentRun, out_dir, cell: Optional[float] 
 
     ``conflation_<database>.tif``: bands dX, dY, dZ (adjusted - database, m) and CE90,
     LE90 (m) of the corrected position, on a grid over the database's extent
-    (:func:`vectoradjust.accuracy.conflation.field_grid`); NaN (no field) as ``nodata``.
+    (:func:`vectoradjust.conflation.field_grid`); NaN (no field) as ``nodata``.
 
     Parameters
     ----------
@@ -765,7 +765,7 @@ def write_conflation_rasters(run: AdjustmentRun, out_dir, cell: Optional[float] 
     from rasterio.errors import RasterioError
     from rasterio.transform import from_origin
 
-    from vectoradjust.accuracy.conflation import field_grid
+    from vectoradjust.conflation import field_grid
 
     written = {}
     for d in run.databases:

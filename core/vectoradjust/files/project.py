@@ -17,7 +17,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from vectoradjust.accuracy.conflation import CONFLATION_KEYS, settings_from_table
+from vectoradjust.conflation import CONFLATION_KEYS, settings_from_table
 from vectoradjust.errors import ProjectError
 from vectoradjust.model import AdjustmentSettings, Camera, ImageSpec, VectorSpec
 from vectoradjust.qa.tolerances import _SPEC_KEYS as _QA_KEYS
@@ -278,7 +278,7 @@ def parse_project(raw: dict, base_dir, path=None) -> ProjectSpec:
         if name in raw:
             check_keys(raw[name], PROJECT_SCHEMA[f"[{name}]"], where, f"[{name}]")
     _check_truth(raw.get("truth"), where)
-    if "conflation" in raw:  # used by pipeline.run (accuracy/conflation/)
+    if "conflation" in raw:  # used by pipeline.run (conflation/)
         check_keys(raw["conflation"], PROJECT_SCHEMA["[conflation]"], where, "[conflation]")
         settings_from_table(raw["conflation"], where)
 

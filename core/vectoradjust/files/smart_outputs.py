@@ -4,7 +4,7 @@ files, the conflated layer, its table and summary written.
 ``read_sources`` reads each SOURCE (an output folder of ``vectoradjust adjust``:
 ``adjusted.gpkg`` layer ``features``; or a vector file of adjusted features with a
 ``CE90`` column) into one GeoDataFrame per database, :func:`feature_sets` turns them
-into the arrays of :class:`vectoradjust.accuracy.smart.FeatureSet`, and
+into the arrays of :class:`vectoradjust.conflation.smart.FeatureSet`, and
 :func:`conflated_frame` / :func:`write_smart` write ``conflated.gpkg`` (layer
 ``conflated``), ``conflated.csv`` and ``summary.json``. geopandas and pyogrio are
 imported inside the functions only.
@@ -152,7 +152,7 @@ def line_arrays(geoms) -> list:
 
 
 def _first(columns: dict, fields, as_class: bool = False) -> Optional[np.ndarray]:
-    from vectoradjust.accuracy.smart import normalise_name
+    from vectoradjust.conflation.smart import normalise_name
 
     for f in fields:
         if f in columns:
@@ -171,11 +171,11 @@ def _numbers(columns: dict, name: str, n: int) -> np.ndarray:
 
 
 def feature_set(name: str, xy: list, columns: dict):
-    """A :class:`vectoradjust.accuracy.smart.FeatureSet` from the features' XY arrays
+    """A :class:`vectoradjust.conflation.smart.FeatureSet` from the features' XY arrays
     and their attribute columns (``{field: values}``: ``CE90``, ``LE90``, ``RMSE``, a
     name field of :data:`NAME_FIELDS`, a class field of :data:`CLASS_FIELDS`). No
     geodata package: the QGIS algorithm calls it with what QGIS read."""
-    from vectoradjust.accuracy.smart import FeatureSet
+    from vectoradjust.conflation.smart import FeatureSet
 
     n = len(xy)
     return FeatureSet(name, xy, _numbers(columns, "CE90", n), _numbers(columns, "LE90", n),
@@ -184,7 +184,7 @@ def feature_set(name: str, xy: list, columns: dict):
 
 
 def feature_sets(sources: list) -> list:
-    """The :class:`vectoradjust.accuracy.smart.FeatureSet` of each ``(name, frame)``."""
+    """The :class:`vectoradjust.conflation.smart.FeatureSet` of each ``(name, frame)``."""
     out = []
     for name, f in sources:
         columns = {c: f[c].to_numpy(object) for c in f.columns if c != f.geometry.name}
@@ -219,7 +219,7 @@ def conflated_frame(sources: list, result):
     ----------
     sources : list of tuple
         ``[(name, GeoDataFrame)]`` as given to :func:`feature_sets`.
-    result : vectoradjust.accuracy.smart.SmartResult
+    result : vectoradjust.conflation.smart.SmartResult
 
     Returns
     -------

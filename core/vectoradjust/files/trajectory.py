@@ -36,7 +36,7 @@ def read_trajectory(path: str) -> dict:
     CSVError
         Missing columns, non-numeric values, a repeated image, a negative sigma.
     """
-    from vectoradjust.files.tables import _read_rows, parse_table
+    from vectoradjust.files.csv_tables import _read_rows, parse_table
 
     header, rows, lines = _read_rows(path)
     numeric = [c for c in TRAJECTORY_COLUMNS if c != "image_id" and c.lower() in

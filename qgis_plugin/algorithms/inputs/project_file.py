@@ -273,7 +273,7 @@ def _refuse_datums(spec) -> None:
 
 def _read_tables(alg, parameters, context, spec, crs) -> tuple:
     """``(measurements, control, fiducials)`` from the parameters or the project's files."""
-    from vectoradjust.files.tables import read_control, read_fiducials, read_measurements
+    from vectoradjust.files.csv_tables import read_control, read_fiducials, read_measurements
 
     unit = spec.measurements.get("unit", "mm")
     if _is_set(parameters, MEASUREMENTS):

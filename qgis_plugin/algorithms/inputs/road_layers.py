@@ -91,7 +91,7 @@ def read_road_layer(prj, source, vlayer, context, feedback, *, name="", id_field
     -------
     RoadDatabase
     """
-    from vectoradjust.files.tables import read_truth_points
+    from vectoradjust.files.csv_tables import read_truth_points
     from vectoradjust.model import VectorSpec
 
     from ..matching import holds_whole_entry, vertex_renames
@@ -192,7 +192,7 @@ def read_project_entry(prj, entry, context, feedback, dems=None):
     -------
     (VectorSpec, LineLayer, truth or None)
     """
-    from vectoradjust.files.tables import read_truth_points
+    from vectoradjust.files.csv_tables import read_truth_points
 
     where = f"[[vectors]] entry {entry.name!r} of {prj.source}"
     feedback.setProgressText(f"reading {entry.name} ({entry.path})")

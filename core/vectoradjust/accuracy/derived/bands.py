@@ -101,7 +101,7 @@ def vertex_covariance(db: DatabaseResult) -> Optional[np.ndarray]:
     Built from ``d.vertices``: the sigmas ``SigmaX/Y/Z`` on the diagonal (a measured
     vertex: the adjustment's covariance, the database offsets' share included, plus the
     identification error; a conflated one: the collocation's prediction error with the
-    database noise and the trend's error, :mod:`vectoradjust.accuracy.conflation`), the
+    database noise and the trend's error, :mod:`vectoradjust.conflation`), the
     horizontal block scaled so that its CE90 is the vertex's ``CE90`` (for a conflated
     vertex the CE90 of the predictive distribution, a little wider than the plug-in
     normal's). NaN where the vertex has no value (unmeasured and not conflated).

@@ -11,6 +11,7 @@ from typing import Optional
 
 import numpy as np
 
+from vectoradjust.files.csv_tables import read_control, read_measurements, read_truth_points
 from vectoradjust.files.project import ProjectSpec, load_project
 from vectoradjust.files.readers.crs import (
     _parts,
@@ -24,7 +25,6 @@ from vectoradjust.files.readers.crs import (
 )
 from vectoradjust.files.readers.elevation import dem_heights, sample_dem
 from vectoradjust.files.readers.layers import read_line_layer
-from vectoradjust.files.tables import read_control, read_measurements, read_truth_points
 from vectoradjust.model import ProjectData
 
 __all__ = [
@@ -59,7 +59,7 @@ def load_project_data(project, vectors: Optional[list] = None,
         DEM heights in its vertical datum (:func:`dem_heights`).
     """
     from vectoradjust.files.assemble import project_data
-    from vectoradjust.files.tables import read_fiducials
+    from vectoradjust.files.csv_tables import read_fiducials
 
     spec = project if isinstance(project, ProjectSpec) else load_project(project)
     where = str(spec.path) if spec.path else "<project>"

@@ -11,9 +11,9 @@ from typing import Optional
 
 import numpy as np
 
-from vectoradjust.accuracy.conflation.covariance import CovarianceModel, fit_covariance
-from vectoradjust.accuracy.conflation.kriging import _cv_stats, _krige_many
-from vectoradjust.accuracy.conflation.settings import CE90_CIRCULAR, LE90, ConflationSettings
+from vectoradjust.conflation.covariance import CovarianceModel, fit_covariance
+from vectoradjust.conflation.kriging import _cv_stats, _krige_many
+from vectoradjust.conflation.settings import CE90_CIRCULAR, LE90, ConflationSettings
 
 __all__ = []
 

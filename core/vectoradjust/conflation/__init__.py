@@ -1,4 +1,9 @@
-"""Conflation: correct every vertex of a road database by least-squares collocation.
+"""Conflation: correct the road databases.
+
+Every vertex of a database is corrected by least-squares collocation (this package's
+main part, below); :mod:`~vectoradjust.conflation.smart` conflates several adjusted
+databases feature by feature. It sits beside :mod:`vectoradjust.accuracy` (it moves
+vertices, it does not only describe them) and uses its tables.
 
 docs/method.md section 10: a database vertex is ``X_db = X_true + T_db + s(x) + e_db``. The
 adjustment measures some vertices; their displacement ``d = X_hat - X_db`` is the
@@ -36,109 +41,111 @@ vertical are separate fields. Numpy and scipy only.
 
 Modules (by topic)
 ------------------
-- :mod:`~vectoradjust.accuracy.conflation.settings` - settings and constants.
-- :mod:`~vectoradjust.accuracy.conflation.covariance` - the covariance function and its fit.
-- :mod:`~vectoradjust.accuracy.conflation.ce90` - the predictive CE90 (noise and sill posterior).
-- :mod:`~vectoradjust.accuracy.conflation.kriging` - kriging and cross-validation.
-- :mod:`~vectoradjust.accuracy.conflation.fields` - the trend and the fields of a database.
-- :mod:`~vectoradjust.accuracy.conflation.coverage` - coverage per distance band, truth check.
-- :mod:`~vectoradjust.accuracy.conflation.images` - image-only positions, the sill's prior.
-- :mod:`~vectoradjust.accuracy.conflation.prediction` - the prediction, :class:`FieldModel`.
-- :mod:`~vectoradjust.accuracy.conflation.run` - conflating a database and a run, the grid.
+- :mod:`~vectoradjust.conflation.settings` - settings and constants.
+- :mod:`~vectoradjust.conflation.covariance` - the covariance function and its fit.
+- :mod:`~vectoradjust.conflation.ce90` - the predictive CE90 (noise and sill posterior).
+- :mod:`~vectoradjust.conflation.kriging` - kriging and cross-validation.
+- :mod:`~vectoradjust.conflation.fields` - the trend and the fields of a database.
+- :mod:`~vectoradjust.conflation.coverage` - coverage per distance band, truth check.
+- :mod:`~vectoradjust.conflation.images` - image-only positions, the sill's prior.
+- :mod:`~vectoradjust.conflation.prediction` - the prediction, :class:`FieldModel`.
+- :mod:`~vectoradjust.conflation.run` - conflating a database and a run, the grid.
+- :mod:`~vectoradjust.conflation.smart` - smart conflation: adjusted databases matched
+  feature by feature, the more accurate feature prevailing.
 """
 
 from __future__ import annotations
 
 # the public API (``__all__``) and, as ``name as name``, the other names that modules
 # and tests use from here (patch a name in the module that looks it up, not here)
-from vectoradjust.accuracy.conflation.ce90 import (
+from vectoradjust.conflation.ce90 import (
     _ce90_table as _ce90_table,
 )
-from vectoradjust.accuracy.conflation.ce90 import (
+from vectoradjust.conflation.ce90 import (
     _gauss_rule as _gauss_rule,
 )
-from vectoradjust.accuracy.conflation.ce90 import (
+from vectoradjust.conflation.ce90 import (
     ce90_factor,
 )
-from vectoradjust.accuracy.conflation.covariance import (
+from vectoradjust.conflation.covariance import (
     CovarianceModel,
     empirical_semivariogram,
     fit_covariance,
 )
-from vectoradjust.accuracy.conflation.covariance import (
+from vectoradjust.conflation.covariance import (
     _fit_white as _fit_white,
 )
-from vectoradjust.accuracy.conflation.covariance import (
+from vectoradjust.conflation.covariance import (
     _loo_score as _loo_score,
 )
-from vectoradjust.accuracy.conflation.covariance import (
+from vectoradjust.conflation.covariance import (
     _loo_score_fisher as _loo_score_fisher,
 )
-from vectoradjust.accuracy.conflation.covariance import (
+from vectoradjust.conflation.covariance import (
     _loo_score_grad as _loo_score_grad,
 )
-from vectoradjust.accuracy.conflation.covariance import (
+from vectoradjust.conflation.covariance import (
     _loo_setup as _loo_setup,
 )
-from vectoradjust.accuracy.conflation.covariance import (
+from vectoradjust.conflation.covariance import (
     _nugget_scores as _nugget_scores,
 )
-from vectoradjust.accuracy.conflation.covariance import (
+from vectoradjust.conflation.covariance import (
     _projected_bfgs as _projected_bfgs,
 )
-from vectoradjust.accuracy.conflation.covariance import (
+from vectoradjust.conflation.covariance import (
     _sill_dof as _sill_dof,
 )
-from vectoradjust.accuracy.conflation.coverage import (
+from vectoradjust.conflation.coverage import (
     DISTANCE_BANDS,
     band_coverage,
 )
-from vectoradjust.accuracy.conflation.fields import (
+from vectoradjust.conflation.fields import (
     _Trend as _Trend,
 )
-from vectoradjust.accuracy.conflation.fields import (
+from vectoradjust.conflation.fields import (
     _trend_cov as _trend_cov,
 )
-from vectoradjust.accuracy.conflation.fields import (
+from vectoradjust.conflation.fields import (
     _trend_design as _trend_design,
 )
-from vectoradjust.accuracy.conflation.fields import (
+from vectoradjust.conflation.fields import (
     _trend_field_cov as _trend_field_cov,
 )
-from vectoradjust.accuracy.conflation.images import (
+from vectoradjust.conflation.images import (
     _mean_variance as _mean_variance,
 )
-from vectoradjust.accuracy.conflation.images import (
+from vectoradjust.conflation.images import (
     _measured_objects as _measured_objects,
 )
-from vectoradjust.accuracy.conflation.images import (
+from vectoradjust.conflation.images import (
     _orientation_basis as _orientation_basis,
 )
-from vectoradjust.accuracy.conflation.images import (
+from vectoradjust.conflation.images import (
     _sill_prior as _sill_prior,
 )
-from vectoradjust.accuracy.conflation.images import (
+from vectoradjust.conflation.images import (
     image_only,
 )
-from vectoradjust.accuracy.conflation.kriging import (
+from vectoradjust.conflation.kriging import (
     _krige_many as _krige_many,
 )
-from vectoradjust.accuracy.conflation.kriging import (
+from vectoradjust.conflation.kriging import (
     cross_validate,
     krige,
 )
-from vectoradjust.accuracy.conflation.prediction import (
+from vectoradjust.conflation.prediction import (
     FieldModel,
 )
-from vectoradjust.accuracy.conflation.run import (
+from vectoradjust.conflation.run import (
     conflate_database,
     conflate_run,
     field_grid,
 )
-from vectoradjust.accuracy.conflation.run import (
+from vectoradjust.conflation.run import (
     inside_hull as inside_hull,
 )
-from vectoradjust.accuracy.conflation.settings import (
+from vectoradjust.conflation.settings import (
     CE90_CIRCULAR,
     CONFLATION_KEYS,
     LE90,

@@ -10,7 +10,7 @@ from typing import Optional
 
 import numpy as np
 
-from vectoradjust.accuracy.conflation.covariance import CovarianceModel
+from vectoradjust.conflation.covariance import CovarianceModel
 
 __all__ = ["ce90_factor"]
 

@@ -11,7 +11,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from vectoradjust.accuracy.conflation.covariance import CovarianceModel, _neighbours, _system
+from vectoradjust.conflation.covariance import CovarianceModel, _neighbours, _system
 from vectoradjust.errors import CancelledError
 
 __all__ = ["krige", "cross_validate", "band_factors"]
@@ -191,7 +191,7 @@ def band_factors(cov: CovarianceModel, xy_m: np.ndarray, resid: np.ndarray,
     """
     from scipy.spatial import cKDTree
 
-    from vectoradjust.accuracy.conflation.ce90 import ce90_factor
+    from vectoradjust.conflation.ce90 import ce90_factor
 
     m = len(xy_m)
     out = np.ones(len(edges) - 1)

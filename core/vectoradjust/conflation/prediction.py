@@ -11,10 +11,10 @@ from typing import Optional
 
 import numpy as np
 
-from vectoradjust.accuracy.conflation.ce90 import ce90_factor
-from vectoradjust.accuracy.conflation.covariance import CovarianceModel
-from vectoradjust.accuracy.conflation.coverage import DISTANCE_BANDS
-from vectoradjust.accuracy.conflation.fields import (
+from vectoradjust.conflation.ce90 import ce90_factor
+from vectoradjust.conflation.covariance import CovarianceModel
+from vectoradjust.conflation.coverage import DISTANCE_BANDS
+from vectoradjust.conflation.fields import (
     _fields,
     _Trend,
     _trend,
@@ -22,14 +22,14 @@ from vectoradjust.accuracy.conflation.fields import (
     _trend_design,
     _trend_field_cov,
 )
-from vectoradjust.accuracy.conflation.images import (
+from vectoradjust.conflation.images import (
     _image_scale,
     _mean_variance,
     _orientation_basis,
     _sill_prior,
     image_only,
 )
-from vectoradjust.accuracy.conflation.kriging import _krige_many, band_factors
+from vectoradjust.conflation.kriging import _krige_many, band_factors
 
 __all__ = ["FieldModel"]
 

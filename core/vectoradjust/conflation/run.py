@@ -10,11 +10,11 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from vectoradjust.accuracy.conflation.coverage import _truth_check
-from vectoradjust.accuracy.conflation.fields import _vertex_columns
-from vectoradjust.accuracy.conflation.images import _measured_objects
-from vectoradjust.accuracy.conflation.prediction import _predicted_objects
-from vectoradjust.accuracy.conflation.settings import (
+from vectoradjust.conflation.coverage import _truth_check
+from vectoradjust.conflation.fields import _vertex_columns
+from vectoradjust.conflation.images import _measured_objects
+from vectoradjust.conflation.prediction import _predicted_objects
+from vectoradjust.conflation.settings import (
     CE90_CIRCULAR,
     LE90,
     SOURCES,

@@ -11,8 +11,8 @@ from typing import Optional
 
 import numpy as np
 
-from vectoradjust.accuracy.conflation.covariance import CovarianceModel
-from vectoradjust.accuracy.conflation.settings import SILL_PRIOR_DOF
+from vectoradjust.conflation.covariance import CovarianceModel
+from vectoradjust.conflation.settings import SILL_PRIOR_DOF
 
 __all__ = ["image_only"]
 
