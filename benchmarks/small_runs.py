@@ -18,6 +18,7 @@ wrapper; on a machine shared with other jobs the CPU time depends less on the lo
 * ``study gcp sample``: ``vectoradjust study gcp`` with its defaults on the sample.
   Target 5 s.
 * ``demo``: ``vectoradjust demo`` (the sample project written and adjusted). Target 6 s.
+  The peak is the largest resident set of one process (the parent or a forked one).
 * ``adjust pair 10^4``: ``vectoradjust adjust`` with its default outputs on the simulated
   project ``make_scenario(1, n_shape_points=10_000, databases=("OSM", "TNM"))`` (made
   once, in the work directory). Target 1.5 s.
@@ -148,8 +149,8 @@ def _row(row: str, work: Path, core: Path, repeat: int, first: bool) -> dict:
 
 def _table(results: dict) -> str:
     """The printed table: one line per row and kind (warm, first run)."""
-    lines = ["| row | run | wall s (median) | range s | CPU s | target | |",
-             "|---|---|---:|---:|---:|---|---|"]
+    lines = ["| row | run | wall s (median) | range s | CPU s | peak MB | target | |",
+             "|---|---|---:|---:|---:|---:|---|---|"]
     names = {"pipeline": "pipeline.run sample", "gcp": "study gcp sample", "demo": "demo",
              "pair": "adjust pair 10^4"}
     for (row, kind), r in results.items():
@@ -160,8 +161,9 @@ def _table(results: dict) -> str:
             warm = results.get((row, "warm"))
             target = "<= warm + 2 s"
             ok = warm is not None and r["wall"] <= warm["wall"] + 2.0
+        peak = f"{r['mb']:.0f}" if r.get("mb") is not None else "-"
         lines.append(f"| {names[row]} | {kind} | {r['wall']:.2f} | {r['min']:.2f}-{r['max']:.2f} "
-                     f"| {r['cpu']:.2f} | {target} | {'ok' if ok else 'MISSED'} |")
+                     f"| {r['cpu']:.2f} | {peak} | {target} | {'ok' if ok else 'MISSED'} |")
     return "\n".join(lines)
 
 
@@ -181,6 +183,7 @@ def main(argv=None) -> int:
     work = a.work or Path(tempfile.mkdtemp(prefix="small-runs-"))
     work.mkdir(parents=True, exist_ok=True)
     results = {}
+    load = os.getloadavg()  # (the machine's other work: say it with the times)
     for row in [r.strip() for r in a.rows.split(",") if r.strip()]:
         if row not in ROWS:
             ap.error(f"unknown row {row!r}: use {', '.join(ROWS)}")
@@ -193,7 +196,9 @@ def main(argv=None) -> int:
             print(f"  {row} ({kind}): {results[(row, kind)]['wall']:.2f} s "
                   f"[{time.perf_counter() - t:.0f} s]", file=sys.stderr, flush=True)
     text = _table(results)
-    print(f"core: {a.core.resolve()}\n{text}")
+    print(f"core: {a.core.resolve()}\n{text}\nload average (1, 5, 15 min) before: "
+          + ", ".join(f"{x:.2f}" for x in load) + "; after: "
+          + ", ".join(f"{x:.2f}" for x in os.getloadavg()))
     if a.json:
         a.json.write_text(json.dumps({f"{r}|{k}": v for (r, k), v in results.items()}, indent=1))
     return 1 if a.check and "MISSED" in text else 0

@@ -44,37 +44,46 @@ def compare(project, out_dir, fmt: str = "gpkg", quiet: bool = False) -> list:
     return rows
 
 
-def _compare_into(project, folder, fmt: str, quiet: bool) -> tuple:
+def _compare_into(project, folder, fmt: str, quiet: bool, adjusted=None) -> tuple:
     """:func:`compare` into an open RunFolder; (rows, names of the databases that failed
-    with an error, not merely for want of measurements)."""
-    from vectoradjust.cli import study as cli_study
+    with an error, not merely for want of measurements).
+
+    Each database's report is drawn by another process while the next database is
+    adjusted (with its part of the comparison report, the figures they share drawn
+    once); ``adjusted()`` (optional) is called once every database is adjusted, before
+    their reports are waited for (``demo`` finishes its first folder there)."""
     from vectoradjust.files.project import load_project
     from vectoradjust.files.readers import load_project_data
+    from vectoradjust.files.report.figures import database_colors
+    from vectoradjust.runner.project_run import close_reports
 
     spec = load_project(project)
     if not spec.vectors:
         raise VectorAdjustError(f"{project}: there are no [[vectors]] entries to compare",
                                 "Add [[vectors]] entries (one per road database)")
-    from vectoradjust.files.report import write_compare_report
-
     data = load_project_data(spec)
-    runs, rows, failed = _compare_each(spec, data, folder, fmt, quiet)
-    errors = [r["database"] for r in failed if r.pop("_error", False)]
-    if not runs:
-        if errors:
-            raise VectorAdjustError(
-                f"{project}: no road database could be adjusted: "
-                + "; ".join(r["error"] for r in failed),
-                "Mend the inputs named above (the previous result in the output folder is "
-                "left as it was)")
-        raise NothingAdjustedError(
-            f"{project}: no road database has a measured shape point",
-            "See the messages above: set id_field, or measure the shape points")
-    stage = folder.stage
-    cli_study.write_common_points(runs, stage)  # points used by several databases
-    write_compare_report(runs, rows, stage / "report.html",
-                         progress=ProgressBar("  report", enabled=not quiet))
+    colors = database_colors([v.name for v in spec.vectors])  # one colour per database
+    pending: list = []  # the databases' reports, drawn while the next one is adjusted
+    try:
+        runs, rows, failed = _compare_each(spec, data, folder, (fmt, quiet, colors), pending)
+        errors = [r["database"] for r in failed if r.pop("_error", False)]
+        if not runs:
+            if errors:
+                raise VectorAdjustError(
+                    f"{project}: no road database could be adjusted: "
+                    + "; ".join(r["error"] for r in failed),
+                    "Mend the inputs named above (the previous result in the output folder "
+                    "is left as it was)")
+            raise NothingAdjustedError(
+                f"{project}: no road database has a measured shape point",
+                "See the messages above: set id_field, or measure the shape points")
+        if adjusted is not None:
+            adjusted()
+        _compare_report(folder.stage, runs, rows, colors, pending, quiet)
+    finally:
+        close_reports(pending)
     rows = rows + failed  # the databases that could not be adjusted, with the reason
+    stage = folder.stage
     with open(stage / "compare.csv", "w", newline="", encoding="utf-8") as fh:
         cols = compare_columns(rows)
         w = csv.DictWriter(fh, fieldnames=[k for k, _ in cols])
@@ -87,9 +96,28 @@ def _compare_into(project, folder, fmt: str, quiet: bool) -> tuple:
     return rows, errors
 
 
-def _compare_each(spec, data, folder, fmt: str, quiet: bool) -> tuple:
+def _compare_report(stage, runs: list, rows: list, colors: dict, pending: list,
+                    quiet: bool) -> None:
+    """The databases' reports waited for (their bars shown in turn), then the points
+    used by several databases and the comparison report (its parts about the runs
+    drawn beside their reports) written into ``stage``."""
+    from vectoradjust.cli import study as cli_study
+    from vectoradjust.files.report import write_compare_report
+    from vectoradjust.runner.project_run import finish_reports
+
+    finish_reports(pending)
+    sections = {id(p.job.run): p.section for p in pending}
+    cli_study.write_common_points(runs, stage)  # points used by several databases
+    write_compare_report(runs, rows, stage / "report.html",
+                         progress=ProgressBar("  report", enabled=not quiet), colors=colors,
+                         sections=[sections.get(id(r)) for r in runs])
+
+
+def _compare_each(spec, data, folder, how: tuple, pending: list) -> tuple:
     """Each database run alone into ``folder``/<name> (:func:`vectoradjust.runner.
     project_run.run_into`, as ``adjust --vectors NAME`` would); (runs, rows, failed rows).
+    ``how``: (format, quiet, the databases' colours); the reports still being drawn are
+    appended to ``pending``.
 
     A database that fails (any :class:`VectorAdjustError` but a cancel or a full disk) is
     reported and left out; the others go on. A failed row has ``_error`` true unless
@@ -98,6 +126,7 @@ def _compare_each(spec, data, folder, fmt: str, quiet: bool) -> tuple:
     from vectoradjust.files.outputs import is_disk_full
     from vectoradjust.runner.project_run import Project, RunOptions, run_into
 
+    fmt, quiet, colors = how
     project = Project(spec, data)  # read once for all databases
     runs, rows, failed = [], [], []
     for i, v in enumerate(spec.vectors):
@@ -106,7 +135,8 @@ def _compare_each(spec, data, folder, fmt: str, quiet: bool) -> tuple:
                          {"adjust": f"{v.name:>8s} ({i + 1}/{len(spec.vectors)})"})
         try:
             result, _, _ = run_into(project, folder, target, RunOptions(
-                fmt=fmt, vectors=[v.name], quiet=quiet, command="compare"), bars)
+                fmt=fmt, vectors=[v.name], quiet=quiet, command="compare",
+                compare_colors=colors), bars, reports=pending)
         except CancelledError:
             raise
         except VectorAdjustError as exc:  # this database only: the others go on

@@ -11,7 +11,9 @@ their results:
 - :class:`BandsAlongside` - the uncertainty bands, one share of the features per
   process, once the adjustment is final (each process saves its share's covariances
   in a temporary file, :func:`covariance_file`, and lets the factorisation go);
-- :class:`ReportAlongside` - ``report.html`` while the parent writes the layers.
+- :class:`ReportAlongside` - ``report.html`` while the parent writes the layers (and,
+  with ``run_into(reports=...)``, while it adjusts the next database: ``compare``,
+  ``demo``).
 
 Without ``fork`` (not Linux), with one worker or ``enabled=False`` every stage runs in
 the parent where its result is needed: the outputs are the same either way.
@@ -314,15 +316,33 @@ class KernelsAlongside:
             self.job = None
 
 
-def write_report_html(run, path, qa, progress=None):
-    """``report.html`` of ``run`` (with the ``[qa]`` verdict ``qa``, if any) at ``path``."""
-    from vectoradjust.files.report import write_report
+def write_report_html(run, path, qa, progress=None, colors=None, section: bool = False):
+    """``report.html`` of ``run`` (with the ``[qa]`` verdict ``qa``, if any) at ``path``.
 
-    return write_report(run, path, reliability=run.reliability, qa=qa, progress=progress)
+    ``colors``: each database's colour in the figures. ``section``: also the run's part
+    of the comparison report (:func:`vectoradjust.files.report.page.compare_section`,
+    with the same colours), drawn in the same figure memo (the figures the two share
+    are drawn once); then ``(path, section)`` is returned."""
+    from vectoradjust.files.report import write_report
+    from vectoradjust.files.report.figures import figure_memo
+    from vectoradjust.files.report.page import compare_section
+
+    say = progress if progress is None or not section else (
+        lambda f, m="": progress(0.8 * f, m))
+    with figure_memo():
+        path = write_report(run, path, reliability=run.reliability, qa=qa, progress=say,
+                            colors=colors)
+        if not section:
+            return path
+        part = compare_section(run, colors=colors)
+    if progress is not None:
+        progress(1.0, "report and its section of the comparison report written")
+    return path, part
 
 
 class ReportAlongside:
-    """``report.html`` written by a forked process while the parent writes the layers.
+    """``report.html`` written by a forked process while the parent writes the layers
+    (and, when :meth:`result` is asked for later, adjusts the next database).
 
     Writing the layers may add GDAL's warnings to the run's; the report shows them, so
     when they changed after the fork the parent writes the report again (the child's
@@ -337,24 +357,35 @@ class ReportAlongside:
         The accuracy-control verdict.
     enabled : bool
         False: written by the parent when :meth:`result` is asked for.
+    colors : dict, optional
+        Each database's colour in the figures.
+    section : bool
+        Also the run's part of the comparison report (:attr:`section` once
+        :meth:`result` has returned).
     """
 
-    def __init__(self, run, out_dir, qa, enabled: bool = True) -> None:
+    def __init__(self, run, out_dir, qa, enabled: bool = True, colors=None,
+                 section: bool = False) -> None:
         from vectoradjust.runner.background import Background
 
-        self.run, self.qa = run, qa
+        self.run, self.qa, self.colors, self.want = run, qa, colors, section
+        self.section = None
         self.path = Path(out_dir) / "report.html"
         self.warnings = list(run.summary.get("warnings") or [])
-        self.job = Background(write_report_html, run, self.path, qa, enabled=enabled)
+        self.job = Background(write_report_html, run, self.path, qa, colors=colors,
+                              section=section, enabled=enabled)
         self.forked = self.job.forked  # (the job forgets its process once it has ended)
 
     def result(self, progress=None) -> Path:
         """The report written (waits for the child, forwarding its progress)."""
-        path = self.job.result(progress)
+        value = self.job.result(progress)
         if self.forked and self.job.done and \
                 list(self.run.summary.get("warnings") or []) != self.warnings:
-            path = write_report_html(self.run, self.path, self.qa, progress)
-        return path
+            value = write_report_html(self.run, self.path, self.qa, progress, self.colors,
+                                      self.want)
+        if self.want:
+            value, self.section = value
+        return value
 
     def close(self) -> None:
         """Stop the child if it still runs."""

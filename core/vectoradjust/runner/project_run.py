@@ -10,7 +10,9 @@ writes a project's folder (``adjust``, ``demo``, ``compare`` per database,
 
 beside which the forked stages of :mod:`vectoradjust.runner.alongside` run (the truth
 tests' half on the database lines and the band kernels during the solve, the
-uncertainty bands and the report while the parent writes the layers). Everything is
+uncertainty bands and the report while the parent writes the layers; with
+``run_into(reports=...)`` the report goes on while the caller does its next work, and
+is taken before the commit: :class:`PendingReport`, :func:`finish_reports`). Everything is
 written into the folder's staging folder and moved into place at the end
 (:class:`vectoradjust.files.outputs.RunFolder`): a failed, cancelled or interrupted
 run leaves the previous result as it was.
@@ -29,8 +31,9 @@ from typing import Any, Callable, Optional
 
 from vectoradjust.errors import CancelledError, InputFileError, VectorAdjustError
 
-__all__ = ["RunOptions", "Project", "ProjectResult", "read_project", "run_project",
-           "run_into", "truth_tables", "qa_verdict", "sample_project_dir", "STAGES"]
+__all__ = ["RunOptions", "Project", "ProjectResult", "PendingReport", "read_project",
+           "run_project", "run_into", "finish_reports", "close_reports", "truth_tables",
+           "qa_verdict", "sample_project_dir", "STAGES"]
 
 #: the stages of a run and their share of a single ``progress(fraction, message)``
 STAGES = {"adjust": (0.0, 0.75), "truth": (0.75, 0.8), "truth tables": (0.8, 0.85),
@@ -64,6 +67,10 @@ class RunOptions:
         are the same either way.
     command : str
         The command recorded in the folder's lock and ``run_manifest.json``.
+    compare_colors : dict, optional
+        In a comparison (``compare``): each database's colour in the figures; the
+        run's report then also builds its part of the comparison report
+        (:attr:`PendingReport.section`; the figures the two share are drawn once).
     """
 
     fmt: str = "gpkg"
@@ -75,6 +82,7 @@ class RunOptions:
     quiet: bool = False
     background: bool = True
     command: str = "adjust"
+    compare_colors: Optional[dict] = None
 
 
 @dataclass
@@ -136,6 +144,53 @@ class ProjectResult:
     def summary(self) -> dict:
         """``summary.json`` as a dict."""
         return self.run.summary
+
+
+@dataclass
+class PendingReport:
+    """A run's ``report.html`` still being written (by another process, where it can
+    fork) after :func:`run_into` returned with ``reports=``: the caller goes on (e.g.
+    adjusts the next database) and takes it with :meth:`result` before the folder's
+    commit (:func:`finish_reports`), or stops it (:func:`close_reports`).
+
+    Attributes
+    ----------
+    job : vectoradjust.runner.alongside.ReportAlongside
+    bar : callable
+        Gives the progress callable of the report's stage (called when it is waited for).
+    """
+
+    job: Any
+    bar: Callable
+
+    def result(self) -> Path:
+        """The report's path in the staging folder (waits for it, showing its progress)."""
+        return self.job.result(self.bar())
+
+    @property
+    def section(self):
+        """The run's part of the comparison report (``compare_colors`` given; once
+        :meth:`result` has returned), else None."""
+        return self.job.section
+
+    def close(self) -> None:
+        """Stop its process if it still runs."""
+        self.job.close()
+
+
+def finish_reports(reports: list) -> list:
+    """Wait for every :class:`PendingReport` in ``reports`` (in order); their paths.
+    Whatever happens, none is left running (a cancel or an error stops the others)."""
+    try:
+        return [r.result() for r in reports]
+    finally:
+        close_reports(reports)
+
+
+def close_reports(reports: list) -> None:
+    """Stop the processes of the reports in ``reports`` that still run."""
+    for r in reports:
+        r.close()
 
 
 def sample_project_dir() -> Path:
@@ -298,7 +353,8 @@ def _check(cancel) -> None:
         raise CancelledError("The run was cancelled", "Run it again to finish it")
 
 
-def run_into(source, folder, target, options: RunOptions, progress=None, cancel=None):
+def run_into(source, folder, target, options: RunOptions, progress=None, cancel=None,
+             reports: Optional[list] = None):
     """Read, adjust and write a project into ``target`` of an open ``folder``.
 
     Parameters
@@ -311,6 +367,9 @@ def run_into(source, folder, target, options: RunOptions, progress=None, cancel=
         ``folder.path`` or a folder inside it.
     options, progress, cancel
         As :func:`run_project`.
+    reports : list, optional
+        Given: ``report.html`` is not waited for; a :class:`PendingReport` is appended
+        instead, for the caller to finish (:func:`finish_reports`) before the commit.
 
     Returns
     -------
@@ -358,7 +417,7 @@ def run_into(source, folder, target, options: RunOptions, progress=None, cancel=
     kernels.close()  # (ended by now, unless no band was started)
     bands = summarised(result, started, options.conflation_raster, bar)
     written, qa = _write(result, project, folder, target, options, (truth, pre), bands,
-                         progress, cancel)
+                         (progress, cancel, reports))
     return result, written, qa
 
 
@@ -389,15 +448,16 @@ def _truth(result, project, stage, truth_pre, progress, options, cancel) -> tupl
     return tables, before
 
 
-def _write(result, project, folder, target, options, truth_pre, bands, progress,
-           cancel) -> tuple:
+def _write(result, project, folder, target, options, truth_pre, bands, hooks) -> tuple:
     """The outputs written into ``target``'s staging folder; (the paths where they end
-    up by name, the ``[qa]`` verdict)."""
+    up by name, the ``[qa]`` verdict). ``hooks``: (progress, cancel, reports) as given
+    to :func:`run_into`."""
     from vectoradjust.files.jsonfile import write_json
     from vectoradjust.files.outputs import write_outputs
     from vectoradjust.runner.alongside import PLOTTING, ReportAlongside
     from vectoradjust.runner.background import Preload
 
+    progress, cancel, reports = hooks
     stage = folder.staged(target)
     stage.mkdir(parents=True, exist_ok=True)
     warm = Preload(PLOTTING if options.report else ())  # the bands' processes have started
@@ -407,7 +467,9 @@ def _write(result, project, folder, target, options, truth_pre, bands, progress,
         qa_doc = qa_verdict(result, project.data)
         if options.report:
             warm.wait()  # no module half imported in the report's process
-            report = ReportAlongside(result, stage, qa_doc, enabled=options.background)
+            report = ReportAlongside(result, stage, qa_doc, enabled=options.background,
+                                     colors=options.compare_colors,
+                                     section=options.compare_colors is not None)
         written = write_outputs(result, target, fmt=options.fmt,
                                 bands=bands.result if bands is not None else False,
                                 progress=_stage(progress, "write", options),
@@ -422,15 +484,23 @@ def _write(result, project, folder, target, options, truth_pre, bands, progress,
         if bands is not None:
             bands.close()
     written.update({k: str(folder.final(v)) for k, v in truth_csv.items()})
-    if options.conflation_raster:
-        from vectoradjust.files.derived_outputs import write_conflation_rasters
+    try:
+        if options.conflation_raster:
+            from vectoradjust.files.derived_outputs import write_conflation_rasters
 
-        written.update({k: str(folder.final(v))
-                        for k, v in write_conflation_rasters(result, stage).items()})
-    if qa_doc is not None:  # [qa] in the project: the accuracy-control verdict goes along
-        written["qa.json"] = str(folder.final(write_json(
-            stage, "qa.json", {**qa_doc, "project": project.label})))
-    if report is not None:
+            written.update({k: str(folder.final(v))
+                            for k, v in write_conflation_rasters(result, stage).items()})
+        if qa_doc is not None:  # [qa] in the project: the accuracy-control verdict goes along
+            written["qa.json"] = str(folder.final(write_json(
+                stage, "qa.json", {**qa_doc, "project": project.label})))
+    except BaseException:
+        if report is not None:
+            report.close()
+        raise
+    if report is not None and reports is not None:  # the caller takes it later
+        reports.append(PendingReport(report, lambda: _stage(progress, "report", options)))
+        written["report.html"] = str(folder.final(report.path))
+    elif report is not None:
         written["report.html"] = str(folder.final(
             report.result(_stage(progress, "report", options))))
     return written, qa_doc

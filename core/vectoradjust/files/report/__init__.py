@@ -9,7 +9,10 @@ road databases (and the truth comparison of simulations), accuracy statements
 residuals and flagged observations, features, shape points, the QA verdict when given,
 and warnings. :func:`write_compare_report` does the same for ``vectoradjust compare``
 (each database adjusted alone): the comparison table, the RMSE chart across the
-databases and one set of sections per database.
+databases and one set of sections per database (:func:`compare_section`: built by the
+process that writes the database's own report, inside one
+:func:`~vectoradjust.files.report.figures.figure_memo`, so that the figures the two
+share are drawn once).
 
 Figures (matplotlib, imported lazily, Agg canvas only, no pyplot, so a running QGIS
 session is not disturbed): residual vectors over the road lines
@@ -78,6 +81,7 @@ from vectoradjust.files.report.page import _prepare as _prepare
 from vectoradjust.files.report.page import _write_text as _write_text
 from vectoradjust.files.report.page import (
     compare_report_html,
+    compare_section,
     report_html,
     write_compare_report,
     write_report,
@@ -89,6 +93,7 @@ __all__ = [
     "write_compare_report",
     "report_html",
     "compare_report_html",
+    "compare_section",
     "residual_vector_figure",
     "error_ellipse_figure",
     "conflation_figure",

@@ -12,7 +12,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from vectoradjust.files.report.figures import _img, residual_histogram_figure
+from vectoradjust.files.report.figures import _img, _Later, residual_histogram_figure
 from vectoradjust.files.report.markup import (
     _badge,
     _columns_table,
@@ -216,11 +216,14 @@ def _flagged_list(run, reliability) -> Optional[list]:
 
 
 def _residuals_body(run, reliability) -> str:
-    out = [_img(residual_histogram_figure(run, reliability), "standardized residuals",
-                "Image coordinate residuals v (adjusted \u2212 observed) divided by their a-priori "
-                "\u03c3, x and y pooled, with the standard normal density; v/\u03c3 has variance "
-                "\u03c3\u2080\u00b2 r\u1d62 (redundancy number r\u1d62 < 1), so it is narrower "
-                "than N(0, 1). The w-tests (when computed) are N(0, 1) under the null hypothesis.")]
+    out = [_img(_Later(("histogram", id(run), id(reliability)),
+                       lambda: residual_histogram_figure(run, reliability)),
+                "standardized residuals",
+                "Image coordinate residuals v (adjusted \u2212 observed) divided by their "
+                "a-priori \u03c3, x and y pooled, with the standard normal density; v/\u03c3 "
+                "has variance \u03c3\u2080\u00b2 r\u1d62 (redundancy number r\u1d62 < 1), so "
+                "it is narrower than N(0, 1). The w-tests (when computed) are N(0, 1) under "
+                "the null hypothesis.")]
     v = np.asarray(run.result.v_image, float) * 1000.0
     if v.size:
         rms = np.sqrt(np.nanmean(v**2, axis=0))

@@ -16,7 +16,13 @@ from pathlib import Path
 from typing import Any, Optional
 
 from vectoradjust.errors import InputFileError
-from vectoradjust.files.report.figures import _db_colors, _img, rmse_bar_figure
+from vectoradjust.files.report.figures import (
+    _db_colors,
+    _img,
+    _Later,
+    _run_key,
+    rmse_bar_figure,
+)
 from vectoradjust.files.report.listings import (
     _features_body,
     _flagged_body,
@@ -35,6 +41,7 @@ from vectoradjust.files.report.sections import (
     _error_model_body,
     _images_body,
     _reporting,
+    _section_done,
     _summary_body,
     _warnings_body,
 )
@@ -44,6 +51,7 @@ __all__ = [
     "write_compare_report",
     "report_html",
     "compare_report_html",
+    "compare_section",
 ]
 
 
@@ -65,10 +73,11 @@ def _run_sections(doc: _Doc, run, *, acc: Optional[dict], qa: Any, reliability: 
             level)
     sec(f"{prefix}accuracy", "Accuracy statements", _accuracy_body(acc), level)
     sec(f"{prefix}precision", "Precision of the adjusted points",
-        _img(error_ellipse_figure(run, colors=colors), "error ellipses",
-             "90 % confidence ellipses (semi-axes 2.1460 \u221a\u03bb of the a-posteriori 2\u00d72 "
-             "covariance) at the adjusted positions, exaggerated by the stated factor; the "
-             "circle gives the scale."), level)
+        _img(_Later(_run_key("error ellipses", run, colors),
+                    lambda: error_ellipse_figure(run, colors=colors)), "error ellipses",
+             "90 % confidence ellipses (semi-axes 2.1460 \u221a\u03bb of the a-posteriori "
+             "2\u00d72 covariance) at the adjusted positions, exaggerated by the stated "
+             "factor; the circle gives the scale."), level)
     sec(f"{prefix}residuals", "Image residuals", _residuals_body(run, reliability), level)
     sec(f"{prefix}flagged", "Flagged observations", _flagged_body(run, reliability, prefix), level)
     sec(f"{prefix}features", "Features", _features_body(run, acc, prefix), level)
@@ -154,7 +163,7 @@ def _project_label(project: str) -> str:
 
 def report_html(run, *, title: Optional[str] = None, accuracy: Optional[dict] = None,
                 compare_rows: Optional[Sequence[dict]] = None, qa: Any = None,
-                reliability: Any = None) -> str:
+                reliability: Any = None, colors: Optional[dict] = None) -> str:
     """The report of one adjustment as an HTML string (see :func:`write_report`)."""
     acc = _accuracy_for(run, accuracy)
     project = str((run.summary or {}).get("project", ""))
@@ -162,13 +171,14 @@ def report_html(run, *, title: Optional[str] = None, accuracy: Optional[dict] = 
     doc = _Doc()
     if compare_rows:
         doc.section("comparison", "Database comparison", _compare_table(compare_rows))
-    _run_sections(doc, run, acc=acc, qa=qa, reliability=reliability)
+    _run_sections(doc, run, acc=acc, qa=qa, reliability=reliability, colors=colors)
     return _page(title, doc, f"project {project}" if project else "adjustment")
 
 
 def write_report(run, path, *, title: Optional[str] = None, accuracy: Optional[dict] = None,
                  compare_rows: Optional[Sequence[dict]] = None, qa: Any = None,
-                 reliability: Any = None, progress=None, is_cancelled=None) -> Path:
+                 reliability: Any = None, progress=None, is_cancelled=None,
+                 colors: Optional[dict] = None) -> Path:
     """Write ``report.html``: one self-contained HTML file of an adjustment.
 
     Parameters
@@ -194,6 +204,9 @@ def write_report(run, path, *, title: Optional[str] = None, accuracy: Optional[d
         ``progress(fraction, message)`` after each section (figures and tables).
     is_cancelled : callable, optional
         Polled after each section; true raises :class:`CancelledError`.
+    colors : dict, optional
+        Colour of each road database in the figures (``compare`` gives every database
+        its colour in the comparison); default: the palette in the run's order.
 
     Returns
     -------
@@ -210,19 +223,56 @@ def write_report(run, path, *, title: Optional[str] = None, accuracy: Optional[d
     path = _prepare(Path(path))
     with _reporting(progress, is_cancelled):
         text = report_html(run, title=title, accuracy=accuracy, compare_rows=compare_rows,
-                           qa=qa, reliability=reliability)
+                           qa=qa, reliability=reliability, colors=colors)
     if progress is not None:
         progress(1.0, "report written")
     return _write_text(path, text)
 
 
+def compare_section(run, index: int = 0, *, colors: Optional[dict] = None,
+                    accuracy: Optional[dict] = None) -> _Doc:
+    """The part of the comparison report about one run: its heading and sections.
+
+    :func:`compare_report_html` takes it ready-made (``sections``): the process that
+    writes the run's own report builds it too, inside one
+    :func:`~vectoradjust.files.report.figures.figure_memo`, so that the figures the two
+    share are drawn once.
+
+    Parameters
+    ----------
+    run : vectoradjust.pipeline.AdjustmentRun
+    index : int
+        The run's place in the comparison (names a run without databases).
+    colors : dict, optional
+        Colour of each database in the figures (those of the whole comparison).
+    accuracy : dict, optional
+        The run's accuracy statements (default: as :func:`write_report`).
+
+    Returns
+    -------
+    _Doc
+        Its table-of-contents entries and its HTML parts.
+    """
+    doc = _Doc()
+    label = ", ".join(d.name for d in run.databases) or f"run {index + 1}"
+    ident = re.sub(r"[^A-Za-z0-9_-]+", "-", label) or f"run-{index + 1}"
+    prefix = f"{ident}-"
+    doc.section(f"{prefix}run", f"Database {label}", "", 2)
+    _run_sections(doc, run, acc=_accuracy_for(run, accuracy), qa=None, reliability=None,
+                  prefix=prefix, level=3, colors=_db_colors([d.name for d in run.databases],
+                                                            colors), with_bars=False)
+    return doc
+
+
 def compare_report_html(runs: Sequence, rows: Sequence[dict], *,
                         title: Optional[str] = None,
-                        accuracies: Optional[Sequence[Optional[dict]]] = None) -> str:
+                        accuracies: Optional[Sequence[Optional[dict]]] = None,
+                        colors: Optional[dict] = None,
+                        sections: Optional[Sequence] = None) -> str:
     """The comparison report as an HTML string (see :func:`write_compare_report`)."""
     runs = list(runs)
     names = [d.name for r in runs for d in r.databases]
-    colors = _db_colors(names)
+    colors = _db_colors(names, colors)
     project = str((runs[0].summary or {}).get("project", "")) if runs else ""
     title = title or f"vectoradjust comparison: {_project_label(project) or 'databases'}"
     doc = _Doc()
@@ -235,21 +285,25 @@ def compare_report_html(runs: Sequence, rows: Sequence[dict], *,
                    "RMSE per database", "Horizontal RMSE per road database across the runs."))
     doc.section("comparison", "Database comparison", body)
     accs = list(accuracies) if accuracies is not None else [None] * len(runs)
+    ready = list(sections or [])
     for i, r in enumerate(runs):
-        label = ", ".join(d.name for d in r.databases) or f"run {i + 1}"
-        ident = re.sub(r"[^A-Za-z0-9_-]+", "-", label) or f"run-{i + 1}"
-        prefix = f"{ident}-"
-        doc.section(f"{prefix}run", f"Database {label}", "", 2)
-        _run_sections(doc, r, acc=_accuracy_for(r, accs[i] if i < len(accs) else None),
-                      qa=None, reliability=None, prefix=prefix, level=3, colors=colors,
-                      with_bars=False)
+        part = ready[i] if i < len(ready) else None
+        if part is None:
+            part = compare_section(r, i, colors=colors,
+                                   accuracy=accs[i] if i < len(accs) else None)
+        else:  # built beforehand: its sections are counted here
+            for _, _, heading in part.toc:
+                _section_done(heading)
+        doc.toc.extend(part.toc)
+        doc.parts.extend(part.parts)
     return _page(title, doc, f"project {project}" if project else "comparison")
 
 
 def write_compare_report(runs: Sequence, rows: Sequence[dict], path, *,
                          title: Optional[str] = None,
                          accuracies: Optional[Sequence[Optional[dict]]] = None, progress=None,
-                         is_cancelled=None) -> Path:
+                         is_cancelled=None, colors: Optional[dict] = None,
+                         sections: Optional[Sequence] = None) -> Path:
     """Write the report of ``vectoradjust compare`` (each database adjusted alone).
 
     Parameters
@@ -264,6 +318,11 @@ def write_compare_report(runs: Sequence, rows: Sequence[dict], path, *,
         Accuracy statements per run (default: computed).
     progress, is_cancelled : callable, optional
         As in :func:`write_report`.
+    colors : dict, optional
+        Colour of each database in the figures (default: the palette in the runs' order).
+    sections : list, optional
+        Per run, its part of the report built beforehand (:func:`compare_section`, with
+        the same ``colors``), or None: built here.
 
     Returns
     -------
@@ -278,7 +337,8 @@ def write_compare_report(runs: Sequence, rows: Sequence[dict], path, *,
     """
     path = _prepare(Path(path))
     with _reporting(progress, is_cancelled):
-        text = compare_report_html(runs, rows, title=title, accuracies=accuracies)
+        text = compare_report_html(runs, rows, title=title, accuracies=accuracies,
+                                   colors=colors, sections=sections)
     if progress is not None:
         progress(1.0, "report written")
     return _write_text(path, text)

@@ -15,7 +15,7 @@ from typing import Optional
 import numpy as np
 
 from vectoradjust.errors import CancelledError
-from vectoradjust.files.report.figures import _img, rmse_bar_figure
+from vectoradjust.files.report.figures import _img, _Later, _run_key, rmse_bar_figure
 from vectoradjust.files.report.maps import conflation_figure, residual_vector_figure
 from vectoradjust.files.report.markup import (
     _badge,
@@ -271,10 +271,11 @@ def _databases_body(run, prefix: str, colors: dict, *, with_bars: bool = True) -
                         "Horizontal RMSE per road database: of the residuals V"
                         + (", of database \u2212 truth and of adjusted \u2212 truth."
                            if truth else ".")))
-    out.append(_img(residual_vector_figure(run, colors=colors), "residual vectors",
+    out.append(_img(_Later(_run_key("residual vectors", run, colors),
+                           lambda: residual_vector_figure(run, colors=colors)), "residual vectors",
                     "Residual vectors V at the database positions over the database lines "
-                    "(grey) and the adjusted lines (colour); one common arrow scale for all "
-                    "panels, given by the key."))
+                    "(grey) and the adjusted lines (colour); one common arrow scale for "
+                    "all panels, given by the key."))
     return "".join(out)
 
 
@@ -444,7 +445,8 @@ def _conflation_body(run) -> str:
         "predictions score best. The features' LengthSD includes the predicted vertices' "
         "covariance; only vertices left at their database position count as fixed "
         "(LengthSDOf)."))
-    parts.append(_img(conflation_figure(run), "conflation field",
+    parts.append(_img(_Later(_run_key("conflation", run), lambda: conflation_figure(run)),
+                      "conflation field",
                       "Displacement (adjusted \u2212 database) at measured and predicted "
                       "points over the CE90 of the predicted position."))
     return "".join(parts)
