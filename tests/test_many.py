@@ -65,8 +65,8 @@ def _check_rows(rows, projects, out):
 def test_adjust_many_on_the_local_process_scheduler(projects, tmp_path):
     good, broken = projects
     calls = []
-    rows = adjust_many([*good, broken], tmp_path, workers=2, report=False,
-                       progress=lambda f, m: calls.append((f, m)))
+    rows = adjust_many([*good, broken], tmp_path, scheduler="processes", workers=2,
+                       report=False, progress=lambda f, m: calls.append((f, m)))
     _check_rows(rows, projects, tmp_path)
     assert [r["name"] for r in rows] == ["model3", "model4", "broken"]
     assert calls[-1][0] == 1.0 and len(calls) >= 4  # one per project and the end

@@ -1,7 +1,7 @@
 """Files: the project file, the input tables and layers, and every output.
 
 - :mod:`~vectoradjust.files.project` - the project file (TOML).
-- :mod:`~vectoradjust.files.tables` - the CSV tables (measurements, control, truth,
+- :mod:`~vectoradjust.files.csv_tables` - the CSV tables (measurements, control, truth,
   fiducials), parsed with line numbers.
 - :mod:`~vectoradjust.files.assemble` - tables and layers to
   :class:`~vectoradjust.model.ProjectData` (shared with the QGIS plugin).
@@ -24,8 +24,9 @@
   into a project; GNSS/INS camera positions from a trajectory CSV.
 - :mod:`~vectoradjust.files.study`, :mod:`~vectoradjust.files.study_report` - the
   dissertation's experiments and their report.
-- :mod:`~vectoradjust.files.many` - many independent projects at once, on Dask.
+- :mod:`~vectoradjust.files.many` - many independent projects at once, on Dask;
+  :mod:`~vectoradjust.files.many_merge` - their merged output, one GeoPackage per database.
 
-Only :mod:`project`, :mod:`tables`, :mod:`assemble` and :mod:`jsonfile` are free of
+Only :mod:`project`, :mod:`csv_tables`, :mod:`assemble` and :mod:`jsonfile` are free of
 GDAL-based packages; the QGIS plugin uses those and never the others.
 """

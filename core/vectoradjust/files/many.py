@@ -6,8 +6,19 @@ is a project of its own. :func:`adjust_many` adjusts every project exactly as
 outputs, ``[truth]`` buffer test and truth tables, ``[qa]`` verdict, report) into
 ``DIR/<project name>/`` and writes one combined summary, ``DIR/many_summary.csv`` and
 ``DIR/many_summary.json``: per project sigma0^2, the chi-square test, the check-point
-RMSE and the shape-point counts, or the error of a project that failed (the others go
-on; ``many_summary.json`` lists the failed ones and why under ``failures``).
+RMSE, the shape-point counts and the rows merged, or the error of a project that failed
+(the others go on; ``many_summary.json`` lists the failed ones and why under
+``failures``).
+
+The merged output (``merge=True``, the default): one GeoPackage per database,
+``DIR/merged_<database>.gpkg``, with the ``shape_points`` and ``features`` rows of every
+project and a ``project`` column (:mod:`vectoradjust.files.many_merge`). Each worker
+reads its project's layers back and returns them as Arrow tables with the project's
+row; the parent alone appends them, as each project finishes, and lets them go. So the
+merged files land on the client's disk even when a cluster's workers do not share it
+(the per-project folders are written by the workers at the path given: on a cluster,
+give a path every worker can write, a shared file system, or accept the folders on the
+workers' disks).
 
 Each project's folder is written as ``adjust`` writes its own
 (:class:`~vectoradjust.files.outputs.RunFolder`): staged, moved into place when
@@ -15,11 +26,12 @@ complete, ``run_manifest.json`` last; a project that fails leaves its previous r
 it was. ``DIR`` itself is locked while the projects run, so a second ``adjust-many`` into
 it is refused with a clear error.
 
-The projects run as Dask tasks: by default on the local multi-process scheduler
-(``scheduler=None`` or ``"processes"``; ``"threads"`` and ``"sync"`` also work), or on
-a distributed cluster given by its scheduler address (``"tcp://host:8786"``) or a
-``distributed.Client``. Dask is an optional extra (``pip install
-"vectoradjust[many]"``), imported only here and only when called.
+The projects run as Dask tasks: by default on a ``distributed.LocalCluster`` of
+``workers`` processes with one thread each (``memory_limit`` each), else (distributed
+not installed, or ``scheduler="processes"``) on Dask's local multi-process scheduler
+(``"threads"`` and ``"sync"`` also work), or on a running cluster given by its scheduler
+address (``"tcp://host:8786"``) or a ``distributed.Client``. Dask is an optional extra
+(``pip install "vectoradjust[many]"``), imported only here and only when called.
 
 Example
 -------
@@ -42,7 +54,8 @@ from typing import Any, Callable, Optional
 
 from vectoradjust.errors import VectorAdjustError
 
-__all__ = ["adjust_many", "adjust_one", "project_names", "write_many_summary", "MANY_COLUMNS"]
+__all__ = ["adjust_many", "adjust_one", "adjust_collect", "project_names", "write_many_summary",
+           "MANY_COLUMNS"]
 
 #: columns of many_summary.csv (and keys of every row of many_summary.json)
 MANY_COLUMNS = [
@@ -50,7 +63,7 @@ MANY_COLUMNS = [
     "iterations", "converged", "chi_square_statistic", "chi_square_lower",
     "chi_square_upper", "chi_square_passed", "check_points", "check_rmse_x", "check_rmse_y",
     "check_rmse_z", "check_rmse_horizontal", "shape_points_measured", "shape_points_total",
-    "databases", "error",
+    "databases", "merged_rows", "error",
 ]
 
 _LOCAL = ("processes", "threads", "sync", "synchronous", "single-threaded")
@@ -158,6 +171,30 @@ def _adjust(project, out_dir, fmt: str, bands: bool, report: bool):
     return run_project(project, out_dir, options).run
 
 
+def adjust_collect(project, out_dir, name: str, fmt: str = "gpkg", bands: bool = True,
+                   report: bool = True, layers: Optional[Sequence[str]] = None) -> dict:
+    """:func:`adjust_one`, and the project's layers read back for the merged output.
+
+    Runs on a Dask worker. ``layers`` (e.g.
+    :data:`~vectoradjust.files.many_merge.MERGE_LAYERS`) are read from the folder just
+    written (:func:`~vectoradjust.files.many_merge.project_layers`) and returned under
+    the row's ``"_layers"`` key (Arrow tables: they travel to the client, whose disk
+    need not be the worker's); the parent merges them and removes the key. A project
+    whose layers cannot be read is still ``"ok"`` (its folder is complete) with the
+    reason in ``error``. Never raises.
+    """
+    row = adjust_one(project, out_dir, name, fmt, bands, report)
+    row["_layers"] = []
+    if row["status"] == "ok" and layers:
+        from vectoradjust.files.many_merge import project_layers
+
+        try:
+            row["_layers"] = project_layers(out_dir, name, fmt, layers)
+        except Exception as exc:  # noqa: BLE001 - the project itself is adjusted
+            row["error"] = f"adjusted, but not merged: its layers could not be read ({exc})"
+    return row
+
+
 def _client(scheduler):
     """A ``distributed.Client`` for an address (or the client given), else None."""
     if scheduler is None or (isinstance(scheduler, str) and scheduler in _LOCAL):
@@ -180,9 +217,27 @@ def _client(scheduler):
                                 "Check the address and that the scheduler is running") from exc
 
 
+def _local_cluster(workers: Optional[int], memory_limit, n_projects: int):
+    """A ``distributed.LocalCluster`` of worker processes (one thread each) and its
+    client; ``(None, None)`` when distributed is not installed."""
+    try:
+        import logging
+
+        from distributed import Client, LocalCluster
+    except ImportError:
+        return None, None
+    n = workers or min(os.cpu_count() or 1, n_projects)
+    cluster = LocalCluster(n_workers=max(1, n), threads_per_worker=1, processes=True,
+                           memory_limit=memory_limit or "auto", dashboard_address=None,
+                           silence_logs=logging.ERROR)
+    return cluster, Client(cluster)
+
+
 def adjust_many(projects: Sequence, out_dir, *, scheduler: Any = None,
                 workers: Optional[int] = None, fmt: str = "gpkg", bands: bool = True,
-                report: bool = True,
+                report: bool = True, merge: bool = True,
+                merge_layers: Sequence[str] = ("shape_points", "features"),
+                memory_limit: Any = None,
                 progress: Optional[Callable[[float, str], None]] = None) -> list:
     """Adjust independent projects on Dask, each into ``out_dir/<name>/``.
 
@@ -192,16 +247,27 @@ def adjust_many(projects: Sequence, out_dir, *, scheduler: Any = None,
         Project files (TOML).
     out_dir : str or os.PathLike
         Every project's outputs go to ``out_dir/<name>`` (:func:`project_names`); the
-        combined summary to ``out_dir/many_summary.csv`` and ``.json``.
+        combined summary to ``out_dir/many_summary.csv`` and ``.json``, the merged
+        layers to ``out_dir/merged_<database>.gpkg``.
     scheduler : None, str or distributed.Client
-        None or ``"processes"``: the local multi-process scheduler; ``"threads"``,
-        ``"sync"``: the other local schedulers; an address such as
+        None: a ``LocalCluster`` of ``workers`` processes (Dask's local multi-process
+        scheduler when distributed is not installed); ``"processes"``, ``"threads"``,
+        ``"sync"``: Dask's local schedulers; an address such as
         ``"tcp://10.0.0.5:8786"`` or a ``distributed.Client``: that cluster.
     workers : int, optional
-        Processes of the local scheduler (default: Dask's, the number of cores).
+        Worker processes of the LocalCluster or of the local scheduler (default: the
+        number of cores, at most one per project).
     fmt : {"gpkg", "shp"}
     bands, report : bool
         Write the uncertainty bands layer and report.html (as ``adjust`` does).
+    merge : bool
+        Write the merged output (:mod:`vectoradjust.files.many_merge`).
+    merge_layers : sequence of str
+        The layers merged (``"uncertainty_bands"`` may be added).
+    memory_limit : str or float, optional
+        Memory of each LocalCluster worker (``"1GB"``; default: Dask's, the machine's
+        memory shared by the workers); a worker over it is restarted and its project
+        listed as failed.
     progress : callable, optional
         ``progress(fraction, message)`` as each project finishes.
 
@@ -229,30 +295,85 @@ def adjust_many(projects: Sequence, out_dir, *, scheduler: Any = None,
         raise VectorAdjustError(f"Cannot create the output directory {str(out)!r} ({exc})",
                                 "Choose a writable directory with --out") from exc
     with DirLock(out, "adjust-many"):  # a second adjust-many into DIR: a clear error
-        rows = _adjust_all(dask, projects, out, scheduler, workers, fmt, bands, report,
-                           progress)
-        write_many_summary(rows, out)
+        job = _Job(projects, out, fmt, bands, report, merge_layers if merge else ())
+        rows = _adjust_all(dask, job, scheduler, workers, memory_limit, progress)
+        write_many_summary(rows, out, extra=job.merged_info())
     if progress is not None:
         progress(1.0, "all projects done")
     return rows
 
 
-def _adjust_all(dask, projects: list, out: Path, scheduler, workers, fmt: str, bands: bool,
-                report: bool, progress) -> list:
-    """Every project adjusted on Dask; their rows in the order given."""
-    names = project_names(projects)
-    tasks = [dask.delayed(adjust_one, pure=False)(p, str(out / n), n, fmt, bands, report)
-             for p, n in zip(projects, names)]
+class _Job:
+    """The projects' tasks and the merged output they feed (the parent's side)."""
+
+    def __init__(self, projects: list, out: Path, fmt: str, bands: bool, report: bool,
+                 layers: Sequence[str]) -> None:
+        from vectoradjust.files.many_merge import MergedOutput
+
+        self.projects, self.out, self.layers = projects, out, tuple(layers)
+        self.names = project_names(projects)
+        self.args = (fmt, bands, report)
+        self.merged = MergedOutput(out) if self.layers else None
+        self.files: dict = {}
+
+    def tasks(self, dask) -> list:
+        return [dask.delayed(adjust_collect, pure=False)(
+            p, str(self.out / n), n, *self.args, self.layers)
+            for p, n in zip(self.projects, self.names)]
+
+    def meta(self, i: int) -> tuple:
+        return self.names[i], self.projects[i], str(self.out / self.names[i])
+
+    def arrived(self, row: dict) -> dict:
+        """Merge a finished project's tables (removed from ``row``); ``row``."""
+        tables = row.pop("_layers", None) or []
+        if self.merged is None or row.get("status") != "ok" or not tables:
+            return row
+        try:
+            row["merged_rows"] = self.merged.add(row["name"], tables)
+        except Exception as exc:  # noqa: BLE001 - e.g. a full disk: the others go on
+            row["error"] = f"adjusted, but not merged: {type(exc).__name__}: {exc}"
+            self.merged.notes.append(f"{row['name']}: {row['error']}")
+        return row
+
+    def commit(self) -> None:
+        if self.merged is not None:
+            self.files = self.merged.commit()
+
+    def merged_info(self) -> dict:
+        if self.merged is None:
+            return {}
+        return {"merged": self.files, "merged_rows": self.merged.counts(),
+                "merge_notes": list(self.merged.notes)}
+
+
+def _adjust_all(dask, job: _Job, scheduler, workers, memory_limit, progress) -> list:
+    """Every project adjusted on Dask, merged as it arrives; their rows in the order
+    given."""
+    tasks = job.tasks(dask)
+    cluster = None
     client = _client(scheduler)
-    if client is None:
-        rows = _run_local(dask, tasks, scheduler or "processes", workers, progress)
-    else:
-        meta = [(n, p, str(out / n)) for p, n in zip(projects, names)]
-        rows = _run_distributed(client, tasks, meta, progress, close=client is not scheduler)
+    if client is None and scheduler is None:
+        cluster, client = _local_cluster(workers, memory_limit, len(tasks))
+    try:
+        if client is None:
+            rows = _run_local(dask, tasks, scheduler or "processes", workers, progress,
+                              job.arrived)
+        else:
+            rows = _run_distributed(client, tasks, job, progress,
+                                    close=client is not scheduler)
+        job.commit()
+    except BaseException:
+        if job.merged is not None:
+            job.merged.discard()
+        raise
+    finally:
+        if cluster is not None:
+            cluster.close()
     return rows
 
 
-def _run_local(dask, tasks: list, scheduler: str, workers, progress) -> list:
+def _run_local(dask, tasks: list, scheduler: str, workers, progress, arrived) -> list:
     from dask.callbacks import Callback
 
     done = [0]
@@ -260,6 +381,7 @@ def _run_local(dask, tasks: list, scheduler: str, workers, progress) -> list:
     class _Done(Callback):
         def _posttask(self, key, result, dsk, state, worker_id):
             if isinstance(result, dict) and "status" in result:
+                arrived(result)  # merged now, its tables let go (not held to the end)
                 done[0] += 1
                 if progress is not None:
                     progress(done[0] / len(tasks), f"{result['name']}: {result['status']} "
@@ -270,17 +392,23 @@ def _run_local(dask, tasks: list, scheduler: str, workers, progress) -> list:
         return list(dask.compute(*tasks, scheduler=scheduler, **kw))
 
 
-def _run_distributed(client, tasks: list, meta: list, progress, close: bool) -> list:
+def _run_distributed(client, tasks: list, job: _Job, progress, close: bool) -> list:
+    """The tasks on a cluster; each result gathered, merged and released as it
+    finishes (the client never holds more than one project's tables)."""
     from distributed import as_completed
 
+    rows: list = [None] * len(tasks)
     try:
         futures = client.compute(tasks)
-        names = {f.key: m[0] for f, m in zip(futures, meta)}
-        for i, fut in enumerate(as_completed(futures), start=1):
+        index = {f.key: i for i, f in enumerate(futures)}
+        for n, fut in enumerate(as_completed(futures), start=1):
+            i = index[fut.key]
+            rows[i] = job.arrived(_future_row(fut, job.meta(i)))
+            fut.release()
             if progress is not None:
-                progress(i / len(tasks), f"{names.get(fut.key, '?')}: {fut.status} "
-                         f"({i}/{len(tasks)})")
-        return [_future_row(f, m) for f, m in zip(futures, meta)]
+                progress(n / len(tasks), f"{rows[i]['name']}: {rows[i]['status']} "
+                         f"({n}/{len(tasks)})")
+        return rows
     finally:
         if close:
             client.close()
@@ -297,19 +425,21 @@ def _future_row(future, meta: tuple) -> dict:
         return row
 
 
-def write_many_summary(rows: Sequence[dict], out_dir) -> tuple:
+def write_many_summary(rows: Sequence[dict], out_dir, extra: Optional[dict] = None) -> tuple:
     """Write ``many_summary.csv`` and ``many_summary.json`` (one row per project).
 
     ``many_summary.json`` holds ``projects`` (how many), ``failed`` (their names),
-    ``failures`` (``name``, ``project``, ``error`` of each failed one) and ``rows``. Each
-    file is written beside its place and moved there when complete.
+    ``failures`` (``name``, ``project``, ``error`` of each failed one), ``rows`` and
+    ``extra`` (the merged output: ``merged`` files by database, ``merged_rows`` per
+    ``database/layer``, ``merge_notes``). Each file is written beside its place and moved
+    there when complete.
     """
     out = Path(out_dir)
     csv_path, json_path = out / "many_summary.csv", out / "many_summary.json"
     bad = [r for r in rows if r.get("status") != "ok"]
     doc = {"projects": len(rows), "failed": [r["name"] for r in bad],
            "failures": [{k: r.get(k) for k in ("name", "project", "error")} for r in bad],
-           "rows": list(rows)}
+           "rows": list(rows), **(extra or {})}
     tmp = [out / ".many_summary.csv.part", out / ".many_summary.json.part"]
     try:
         with open(tmp[0], "w", newline="", encoding="utf-8") as fh:
