@@ -71,6 +71,7 @@ def test_a_failing_child_is_run_again_in_the_parent(monkeypatch):
 
 @fork_only
 @pytest.mark.io
+@pytest.mark.slow
 def test_adjust_writes_the_same_bands_with_and_without_the_child(sample_dir, tmp_path,
                                                                  monkeypatch):
     pytest.importorskip("geopandas")
@@ -141,6 +142,7 @@ def _unstamped(text: str) -> str:
 
 
 @fork_only
+@pytest.mark.slow
 def test_report_written_alongside_shows_the_warnings_of_writing(sample_dir, tmp_path,
                                                               monkeypatch):
     """The report's process starts before the layers are written; a warning GDAL gives

@@ -29,6 +29,7 @@ def _project_with_unmeasured_database(tmp_path: Path) -> Path:
     return tmp_path / "project.toml"
 
 
+@pytest.mark.slow
 def test_compare_goes_on_past_a_database_without_measurements(tmp_path, capsys):
     project = _project_with_unmeasured_database(tmp_path)
     rc = main(["compare", str(project), "--out", str(tmp_path / "out"), "-q"])

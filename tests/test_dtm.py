@@ -189,6 +189,7 @@ def test_mean_wavelength_of_a_sine():
 
 
 @pytest.mark.parametrize("method", ["tin", "bilinear", "bicubic"])
+@pytest.mark.slow
 def test_le90_coverage_on_a_simulated_terrain(method):
     """Simulated terrain, points with correlated XYZ errors: the true height lies inside
     the LE90 (interpolation covariance + Li's terrain term) in 85-95 % of the cells."""

@@ -466,6 +466,7 @@ def _dem_hole(project: Path, database: str, dem_name: str) -> str:
     return str(v["point_id"][k])
 
 
+@pytest.mark.slow
 def test_compare_finishes_the_other_databases_when_one_has_a_dem_hole(tmp_path, capsys):
     work = tmp_path / "p"
     work.mkdir()
@@ -531,6 +532,7 @@ def _many_projects(root: Path, n: int = 50, broken=(6, 22, 40)) -> tuple:
     return projects, why
 
 
+@pytest.mark.slow
 def test_adjust_many_finishes_47_of_50_projects_and_names_the_3_broken(tmp_path, capsys):
     pytest.importorskip("dask")
     projects, why = _many_projects(tmp_path / "in")

@@ -252,6 +252,7 @@ def test_the_command_line_builds_the_same_bands_with_the_kernel(sample_dir, tmp_
 
 @pytest.mark.io
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forks on Linux only")
+@pytest.mark.slow
 def test_the_command_line_compiles_the_kernels_in_a_child_while_it_adjusts(
         sample_dir, tmp_path, monkeypatch):
     """A forked child looks for (the first time: compiles) the band kernels while the

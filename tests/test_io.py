@@ -121,6 +121,7 @@ def test_gpkg_output_and_summary(project_dir, tmp_path):
         assert len(im["sigma_position"]) == 3 and len(im["attitude"]) == 3
 
 
+@pytest.mark.slow
 def test_compare_writes_a_table(project_dir, tmp_path, capsys):
     assert main(["compare", str(project_dir / "project.toml"), "--out", str(tmp_path), "-q"]) == 0
     text = (tmp_path / "compare.csv").read_text().splitlines()
@@ -300,6 +301,7 @@ def test_adjust_with_qa_table_writes_verdict_and_qa_field(copy):
     assert "Quality assurance" in (out / "report.html").read_text()
 
 
+@pytest.mark.slow
 def test_buffer_test_cli_and_truth_comparison(project_dir, tmp_path, capsys):
     """Shares inside buffers of the true centrelines rise after the adjustment."""
     out = tmp_path / "buf.csv"

@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.ndimage import gaussian_filter, map_coordinates
 
 from vectoradjust.files.measuring import back_tolerance
@@ -219,6 +220,7 @@ def test_a_distinct_peak_is_accepted_below_min_ncc_an_ambiguous_one_is_not():
     assert not per.accepted.any()
 
 
+@pytest.mark.slow
 def test_wrong_image_content_is_rejected_on_a_rendered_pair():
     """The rendered pair with the right image mirrored left-right: the prediction points
     at texture that is not the point's, so every accepted match would be wrong - none

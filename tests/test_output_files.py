@@ -175,6 +175,7 @@ def test_unmeasured_vertices_outside_the_dem_get_a_problem(project_dir, tmp_path
 
 # --------------------------------------------------------------------------- file modes
 @pytest.mark.parametrize("umask", [0o022, 0o027])
+@pytest.mark.slow
 def test_output_files_get_a_new_files_usual_mode(project_dir, tmp_path, umask):
     import os
     import stat
@@ -274,6 +275,7 @@ def test_cli_shows_the_truth_buffer_stage(sample_dir, tmp_path, capfd):
 
 
 @pytest.mark.parametrize("fmt", ["gpkg", "shp"])
+@pytest.mark.slow
 def test_shape_points_through_arrow_equal_the_frame(sample_dir, tmp_path, fmt, monkeypatch):
     """The shape_points layer written from Arrow columns and WKB points is the layer of
     the GeoDataFrame (schema, geometries, attributes; shapefiles byte for byte)."""

@@ -396,6 +396,7 @@ def written(tmp_path_factory):
 
 
 @pytest.mark.io
+@pytest.mark.slow
 def test_cli_writes_qa_json(written, tmp_path, capsys):
     from vectoradjust.cli.qa import main
     from vectoradjust.files.readers import load_project_data

@@ -197,6 +197,7 @@ def test_observation_noise(big):
         assert np.hypot(*sc.true_bias[i, [0, 3]]) > 1.0
 
 
+@pytest.mark.slow
 def test_noise_free_observations_follow_the_bias_definition():
     for model in ("shift", "shift+drift", "affine"):
         sc = satellite_scenario(3, model, bias_size_px=10.0, seed=4, sigma_px=0.0)
