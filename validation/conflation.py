@@ -39,7 +39,10 @@ displacement between a measured vertex and its unmeasured neighbour on a road, w
 conflation (its whole V) > with it (what is left: mostly the database's white noise,
 which no prediction can know); and the height RMSE of the predicted vertices before >
 after (the database's heights are DEM heights here). ``!`` marks a reduction
-below 70 % or a coverage outside 0.85-0.95.
+below 70 % or a coverage outside 0.85-0.95. Last, per scenario, the database noise
+``n_db``: its estimate's mean and SD over the seeds against the true 0.09 m^2 and
+``z = (true - estimate) / posterior SD`` (about 0 +- 1 when the CE90's mixing over
+``n_db`` is honest; :func:`noise_table`).
 
 Acceptance criteria (docs/experiments.md section 7; exit status 1 when one is missed;
 validation/acceptance.py). For each of the four scenarios (``helsinki-0.3`` is for
@@ -179,8 +182,35 @@ def one(name: str, kw: dict, seed: int) -> dict:
             "z_db": tr["rmse_database_truth_z"], "z_conf": tr["rmse_conflated_truth_z"],
             "cv_rmse": cv["rmse"], "cv_share": cv["share_within_90"], "moved": moved,
             "spread": spread, "step0": step0, "step1": step1, "seconds": el,
-            "nugget": fit["nugget"], "sill": fit["sill"], "length": fit["length"],
+            "nugget": fit["nugget"], "nugget_sd": fit.get("nugget_sd", 0.0),
+            "true_nugget": kw.get("noise", 0.3) ** 2,
+            "sill": fit["sill"], "length": fit["length"],
             "model": fit["model"], "bands": tr["bands"]}
+
+
+def noise_table(rows: list, names: list) -> None:
+    """The database noise ``n_db`` per scenario over the seeds: its estimate's mean and
+    scatter against the scenario's true value, the posterior SD the run states
+    (``nugget_sd``), and ``z = (true - estimate) / posterior SD`` (mean and SD over the
+    seeds; about 0 and 1 when the estimate is unbiased and its stated uncertainty
+    honest, the condition for the CE90's mixing over ``n_db``, :func:`ce90_factor`)."""
+    print("\ndatabase noise n_db (m^2; true: the scenario's white noise squared; "
+          "z = (true - estimate) / posterior SD):")
+    for name in names:
+        sel = [r for r in rows if r["scenario"] == name]
+        if not sel:
+            continue
+        est = np.array([r["nugget"] for r in sel], float)
+        sd = np.array([r["nugget_sd"] for r in sel], float)
+        true = sel[0]["true_nugget"]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(sd > 0, (true - est) / sd, np.nan)
+        z = z[np.isfinite(z)]
+        ddof = 1 if len(est) > 1 else 0
+        zt = (f"z mean {z.mean():+.2f} SD {z.std(ddof=1) if len(z) > 1 else 0.0:.2f}"
+              if z.size else "z -")
+        print(f"{name:24s} true {true:.3f} estimate mean {est.mean():.3f} SD "
+              f"{est.std(ddof=ddof):.3f} | posterior SD mean {sd.mean():.3f} | {zt}")
 
 
 def pooled_bands(sel: list) -> list:
@@ -362,6 +392,7 @@ def main(argv=None) -> int:
                   f"{flag}")
     summary(rows, list(todo))
     band_table(rows, list(todo))
+    noise_table(rows, list(todo))
     if args.true_covariance or args.true_nugget:
         print("(the criteria are those of the fitted covariance; here for information)")
     return criteria(rows, list(todo)).report(args.json, {"rows": rows})

@@ -44,6 +44,7 @@ Modules (by topic)
 - :mod:`~vectoradjust.conflation.settings` - settings and constants.
 - :mod:`~vectoradjust.conflation.covariance` - the covariance function and its fit.
 - :mod:`~vectoradjust.conflation.ce90` - the predictive CE90 (noise and sill posterior).
+- :mod:`~vectoradjust.conflation.optimize` - the covariance fit's bounded minimisers.
 - :mod:`~vectoradjust.conflation.kriging` - kriging and cross-validation.
 - :mod:`~vectoradjust.conflation.fields` - the trend and the fields of a database.
 - :mod:`~vectoradjust.conflation.coverage` - coverage per distance band, truth check.

@@ -11,6 +11,8 @@ from typing import Callable, NamedTuple, Optional
 
 import numpy as np
 
+from vectoradjust.conflation.optimize import _lattice_min, _projected_bfgs
+
 __all__ = ["CovarianceModel", "empirical_semivariogram", "fit_covariance"]
 
 
@@ -423,9 +425,10 @@ def _loo_score_fisher(x, kind: str, setup: _LooSetup, resid: np.ndarray, noise: 
 
 
 def _loo_eval(theta: np.ndarray, kind: str, setup: _LooSetup, resid, noise, grad: bool,
-              fisher: bool = False):
-    """``(score, gradient in log theta or None[, Fisher matrix])`` of
-    :func:`_loo_score_grad` (:func:`_loo_score_fisher` with ``fisher``).
+              fisher: bool = False, parts: bool = False):
+    """``(score, gradient in log theta or None[, Fisher matrix[, per target]]])`` of
+    :func:`_loo_score_grad` (:func:`_loo_score_fisher` with ``fisher``; with ``parts``
+    also each held-out point's gradient (3, b), :func:`_nugget_temper`).
 
     The signal's covariance is evaluated at the distinct distances only and gathered
     (``setup.lags``); the weights and ``A^-1 R`` come from one batched solve."""
@@ -446,7 +449,9 @@ def _loo_eval(theta: np.ndarray, kind: str, setup: _LooSetup, resid, noise, grad
         a, c, own = s_dd + setup.shared_a, s_dist + setup.shared_c, setup.shared_own
     a[:, diag, diag] += nug + np.maximum(noise[idx] - own, 0.0)
     r_nb = resid[idx]
-    fail = ((float("inf"), np.zeros(3), np.zeros((3, 3))) if fisher else
+    fail = ((float("inf"), np.zeros(3), np.zeros((3, 3)), np.zeros((3, len(idx))))[:4 if parts
+                                                                                 else 3]
+            if fisher else
             (float("inf"), np.zeros(3) if grad else None))
     try:  # the weights (and A^-1 R for the gradient) from one factorisation
         sol = np.linalg.solve(a, np.concatenate([c[:, :, None], r_nb], axis=2) if grad
@@ -484,6 +489,8 @@ def _loo_eval(theta: np.ndarray, kind: str, setup: _LooSetup, resid, noise, grad
     # the expected Hessian (Fisher information) of the score, e_i ~ N(0, s2_i I)
     hess = (m * (ds2 / s2) @ (ds2 / s2).T
             + 2.0 * np.einsum("jbc,kbc->jk", de, de / s2[None, :, None]))
+    if parts:
+        return score, out, hess, ds2 * alpha + 2.0 * np.einsum("jbc,bc->jb", de, e / s2[:, None])
     return score, out, hess
 
 
@@ -522,131 +529,6 @@ def _fit_loo(kind: str, setup, resid, noise, start, scale: float, lags):
         theta[2] = 0.0
         fx = _loo_score(theta, kind, setup, resid, noise)
     return theta, fx
-
-
-def _projected_bfgs(fg, x0, lo, hi, max_iter: int = 60, xtol: float = 1e-3,
-                    ftol: float = 1e-4, max_step: float = 1.0, max_cap: float = 8.0):
-    """Minimise ``f`` in the box ``[lo, hi]`` from ``x0``: BFGS on the free variables
-    (``fg(x) = (f, gradient)`` or ``(f, gradient, H)``), steps projected onto the box,
-    backtracking (Armijo).
-
-    With ``H``, an approximation of the Hessian (for :func:`_fit_loo` the expected
-    one, :func:`_loo_score_fisher`), the inverse Hessian starts from ``H^-1`` and
-    restarts from it, instead of a multiple of the identity: the first steps already
-    follow the ridge of sill and length, and the secant updates correct what ``H``
-    misses. A step moves no coordinate by more than ``max_step``; after a capped step
-    taken in full the cap doubles, up to ``max_cap`` times ``max_step`` (a vanishing
-    sill reaches its bound in a few steps). Stops when a step moves every coordinate by
-    less than ``xtol`` or ``f`` no longer decreases. A variable at a bound whose
-    gradient pushes outwards stays there.
-    """
-    x = np.clip(np.asarray(x0, float), lo, hi)
-    fx, g, *hx = fg(x)
-    if not np.isfinite(fx):
-        return x
-    h, first, gamma, was = np.eye(len(x)), True, 1.0, np.zeros(len(x), bool)
-    cap = max_step
-    if hx:
-        h, first = _inverse_on(hx[0], was), False
-    for _ in range(max_iter):
-        fixed = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))
-        if np.any(fixed != was):  # another active set: forget the curvature across it
-            h, was = (_inverse_on(hx[0], fixed) if hx else np.eye(len(x)) * gamma), fixed
-        hf = np.where(fixed[:, None] | fixed[None, :], 0.0, h)
-        d = -hf @ np.where(fixed, 0.0, g)
-        if not g @ d < 0:  # not a descent direction: restart
-            h = _inverse_on(hx[0], fixed) if hx else np.eye(len(x)) * gamma
-            d = -np.where(fixed[:, None] | fixed[None, :], 0.0, h) @ np.where(fixed, 0.0, g)
-            if not g @ d < 0:
-                h, d = np.eye(len(x)) * gamma, -gamma * np.where(fixed, 0.0, g)
-        big = max(float(np.max(np.abs(d))), 1e-300)
-        t, moved, full = min(1.0, cap / big), False, True
-        for _ in range(30):
-            xn = np.clip(x + t * d, lo, hi)
-            fn, gn, *hn = fg(xn)
-            if np.isfinite(fn) and fn <= fx + 1e-4 * (g @ (xn - x)):
-                moved = True
-                break
-            t, full = t * 0.3, False
-        if not moved:
-            break
-        # a capped step taken in full: the next may be longer (a vanishing sill reaches
-        # its bound in a few steps); a shortened one: back to max_step
-        cap = min(2.0 * cap, max_cap * max_step) if full and big > cap else max_step
-        sv, yv = xn - x, gn - g
-        x, done = xn, (np.max(np.abs(sv)) < xtol or fx - fn < ftol)
-        fx, g, hx = fn, gn, hn
-        if done:
-            break
-        sy = float(sv @ yv)
-        if sy > 1e-12:
-            if first:  # the first step sets the scale of the inverse Hessian
-                gamma, first = sy / float(yv @ yv), False
-                h = np.eye(len(x)) * gamma
-            rho = 1.0 / sy
-            v = np.eye(len(x)) - rho * np.outer(sv, yv)
-            h = v @ h @ v.T + rho * np.outer(sv, sv)
-    return x
-
-
-def _inverse_on(hess: np.ndarray, fixed: np.ndarray) -> np.ndarray:
-    """The inverse of ``hess`` on the free variables (0 on the fixed ones), with a
-    ridge of 1e-9 of its largest diagonal (a parameter without influence, e.g. the
-    length of a vanishing sill, gets a large but finite step, which the caller caps)."""
-    free = ~fixed
-    out = np.zeros_like(hess)
-    if not free.any():
-        return out
-    hf = hess[np.ix_(free, free)]
-    ridge = 1e-9 * max(float(np.max(np.abs(np.diag(hf)))), 1e-300)
-    try:
-        out[np.ix_(free, free)] = np.linalg.inv(hf + ridge * np.eye(len(hf)))
-    except np.linalg.LinAlgError:
-        out[np.ix_(free, free)] = np.eye(len(hf)) / max(float(np.max(np.diag(hf))), 1e-300)
-    return out
-
-
-def _lattice_min(f, x, lo, hi, step: float = 0.05, max_moves: int = 200, fg=None):
-    """Polish a minimum on the fixed lattice ``step * Z^3`` (logarithms: 5 %).
-
-    The optimiser's path depends on the last bits of its sums, which differ between
-    numpy builds (QGIS's and the command line's); ending on the lattice (the best of
-    the rounded optimum and its 6 neighbours along the axes, repeated up to
-    ``max_moves`` times while a neighbour is really better) gives both the same
-    parameters. :func:`_fit_loo` makes one such move: its quasi-Newton optimum is
-    converged, and further moves only creep along the flat ridge of sill and length
-    (differences of the score far below its own uncertainty). With ``fg(x) = (f,
-    gradient)`` only the neighbours downhill of the rounded point are scored (one per
-    axis: a convex ``f`` rises the other way, ``f(x + s) >= f(x) + g' s``), three
-    scores instead of six.
-    """
-    lo_i, hi_i = np.ceil(lo / step - 1e-9), np.floor(hi / step + 1e-9)
-    cur = np.clip(np.round(np.asarray(x) / step), lo_i, hi_i)
-    seen: dict = {}
-
-    def val(i):
-        key = tuple(int(v) for v in i)
-        if key not in seen:
-            seen[key] = f(np.asarray(i, float) * step)
-        return seen[key]
-
-    moves = np.vstack([np.eye(3), -np.eye(3)])
-    for _ in range(max_moves):
-        if fg is None:
-            best, ahead = val(cur), moves
-        else:  # the score and its slope at once: only the downhill moves
-            best, g = fg(cur * step)
-            seen.setdefault(tuple(int(v) for v in cur), best)
-            ahead = moves[(moves @ g) < 0]
-        cand = [np.clip(cur + m, lo_i, hi_i) for m in ahead]
-        if not cand:
-            break
-        vals = [val(c) for c in cand]
-        j = int(np.argmin(vals))
-        if not vals[j] < best - 1e-9 * max(abs(best), 1.0):
-            break
-        cur, best = cand[j], vals[j]
-    return cur * step, float(best)
 
 
 def _fit_white(kind: str, setup, resid, noise, scale: float):
@@ -724,8 +606,12 @@ def _nugget_posterior(theta, kind: str, setup, resid, noise, n_grid: int = 41):
     few cm^2, and a vertex's variance built on it is too small. With a flat prior on
     ``n_db >= 0`` and the leave-one-out likelihood ``exp(-score / 2)`` (the signal's
     parameters fixed at their fit), the mean of ``n_db`` is the variance a prediction
-    should carry for it. The grid runs from 0 to where the likelihood has fallen by
-    ``e^-10`` (found on two coarse grids), ``n_grid`` values.
+    should carry for it. The score's terms correlate (a point's noise is in its own
+    held-out error and in its neighbours'), so the likelihood is too narrow: its
+    logarithm is divided by the sandwich ratio ``t >= 1`` (:func:`_nugget_temper`,
+    evaluated at the untempered mean) and the grid widened by ``sqrt(t)``. The grid
+    runs from 0 to where the likelihood has fallen by ``e^-10`` (found on two coarse
+    grids), ``n_grid`` values.
     """
     tgt = setup[0]
 
@@ -749,8 +635,56 @@ def _nugget_posterior(theta, kind: str, setup, resid, noise, n_grid: int = 41):
     w[~np.isfinite(w)] = 0.0
     w = w / np.sum(w)
     mean = float(np.sum(w * grid))
+    temper = _nugget_temper(theta, mean, kind, setup, resid, noise) if mean > 0 else 1.0
+    if temper > 1.0:  # the same likelihood, its logarithm divided by ``temper``
+        grid = np.linspace(0.0, hi * np.sqrt(temper), n_grid)
+        sc = scores(grid)
+        w = np.exp(-(sc - np.nanmin(sc)) / (2.0 * temper))
+        w[~np.isfinite(w)] = 0.0
+        w = w / np.sum(w)
+        mean = float(np.sum(w * grid))
     keep = w > 1e-9
     return mean, ((grid[keep] / mean, w[keep] / w[keep].sum()) if mean > 0 else None)
+
+
+def _nugget_temper(theta, nug: float, kind: str, setup, resid, noise,
+                   max_factor: float = 9.0) -> float:
+    """How much more ``n_db`` scatters than the leave-one-out likelihood says: the
+    sandwich ratio ``t = J / (2 H)``, at least 1 and at most ``max_factor``.
+
+    The score is a sum over held-out points, but it is no likelihood of independent
+    data: a point's white noise enters its own error and, through the kriging weights,
+    the errors of the held-out points it is a neighbour of, so their terms correlate
+    and the score's curvature ``H`` (its expected Hessian in ``log n_db``,
+    :func:`_loo_score_fisher`; ``2 I`` for a likelihood) overstates what the data know.
+    ``J`` is the variance of the score's gradient estimated from the terms ``g_i``
+    themselves, pairs of held-out points of which one is a neighbour of the other
+    included: ``J = g' (I + S) g`` (``S`` that neighbourhood, symmetric), ``4 I`` for
+    independent terms. ``t`` is the variance of the sandwich estimate ``H^-1 J H^-1``
+    over that of the likelihood's ``2 / H`` (the signal's parameters at their fit,
+    ``n_db`` at ``nug``). 1 without a signal and without shared noise: then each
+    held-out error is the point's own and the likelihood exact. ``J`` is estimated
+    from one realisation, so ``t`` scatters (about +-0.3 where the truth is 1).
+    """
+    from scipy.sparse import coo_matrix
+
+    tgt, idx = setup[0], setup[2]
+    if not (theta[1] > 0 and theta[2] > 0) and setup[4] is None:
+        return 1.0  # no signal, no shared noise: a held-out error is the point's own
+    x = np.log([max(float(nug), 1e-300), float(theta[1]) or 1e-300, float(theta[2]) or 1.0])
+    res = _loo_eval(np.exp(x), kind, setup, resid, noise, True, True, True)
+    h, g = float(res[2][0, 0]), res[3][0]
+    if not (np.isfinite(h) and h > 0 and np.all(np.isfinite(g))):
+        return 1.0
+    pos = np.full(len(resid), -1)
+    pos[tgt] = np.arange(len(tgt))
+    nb = pos[idx]
+    rows = np.broadcast_to(np.arange(len(tgt))[:, None], nb.shape)[nb >= 0]
+    cols = nb[nb >= 0]
+    s = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(tgt),) * 2).tocsr()
+    s = ((s + s.T) > 0).astype(float)
+    j = float(g @ g + g @ (s @ g))
+    return float(np.clip(j / (2.0 * h), 1.0, max_factor))
 
 
 def _sill_dof(cov: CovarianceModel, xy: np.ndarray, n_comp: int, max_points: int = 1500,
