@@ -303,15 +303,6 @@ PLUGIN_MATH_ALLOWED = {"isfinite", "isnan", "inf", "nan"}
 PLUGIN_MATH_KNOWN = {
     ("qgis_plugin/qgis_io.py", "clip"): "pixel window of a raster read (index bookkeeping)",
     ("qgis_plugin/qgis_io.py", "floor"): "pixel window of a raster read (index bookkeeping)",
-    ("qgis_plugin/algorithms/measure_images.py", "sqrt"): "sigma of a shift from its "
-    "covariance, for a message (to move into vectoradjust.measure)",
-    ("qgis_plugin/algorithms/measure_images.py", "diag"): "(the same)",
-    ("qgis_plugin/algorithms/measure_images.py", "clip"): "(the same)",
-    ("qgis_plugin/algorithms/measure_images.py", "nanmean"): "a missing height filled with "
-    "the mean height (to move into the core's measuring)",
-    ("qgis_plugin/algorithms/measure_images.py", "mean"): "mean height of the control "
-    "(to move into the core's measuring)",
-    ("qgis_plugin/algorithms/measure_images.py", "fmax"): "larger of two sigmas of a row",
 }
 
 

@@ -88,14 +88,12 @@ def _ground_frame(spec, crs, context, feedback):
 
 def _say_rpc(geoms, feedback):
     """One log line per RPC image: its bias and where it and the search window come from."""
+    from vectoradjust.files.measure_rows import rpc_bias_line
     from vectoradjust.measure.geometry import RpcGeometry
 
     for iid, g in geoms.items():
         if isinstance(g, RpcGeometry):
-            sd = np.sqrt(np.clip(np.diag(g.bias_cov)[[0, 3]], 0.0, None))
-            feedback.pushInfo(f"RPC image {iid}: bias {g.bias[0]:.2f}, {g.bias[3]:.2f} px "
-                              f"(column, row shift), sigma {sd[0]:.2f}, {sd[1]:.2f} px from "
-                              f"{g.bias_source}")
+            feedback.pushInfo(rpc_bias_line(iid, g))
 
 
 class GdalImage:
@@ -165,6 +163,7 @@ class MeasureOnImages(VectorAdjustAlgorithm):
 
     def _inputs(self, parameters, context, feedback):
         from vectoradjust.files.csv_tables import read_control
+        from vectoradjust.files.measure_rows import control_height, height_from_samples
         from vectoradjust.files.measuring import image_geometries, project_points
         from vectoradjust.files.project import load_project
 
@@ -194,11 +193,9 @@ class MeasureOnImages(VectorAdjustAlgorithm):
                 dem = inputs.raster_from_path(e.dem, where)
         height = None
         if dem is not None:
-            def height(xy, dem=dem):
-                z = qgis_io.dem_heights(dem, np.asarray(xy, float).reshape(-1, 2), crs, context,
-                                        f"DEM {dem.name()!r}")
-                return np.where(np.isfinite(z), z, np.nanmean(z) if np.isfinite(z).any()
-                                else 0.0)
+            height = height_from_samples(
+                lambda xy, dem=dem: qgis_io.dem_heights(dem, xy, crs, context,
+                                                        f"DEM {dem.name()!r}"))
         points = project_points(control, layers, spec.settings.merge_tolerance)
         fiducials = None
         if spec.measurements.get("fiducials") and spec.measurements.get("unit") == "pixel":
@@ -208,8 +205,8 @@ class MeasureOnImages(VectorAdjustAlgorithm):
         geoms = image_geometries(spec, image_sizes={k: r.size for k, r in readers.items()},
                                  control=control, fiducials=fiducials, ground_frame=frame)
         _say_rpc(geoms, feedback)
-        if height is None and control is not None and len(control.xyz):
-            height = float(np.mean(control.xyz[:, 2]))
+        if height is None:
+            height = control_height(control)
         return spec, geoms, readers, points, height
 
     def run_algorithm(self, parameters, context, feedback):
@@ -257,36 +254,6 @@ class MeasureOnImages(VectorAdjustAlgorithm):
                           f"{n_all - n_acc} flagged")
         return out
 
-    def _rows(self, geoms, pred, measured, res, auto):
-        """Rows of the output layer: predictions, manual, transferred, automatic."""
-        n = len(pred["point_id"])
-        rows = [dict(image_id=pred["image_id"][i], point_id=pred["point_id"][i],
-                     kind=pred["kind"][i], source="predicted", col=pred["col"][i],
-                     row=pred["row"][i], x_mm=pred["x"][i], y_mm=pred["y"][i],
-                     win_major=pred["win_major"][i], win_minor=pred["win_minor"][i],
-                     win_angle=pred["win_angle"][i], flags="", accepted=0) for i in range(n)]
-        if measured is not None:
-            rows += [dict(image_id=measured["image_id"][i], point_id=measured["point_id"][i],
-                          source="manual", col=measured["col"][i], row=measured["row"][i],
-                          flags="", accepted=1) for i in range(len(measured["point_id"]))]
-        for tab, src in ((res, "transferred"), (auto, "automatic")):
-            if tab is None:
-                continue
-            for i in range(len(tab["point_id"])):
-                sig = (np.fmax(tab["sigma_col"][i], tab["sigma_row"][i]) if "sigma_col" in tab
-                       else tab["rms"][i])
-                rows.append(dict(image_id=tab["image_id"][i], point_id=tab["point_id"][i],
-                                 source=src, col=tab["col"][i], row=tab["row"][i],
-                                 ncc=tab["ncc"][i] if "ncc" in tab else np.nan,
-                                 rho=tab["rho"][i] if "rho" in tab else np.nan, sigma_px=sig,
-                                 flags=tab["flag_text"][i], accepted=int(tab["accepted"][i])))
-        for r in rows:
-            if "x_mm" not in r and np.isfinite(r["col"]):
-                mm = geoms[str(r["image_id"])].pixel_to_measured_mm(np.array([[r["col"],
-                                                                                r["row"]]]))
-                r["x_mm"], r["y_mm"] = mm[0]
-        return rows
-
     def _write_layer(self, parameters, context, geoms, pred, measured, res, auto):
         fields = qgis_io.fields_for(FIELDS, TYPES)
         sink, dest = self.parameterAsSink(parameters, self.OUTPUT, context, fields,
@@ -294,7 +261,9 @@ class MeasureOnImages(VectorAdjustAlgorithm):
                                           QgsFeatureSink.RegeneratePrimaryKey)
         if sink is None:
             raise QgsProcessingException(self.invalidSinkError(parameters, self.OUTPUT))
-        for r in self._rows(geoms, pred, measured, res, auto):
+        from vectoradjust.files.measure_rows import measurement_rows
+
+        for r in measurement_rows(geoms, pred, measured, res, auto):
             col, row = float(r["col"]), float(r["row"])
             geom = (QgsGeometry.fromPointXY(QgsPointXY(col, -row)) if np.isfinite(col)
                     else QgsGeometry())

@@ -18,6 +18,8 @@
 - :mod:`~vectoradjust.files.smart_outputs` - smart conflation's files.
 - :mod:`~vectoradjust.files.images`, :mod:`~vectoradjust.files.measuring` - image windows,
   chips and measurement tables; measuring on the images of a project.
+- :mod:`~vectoradjust.files.measure_rows` - the measurement layer's rows, the transfer's
+  terrain height and the RPC bias line (the command line and the QGIS plugin share them).
 - :mod:`~vectoradjust.files.rpc`, :mod:`~vectoradjust.files.rpc_ties` - RPC files and the
   ground frame; automatic tie points between satellite images.
 - :mod:`~vectoradjust.files.drone`, :mod:`~vectoradjust.files.trajectory` - drone images
