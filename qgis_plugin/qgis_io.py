@@ -464,15 +464,12 @@ def _dem_window(provider, band, pts, where):
     if ncol * nrow <= FULL_READ_MAX_CELLS:
         r_lo, r_hi, c_lo, c_hi = 0, nrow - 1, 0, ncol - 1
     else:
-        ok = np.isfinite(pts).all(axis=1)
-        if not ok.any():
+        from vectoradjust.adjust.dem import cell_window
+
+        window = cell_window((x0, dx, 0.0, y0, 0.0, -dy), (nrow, ncol), pts)
+        if window is None:
             return None
-        col = (pts[ok, 0] - x0) / dx - 0.5
-        row = (y0 - pts[ok, 1]) / dy - 0.5
-        c_lo = int(np.clip(np.floor(col.min()) - 2, 0, ncol - 1))
-        c_hi = int(np.clip(np.floor(col.max()) + 3, 0, ncol - 1))
-        r_lo = int(np.clip(np.floor(row.min()) - 2, 0, nrow - 1))
-        r_hi = int(np.clip(np.floor(row.max()) + 3, 0, nrow - 1))
+        r_lo, r_hi, c_lo, c_hi = window
     wc, wr = c_hi - c_lo + 1, r_hi - r_lo + 1
     wx0 = x0 + c_lo * dx if c_lo else x0
     wy0 = y0 - r_lo * dy if r_lo else y0

@@ -300,10 +300,7 @@ PLUGIN_NUMPY_ALLOWED = {
 PLUGIN_MATH_ALLOWED = {"isfinite", "isnan", "inf", "nan"}
 #: math left in plugin files outside issue 33's three (file, name) -> why it is allowed
 #: for now; the test fails when one of these is gone (remove it here then)
-PLUGIN_MATH_KNOWN = {
-    ("qgis_plugin/qgis_io.py", "clip"): "pixel window of a raster read (index bookkeeping)",
-    ("qgis_plugin/qgis_io.py", "floor"): "pixel window of a raster read (index bookkeeping)",
-}
+PLUGIN_MATH_KNOWN: dict = {}
 
 
 def _plugin_numeric_uses(path: Path):

@@ -79,3 +79,22 @@ def test_rpc_bias_line_takes_the_column_and_row_shift():
 def test_doctests_of_the_module():
     result = doctest.testmod(measure_rows)
     assert result.attempted >= 4 and result.failed == 0
+
+
+def test_cell_window_covers_the_bilinear_neighbours_of_every_point():
+    """adjust/dem.py::cell_window (the plugin's window read of a large DEM): the window's
+    cells interpolate every point as the whole grid does."""
+    from vectoradjust.adjust import dem
+
+    rng = np.random.default_rng(3)
+    grid = rng.normal(size=(60, 80))
+    gt = (1000.0, 5.0, 0.0, 2000.0, 0.0, -5.0)
+    xy = np.column_stack([rng.uniform(1100, 1300, 20), rng.uniform(1800, 1900, 20)])
+    r0, r1, c0, c1 = dem.cell_window(gt, grid.shape, np.vstack([xy, [np.nan, np.nan]]))
+    window = grid[r0:r1 + 1, c0:c1 + 1]
+    wgt = (gt[0] + c0 * gt[1], gt[1], 0.0, gt[3] + r0 * gt[5], 0.0, gt[5])
+    assert np.allclose(dem.bilinear(window, wgt, xy), dem.bilinear(grid, gt, xy))
+    assert dem.cell_window(gt, grid.shape, [[np.nan, 0.0]]) is None
+    assert dem.cell_window(gt, grid.shape, [[-1e6, 1e6]]) == (0, 0, 0, 0)  # clipped
+    doctest_result = doctest.testmod(dem)
+    assert doctest_result.attempted >= 2 and doctest_result.failed == 0

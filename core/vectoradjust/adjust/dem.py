@@ -13,7 +13,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["bilinear", "covered"]
+__all__ = ["bilinear", "covered", "cell_window"]
 
 
 def _fractional_indices(transform, xy: np.ndarray):
@@ -90,3 +90,40 @@ def bilinear(grid: np.ndarray, transform, xy, nodata: Optional[float] = None) ->
         + grid[r1, c1] * fr * fc
     )
     return np.where(inside, z, np.nan)
+
+
+def cell_window(transform, shape: tuple, xy, margin: int = 2) -> Optional[tuple]:
+    """The cells of a grid that :func:`bilinear` needs for the points ``xy``, with a margin:
+    ``(row_lo, row_hi, col_lo, col_hi)`` (inclusive), clipped to the grid; None when no
+    point is finite. For reading a window of a large DEM instead of all of it.
+
+    Parameters
+    ----------
+    transform : sequence of 6 floats
+        GDAL geotransform of the whole grid.
+    shape : (int, int)
+        ``(rows, cols)`` of the whole grid.
+    xy : array_like, shape (n, 2)
+    margin : int
+        Cells added on each side beyond the bilinear neighbours.
+
+    Examples
+    --------
+    >>> cell_window((0.0, 10.0, 0.0, 100.0, 0.0, -10.0), (10, 10), [[42.0, 58.0]])
+    (1, 6, 1, 6)
+    >>> cell_window((0.0, 10.0, 0.0, 100.0, 0.0, -10.0), (10, 10), [[np.nan, 1.0]]) is None
+    True
+    """
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    if not len(xy):
+        return None
+    row, col = _fractional_indices(transform, xy)
+    nrow, ncol = shape
+
+    def clip(v, n):
+        return int(np.clip(v, 0, n - 1))
+
+    return (clip(np.floor(row.min()) - margin, nrow), clip(np.floor(row.max()) + margin + 1, nrow),
+            clip(np.floor(col.min()) - margin, ncol), clip(np.floor(col.max()) + margin + 1, ncol))
+
