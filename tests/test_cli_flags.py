@@ -1077,7 +1077,8 @@ def test_measure_transfer_every_matching_threshold(measure_sample, tmp_path):
 
     p, m = measure_sample / "project.toml", measure_sample / "measured_L.csv"
     out = _ok(["measure", "transfer", p, "-o", tmp_path / "all", "-q", "--measured", m,
-               "--half-template", "15", "--min-grey-levels", "6", "--min-entropy", "2.0",
+               "--half-template", "15", "--retry-template", "1.0",
+               "--min-grey-levels", "6", "--min-entropy", "2.0",
                "--max-blockiness", "6.0", "--min-roundness", "0.05", "--max-radius", "30",
                "--window-k", "4.0", "--pyramid-levels", "1", "--pyramid-radius", "2.0",
                "--min-ncc", "0.75", "--distinct-factor", "1.5", "--distinct-gap", "0.15",
@@ -1085,7 +1086,8 @@ def test_measure_transfer_every_matching_threshold(measure_sample, tmp_path):
                "--lsm-tol-sigma", "0.1", "--max-lsm-move", "2.0", "--max-sigma", "0.1",
                "--min-sigma", "0.02", "--max-anisotropy", "inf", "--back-tolerance", "0.6",
                "--back-k", "2.5", "--max-ray-misfit", "1.5", "--sigma-height", "3"])
-    want = dict(half_template=15, min_grey_levels=6, min_entropy=2.0, max_blockiness=6.0,
+    want = dict(half_template=15, retry_template=1.0, min_grey_levels=6, min_entropy=2.0,
+                max_blockiness=6.0,
                 min_roundness=0.05, max_radius=30.0, k=4.0, pyramid_levels=1,
                 pyramid_radius=2.0, min_ncc=0.75, distinct_factor=1.5, distinct_gap=0.15,
                 ambiguity=0.03, quadratic=False, grey_step=2.0, lsm_tol_sigma=0.1,

@@ -289,3 +289,23 @@ def test_rough_orientation_clips_the_window_and_flags_it(pair):
     out = transfer(rough, readers, meas, pair.scene.height)
     assert np.all(out["flags"] & FLAGS["window_clipped"])
     assert not out["accepted"].any()
+
+
+def test_lsm_gather_of_stacked_layers_equals_separate_sampling():
+    """The LSM samples grey values and gradients in one gather of a stacked array
+    (issue 28, speed): the values are those of ``sample_many`` per layer, bit for bit,
+    NaN outside the chips."""
+    from vectoradjust.measure.matching import _gather, sample_many
+
+    rng = np.random.default_rng(3)
+    a, b, c = (rng.normal(size=(4, 9, 11)) for _ in range(3))
+    cols = rng.uniform(-1.0, 11.0, size=(4, 50))
+    rows = rng.uniform(-1.0, 9.0, size=(4, 50))
+    batch = np.arange(4)[:, None]
+    want = sample_many([a, b, c], batch, cols, rows)
+    got = _gather(np.stack([a, b, c], axis=-1), batch, cols, rows)
+    outside = (cols < 0) | (rows < 0) | (cols > 10) | (rows > 8)
+    assert outside.any() and (~outside).any()
+    for w, g in zip(want, got):
+        assert np.array_equal(np.isnan(g), outside)
+        assert np.array_equal(w[~outside], g[~outside])

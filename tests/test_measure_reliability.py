@@ -309,3 +309,27 @@ def test_adjusted_summary_carries_each_frame_images_joint_orientation_covariance
                                    atol=1e-8 * np.abs(out.result.eo_cov[j]).max())
         corr = np.asarray(e["correlation"]["matrix"])
         assert np.abs(corr - np.eye(6)).max() > 0.05  # the correlations are really there
+
+
+def test_a_transfer_rejected_for_precision_is_retried_with_a_larger_template():
+    """``retry_template`` (issue 28, JPEG precision): 9 x 9 templates give an LSM sigma
+    above ``max_sigma`` (``poor_precision``); with ``retry_template`` 3 those transfers
+    are matched again with 25 x 25 templates, and the rows are exactly those of a run
+    with ``half_template`` 12 (position, sigma, texture), accepted."""
+    from vectoradjust.files.measuring import transfer
+
+    pts = np.array([[100.0, 60.0], [90.5, 50.0], [110.0, 70.5], [70.0, 40.0]])
+    measured = {"point_id": np.array(["p1", "p2", "p3", "p4"]), "image_id": np.full(4, "A"),
+                "col": pts[:, 0], "row": pts[:, 1]}
+    views = dict(A=_view("A", 0.0), B=_view("B", 2.0))
+    geoms = {k: v[0] for k, v in views.items()}
+    readers = {k: v[1] for k, v in views.items()}
+    out = {}
+    for h, retry in ((4, 1.0), (12, 1.0), (4, 3.0)):
+        st = MatchSettings(half_template=h, retry_template=retry, max_radius=10.0,
+                           min_grey_levels=0, min_entropy=0.0, max_sigma=0.02)
+        out[h, retry] = transfer(geoms, readers, measured, 0.0, st, sigma_height=2.0)
+    assert all(f == FLAGS["poor_precision"] for f in out[4, 1.0]["flags"])
+    assert out[12, 1.0]["accepted"].all() and out[4, 3.0]["accepted"].all()
+    for key in ("col", "row", "sigma_col", "sigma_row", "entropy", "back_error"):
+        assert np.array_equal(out[4, 3.0][key], out[12, 1.0][key]), key

@@ -357,6 +357,7 @@ def test_rendered_rpc_pixels_follow_gdal_convention(scene):
     assert abs(np.median(off)) < 0.15  # a half-pixel slip would be 0.5
 
 
+@pytest.mark.slow
 def test_transfer_between_rendered_rpc_images(scene):
     xyz, px = _overlap(scene)
     geoms = _rpc_geoms(scene)
@@ -393,6 +394,7 @@ def test_transfer_between_rendered_rpc_images(scene):
     assert (ip["sigma_x"][tr] >= 0.3).all() and (ip["sigma_x"][tr] < 0.4).all()
 
 
+@pytest.mark.slow
 def test_transfer_between_rpc_and_frame_images(scene):
     """Through the sensor seam: RPC -> frame and frame -> RPC (the frame's pixels are
     array indices, the RPC's GDAL's: a half-pixel slip would fail)."""

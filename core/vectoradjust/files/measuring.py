@@ -363,6 +363,31 @@ def _heights(height, g_src: ImageGeometry):
 
 def _transfer_pair(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float,
                    sigma_ref_px: float, st: MatchSettings) -> dict:
+    """:func:`_matched_pair`, and again with a larger template
+    (``st.retry_template``) where it was rejected only for precision, texture or
+    ambiguity: the retry's rows replace those it accepts."""
+    out = _matched_pair(src, dst, rd_src, rd_dst, ref_px, height, sigma_height,
+                        sigma_ref_px, st)
+    soft = FLAGS["poor_precision"] | FLAGS["no_texture"] | FLAGS["ambiguous"]
+    h2 = int(round(st.retry_template * st.half_template))
+    redo = np.flatnonzero((out["flags"] != 0) & (out["flags"] & ~soft == 0)
+                          & ~out["off_image"])
+    if h2 <= st.half_template or redo.size == 0:
+        return out
+    again = _matched_pair(src, dst, rd_src, rd_dst, np.asarray(ref_px, float)[redo], height,
+                          sigma_height, sigma_ref_px, dataclasses.replace(st, half_template=h2))
+    take = again["flags"] == 0
+    for key, val in out.items():
+        if key == "texture":
+            for k in val:
+                val[k][redo[take]] = again[key][k][take]
+        else:
+            val[redo[take]] = again[key][take]
+    return out
+
+
+def _matched_pair(src, dst, rd_src, rd_dst, ref_px, height, sigma_height: float,
+                  sigma_ref_px: float, st: MatchSettings) -> dict:
     """Match the reference pixels of ``src`` on ``dst`` and, where that is accepted, the
     matches back on ``src`` (:func:`_one_way`): a back-match whose least-squares matching
     fails, or lands farther than its tolerance (:func:`back_tolerance`) from the

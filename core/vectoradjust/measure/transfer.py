@@ -75,6 +75,16 @@ class MatchSettings:
     half_template : int
         Template half size (pixels of the reference image); the template is
         ``2 h + 1`` square.
+    retry_template : float
+        A transfer rejected only for precision, texture or ambiguity
+        (``poor_precision``, ``no_texture``, ``ambiguous``) is matched again - with
+        every check, back-matching included - with a template this many times larger
+        (``round(retry_template h)``), and the retry replaces it where it is accepted
+        (1: no retry). On compressed images the residuals of a 41 px template are
+        correlated within the 8 x 8 JPEG blocks, so its LSM precision often fails the
+        threshold on good texture; a larger template averages more blocks (rendered
+        pairs at JPEG quality 30), while the first, smaller template keeps relief and
+        occlusions (real aerial frames) from spoiling the rest.
     min_grey_levels : int
         Fewest distinct grey values in the reference template (a flat JPEG block holds
         two or three).
@@ -151,6 +161,7 @@ class MatchSettings:
     """
 
     half_template: int = 20
+    retry_template: float = 1.5
     min_grey_levels: int = 8
     min_entropy: float = 2.5
     max_blockiness: float = 5.0
