@@ -238,8 +238,10 @@ def _load(args):
                 height = _dem_height(bilinear, grid, gt, nodata)
         layers.append((v, layer))
     points = project_points(control, layers, spec.settings.merge_tolerance)
-    if height is None and control is not None and len(control.xyz):
-        height = float(np.mean(control.xyz[:, 2]))
+    if height is None:
+        from vectoradjust.files.measure_rows import control_height
+
+        height = control_height(control)
     return spec, geoms, readers, points, height
 
 
@@ -258,23 +260,21 @@ def _ground_frame(spec, crs):
 
 def _say_rpc(geoms: dict) -> None:
     """One line per RPC image: where its bias and search window come from."""
+    from vectoradjust.files.measure_rows import rpc_bias_line
     from vectoradjust.measure.geometry import RpcGeometry
 
     for iid, g in geoms.items():
         if isinstance(g, RpcGeometry):
-            sd = np.sqrt(np.clip(np.diag(g.bias_cov)[[0, 3]], 0.0, None))
-            print(f"  RPC image {iid}: bias {g.bias[0]:.2f}, {g.bias[3]:.2f} px (column, "
-                  f"row shift), sigma {sd[0]:.3g}, {sd[1]:.3g} px from {g.bias_source}")
+            print("  " + rpc_bias_line(iid, g, digits=".3g"))
 
 
 def _dem_height(bilinear, grid, gt, nodata):
+    """The terrain height from the DEM; the DEM's mean height where it has none."""
+    from vectoradjust.files.measure_rows import height_from_samples
+
     fallback = float(np.nanmean(np.where(grid == nodata, np.nan, grid))) if nodata is not None \
         else float(np.nanmean(grid))
-
-    def height(xy):
-        z = bilinear(grid, gt, np.asarray(xy, float).reshape(-1, 2), nodata=nodata)
-        return np.where(np.isfinite(z), z, fallback)
-    return height
+    return height_from_samples(lambda xy: bilinear(grid, gt, xy, nodata=nodata), fallback)
 
 
 def cmd_predict(args) -> int:
