@@ -28,10 +28,24 @@ _BLAS_THREAD_SYMBOLS = (
 )
 
 
+#: the controls found, by (process, number of imported modules): an OpenBLAS is loaded
+#: only by importing a module, so the scan of /proc/self/maps (3 ms) runs again only then
+_CONTROLS_CACHE: dict = {}
+
+
 def _openblas_controls() -> list:
     """``(set, get)`` thread functions of every OpenBLAS loaded in this process (Linux)."""
     if not sys.platform.startswith("linux") or os.environ.get("VECTORADJUST_BLAS_THREADS"):
         return []
+    key = (os.getpid(), len(sys.modules))
+    if key not in _CONTROLS_CACHE:
+        _CONTROLS_CACHE.clear()
+        _CONTROLS_CACHE[key] = _scan_openblas()
+    return _CONTROLS_CACHE[key]
+
+
+def _scan_openblas() -> list:
+    """The controls of the OpenBLAS libraries mapped into this process."""
     try:
         with open("/proc/self/maps", encoding="utf-8") as fh:
             paths = sorted({ln.split()[-1] for ln in fh if "openblas" in ln.lower()
