@@ -53,11 +53,13 @@ CONTRACT_COLUMNS = ("point_id", "image_id", "x", "y", "sigma_x", "sigma_y")
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add ``measure predict`` and ``measure transfer`` to the ``vectoradjust`` sub-parsers."""
     m = subparsers.add_parser("measure", help="measure on the images: predict, transfer",
-                              description="Predicted image positions, chips and automatic "
+                              description="predicted image positions, chips and automatic "
                                           "measurement (transfer by NCC + least-squares "
-                                          "matching; road junctions) towards image_points.csv.")
+                                          "matching; road junctions) towards image_points.csv")
     sub = m.add_subparsers(dest="measure_command", required=True)
     p = sub.add_parser("predict", help="predicted positions, search windows, chips",
+                       description="predicted positions, search windows and chips of every "
+                                   "control, check and shape point on every image",
                        formatter_class=options.HelpFormatter)
     _common(p)
     p.add_argument("--chips", choices=("png", "tif", "none"), default="png",
@@ -68,6 +70,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--road-width", type=float, default=6.0, help="road surface width (m)")
     p.set_defaults(func=cmd_predict)
     t = sub.add_parser("transfer", help="find measured points on the other images",
+                       description="find points measured on one image on the other images "
+                                   "(NCC over a pyramid, least-squares matching, back-matching)",
                        formatter_class=options.HelpFormatter)
     _common(t)
     t.add_argument("--measured", required=True,
@@ -114,8 +118,17 @@ def settings_help(cls=None) -> dict:
     for n, text in out.items():
         text = re.sub(r"\s*\(:\w+:`[^`]*`\)", "", text)  # a bare cross-reference
         text = re.sub(r":\w+:`~?(?:[\w.]*\.)?(\w+)`", r"\1", text)
-        out[n] = text.replace("``", "")
+        out[n] = _help_style(text.replace("``", ""))
     return out
+
+
+def _help_style(text: str) -> str:
+    """A docstring's description in the command line's help style (cli/options.py):
+    lower-case start (not an acronym such as NCC), no final period."""
+    first = text.split(" ", 1)[0]
+    if first[:1].isupper() and first[1:2].islower():
+        text = text[0].lower() + text[1:]
+    return text[:-1] if text.endswith(".") and not text.endswith("...") else text
 
 
 def add_settings_flags(p: argparse.ArgumentParser, cls=None) -> None:
