@@ -30,7 +30,8 @@ independent from object point to object point), and for the vertices the conflat
 predicted their covariance from it (:func:`vertex_covariance`). ``LengthSD`` is the
 root mean square error of a length, its expected lengthening included
 (:func:`segment_lengthening`); the G-band's ellipses are drawn at the one-dimensional
-scale of the error across the line (:func:`band_scale`).
+scale of the error across the line (:func:`band_scale`), at a line's free ends at
+:func:`end_scale` (the band holds the end vertex itself).
 
 Heart module: numpy and scipy only (and other vectoradjust heart modules).
 
@@ -110,6 +111,7 @@ from vectoradjust.accuracy.derived.bands import (
     SegmentCovariances,
     band_scale,
     band_segment_counts,
+    end_scale,
     segment_bands,
     segment_covariances,
     uncertainty_bands,
@@ -167,6 +169,7 @@ __all__ = [
     "segment_bands",
     "band_segment_counts",
     "band_scale",
+    "end_scale",
     "vertex_covariance",
     "uncertainty_bands",
     "DerivedValue",
