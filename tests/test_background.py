@@ -352,27 +352,3 @@ def test_the_parent_keeps_the_covariances_the_band_processes_saved(sample_dir, t
         a, b = _arrow_rows(child), _arrow_rows(here)
         assert a.num_rows == b.num_rows > 0 and a.equals(b)
     bands.close()
-
-
-def _drawing_for_long(seconds, progress=None):
-    import time
-
-    time.sleep(seconds)
-    return "drawn"
-
-
-@fork_only
-def test_a_failed_run_does_not_wait_for_its_report_figures(monkeypatch):
-    """The child drawing the report's figures writes nothing: a cancelled or failed run
-    ends it at once (``stop_figures``), not after it has drawn them."""
-    import time
-
-    from vectoradjust.runner.alongside import stop_figures
-
-    monkeypatch.setenv("VECTORADJUST_WORKERS", "2")
-    job = Background(_drawing_for_long, 60)
-    assert job.forked and job.proc.is_alive()
-    t = time.monotonic()
-    stop_figures(job)
-    assert time.monotonic() - t < 4.0  # (Background.close alone waits 5 s)
-    assert job.proc is None

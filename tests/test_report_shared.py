@@ -135,28 +135,3 @@ def test_a_report_left_to_finish_later_is_written_before_the_commit(sample_dir, 
     proc = stopped[0].job.job.proc
     assert proc is None or not proc.is_alive()
     assert not (tmp_path / "other" / "report.html").exists()
-
-
-def test_figures_drawn_beforehand_are_taken_and_a_changed_one_drawn_again(
-        runs, tmp_path, drawn, monkeypatch):
-    """The figures a child draws while the parent runs the tests and writes the layers
-    (``draw_report_figures``) make the same page; none is drawn again, but a figure
-    whose values changed after they were drawn (the RMSE bars) is."""
-    from vectoradjust.runner.alongside import draw_report_figures, write_report_html
-
-    r = runs[0]
-    plain = write_report_html(r, tmp_path / "plain.html", None)
-    n = len(drawn)
-    memo = draw_report_figures(r)
-    assert n >= 4 and len(drawn) == 2 * n and len(memo) == n
-    ready = write_report_html(r, tmp_path / "ready.html", None, figures=memo)
-    assert len(drawn) == 2 * n  # every figure taken from the memo
-    a, b = (_unstamped(p.read_text(encoding="utf-8")) for p in (plain, ready))
-    assert a == b
-    entry = r.summary["databases"][0]
-    monkeypatch.setitem(entry, "residuals",
-                        {**entry["residuals"],
-                         "rmse_horizontal": entry["residuals"]["rmse_horizontal"] + 1.0})
-    changed = write_report_html(r, tmp_path / "changed.html", None, figures=memo)
-    assert len(drawn) == 2 * n + 1  # only the RMSE bars again
-    assert _unstamped(changed.read_text(encoding="utf-8")) != a

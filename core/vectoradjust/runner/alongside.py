@@ -13,10 +13,7 @@ their results:
   in a temporary file, :func:`covariance_file`, and lets the factorisation go);
 - :class:`ReportAlongside` - ``report.html`` while the parent writes the layers (and,
   with ``run_into(reports=...)``, while it adjusts the next database: ``compare``,
-  ``demo``);
-- :func:`draw_report_figures` - the report's figures drawn while the parent runs the
-  ``[truth]`` tests and writes the layers; the parent then writes ``report.html`` with
-  them (its text takes a tenth of the figures' time).
+  ``demo``).
 
 Without ``fork`` (not Linux), with one worker or ``enabled=False`` every stage runs in
 the parent where its result is needed: the outputs are the same either way.
@@ -32,7 +29,6 @@ from typing import Optional
 
 __all__ = ["BandsAlongside", "KernelsAlongside", "ReportAlongside", "TruthBeforeAlongside",
            "bands_alongside", "band_share", "compile_kernels", "covariance_file",
-           "draw_report_figures", "stop_figures", "write_report_html",
            "load_covariances", "save_covariances", "summarised", "PLOTTING"]
 
 #: the report's plotting modules, loaded in a thread while the statistics are computed
@@ -320,22 +316,20 @@ class KernelsAlongside:
             self.job = None
 
 
-def write_report_html(run, path, qa, progress=None, colors=None, section: bool = False,
-                      figures: Optional[dict] = None):
+def write_report_html(run, path, qa, progress=None, colors=None, section: bool = False):
     """``report.html`` of ``run`` (with the ``[qa]`` verdict ``qa``, if any) at ``path``.
 
     ``colors``: each database's colour in the figures. ``section``: also the run's part
     of the comparison report (:func:`vectoradjust.files.report.page.compare_section`,
     with the same colours), drawn in the same figure memo (the figures the two share
-    are drawn once); then ``(path, section)`` is returned. ``figures``: figures drawn
-    before (:func:`draw_report_figures`), not drawn again."""
+    are drawn once); then ``(path, section)`` is returned."""
     from vectoradjust.files.report import write_report
     from vectoradjust.files.report.figures import figure_memo
     from vectoradjust.files.report.page import compare_section
 
     say = progress if progress is None or not section else (
         lambda f, m="": progress(0.8 * f, m))
-    with figure_memo(figures):
+    with figure_memo():
         path = write_report(run, path, reliability=run.reliability, qa=qa, progress=say,
                             colors=colors)
         if not section:
@@ -344,26 +338,6 @@ def write_report_html(run, path, qa, progress=None, colors=None, section: bool =
     if progress is not None:
         progress(1.0, "report and its section of the comparison report written")
     return path, part
-
-
-def draw_report_figures(run, progress=None, colors=None, section: bool = False) -> dict:
-    """The figures of ``run``'s report (and of its section of the comparison report with
-    ``section``) drawn now, as the memo :func:`write_report_html` takes (``figures=``):
-    in a forked child while the parent runs the ``[truth]`` tests and writes the layers.
-
-    A figure is keyed by what it draws (the run by ``id``, the same in the parent, and
-    for the RMSE bars every value), so one whose data changed after the fork (the
-    ``[truth]`` tests add to the summary) is drawn again by the parent, not reused."""
-    from vectoradjust.files.report.figures import figure_memo
-    from vectoradjust.files.report.page import compare_section, report_html
-
-    with figure_memo() as memo:
-        report_html(run, reliability=run.reliability, colors=colors)
-        if progress is not None:
-            progress(0.8 if section else 1.0, "report figures drawn")
-        if section:
-            compare_section(run, colors=colors)
-    return dict(memo)
 
 
 class ReportAlongside:
@@ -388,36 +362,24 @@ class ReportAlongside:
     section : bool
         Also the run's part of the comparison report (:attr:`section` once
         :meth:`result` has returned).
-    figures : vectoradjust.runner.background.Background, optional
-        A child drawing the figures (:func:`draw_report_figures`, started earlier with
-        the same ``colors`` and ``section``): then no child is started here;
-        :meth:`result` waits for the figures and writes the page in the parent (a
-        figure the child did not draw, or all of them when it failed, is drawn then).
     """
 
     def __init__(self, run, out_dir, qa, enabled: bool = True, colors=None,
-                 section: bool = False, figures=None) -> None:
+                 section: bool = False) -> None:
         from vectoradjust.runner.background import Background
 
         self.run, self.qa, self.colors, self.want = run, qa, colors, section
-        self.section, self.figures = None, figures
+        self.section = None
         self.path = Path(out_dir) / "report.html"
         self.warnings = list(run.summary.get("warnings") or [])
         self.job = Background(write_report_html, run, self.path, qa, colors=colors,
-                              section=section, enabled=enabled and figures is None)
-        # (a job forgets its process once it has ended): the page drawn in a child, and
-        # the page or its figures drawn in one
-        self.page_forked = self.job.forked
-        self.forked = self.page_forked or bool(figures is not None and figures.forked)
+                              section=section, enabled=enabled)
+        self.forked = self.job.forked  # (the job forgets its process once it has ended)
 
     def result(self, progress=None) -> Path:
         """The report written (waits for the child, forwarding its progress)."""
-        if self.figures is not None:
-            say = progress or (lambda fraction, message="": None)
-            drawn = self.figures.result(lambda f, m="": say(0.9 * f, m), rerun=False)
-            self.job.kwargs["figures"] = drawn or None
         value = self.job.result(progress)
-        if self.page_forked and self.job.done and \
+        if self.forked and self.job.done and \
                 list(self.run.summary.get("warnings") or []) != self.warnings:
             value = write_report_html(self.run, self.path, self.qa, progress, self.colors,
                                       self.want)
@@ -426,15 +388,5 @@ class ReportAlongside:
         return value
 
     def close(self) -> None:
-        """Stop the children if they still run."""
+        """Stop the child if it still runs."""
         self.job.close()
-        if self.figures is not None:
-            stop_figures(self.figures)
-
-
-def stop_figures(job) -> None:
-    """End the child of :func:`draw_report_figures` now (it writes nothing: a cancelled
-    or failed run does not wait for its drawing)."""
-    if job.proc is not None and job.proc.is_alive():
-        job.proc.terminate()
-    job.close()

@@ -454,16 +454,13 @@ def _write(result, project, folder, target, options, truth_pre, bands, hooks) ->
     to :func:`run_into`."""
     from vectoradjust.files.jsonfile import write_json
     from vectoradjust.files.outputs import write_outputs
-    from vectoradjust.runner.alongside import PLOTTING, ReportAlongside, stop_figures
+    from vectoradjust.runner.alongside import PLOTTING, ReportAlongside
     from vectoradjust.runner.background import Preload
 
     progress, cancel, reports = hooks
     stage = folder.staged(target)
     stage.mkdir(parents=True, exist_ok=True)
-    # the report's figures are drawn by a child while the tests run and the layers are
-    # written (without a child: the plotting library loads in a thread meanwhile)
-    figures = _figures(result, options)
-    warm = Preload(PLOTTING if options.report and figures is None else ())
+    warm = Preload(PLOTTING if options.report else ())  # the bands' processes have started
     report, pre = None, truth_pre[1]
     try:
         truth_csv, _ = _truth(result, project, stage, truth_pre, progress, options, cancel)
@@ -472,19 +469,16 @@ def _write(result, project, folder, target, options, truth_pre, bands, hooks) ->
             warm.wait()  # no module half imported in the report's process
             report = ReportAlongside(result, stage, qa_doc, enabled=options.background,
                                      colors=options.compare_colors,
-                                     section=options.compare_colors is not None,
-                                     figures=figures)
-            figures = None  # (the report closes it)
+                                     section=options.compare_colors is not None)
         written = write_outputs(result, target, fmt=options.fmt,
                                 bands=bands.result if bands is not None else False,
                                 progress=_stage(progress, "write", options),
                                 is_cancelled=cancel)
     except BaseException:
-        if figures is not None:  # no child is left running
-            stop_figures(figures)
-        for job in (report, pre):
-            if job is not None:
-                job.close()
+        if report is not None:  # the report's process is not left running
+            report.close()
+        if pre is not None:
+            pre.close()
         raise
     finally:
         if bands is not None:
@@ -510,20 +504,6 @@ def _write(result, project, folder, target, options, truth_pre, bands, hooks) ->
         written["report.html"] = str(folder.final(
             report.result(_stage(progress, "report", options))))
     return written, qa_doc
-
-
-def _figures(result, options: RunOptions):
-    """The child drawing the report's figures
-    (:func:`vectoradjust.runner.alongside.draw_report_figures`), or None (no report, no
-    background processes, no ``fork``)."""
-    if not (options.report and options.background):
-        return None
-    from vectoradjust.runner.alongside import draw_report_figures
-    from vectoradjust.runner.background import Background
-
-    job = Background(draw_report_figures, result, colors=options.compare_colors,
-                     section=options.compare_colors is not None)
-    return job if job.forked else None
 
 
 def truth_tables(run, spec, out_dir, label: str = "", progress=None, before=None) -> dict:

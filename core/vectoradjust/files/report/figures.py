@@ -26,7 +26,6 @@ __all__ = [
     "rmse_bar_figure",
     "figure_png",
     "figure_memo",
-    "rmse_bar_key",
     "database_colors",
     "MAX_SEGMENTS",
 ]
@@ -354,40 +353,19 @@ _MEMO: ContextVar = ContextVar("vectoradjust_report_figures", default=None)
 
 
 @contextmanager
-def figure_memo(seed: Optional[dict] = None):
+def figure_memo():
     """Inside, a figure asked for again with the same key is not drawn again.
 
     One process writes a run's report and its section of the comparison report
     (``vectoradjust compare``) inside one memo: the figures the two share (the same run,
     the same colours) are drawn once. The memo ends with the block, so keys that name
     objects by ``id`` stay unambiguous.
-
-    ``seed``: figures drawn before (the memo a forked child of the same process filled,
-    :func:`vectoradjust.runner.alongside.draw_report_figures`: the ``id`` in the keys
-    is the same there). Yields the memo (key -> HTML of the figure).
     """
-    memo = dict(seed or {})
-    token = _MEMO.set(memo)
+    token = _MEMO.set({})
     try:
-        yield memo
+        yield
     finally:
         _MEMO.reset(token)
-
-
-def rmse_bar_key(entries, colors: Optional[dict] = None) -> tuple:
-    """Memo key of :func:`rmse_bar_figure` of ``entries``: every value it draws (the same
-    key is the same figure, whenever the summary was taken)."""
-    def val(e, *path):
-        x = e
-        for p in path:
-            x = (x or {}).get(p)
-        return None if x is None else float(x)
-
-    rows = tuple((str(e.get("name")), val(e, "residuals", "rmse_horizontal"),
-                  bool(e.get("truth")), val(e, "truth", "rmse_database_truth_horizontal"),
-                  val(e, "truth", "rmse_adjusted_truth_horizontal")) for e in entries)
-    return ("rmse bars", rows, tuple(sorted((str(k), str(v))
-                                            for k, v in (colors or {}).items())))
 
 
 class _Later:

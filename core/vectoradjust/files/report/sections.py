@@ -15,13 +15,7 @@ from typing import Optional
 import numpy as np
 
 from vectoradjust.errors import CancelledError
-from vectoradjust.files.report.figures import (
-    _img,
-    _Later,
-    _run_key,
-    rmse_bar_figure,
-    rmse_bar_key,
-)
+from vectoradjust.files.report.figures import _img, _Later, _run_key, rmse_bar_figure
 from vectoradjust.files.report.maps import conflation_figure, residual_vector_figure
 from vectoradjust.files.report.markup import (
     _badge,
@@ -273,9 +267,7 @@ def _databases_body(run, prefix: str, colors: dict, *, with_bars: bool = True) -
                            "improvement", "within CE90", "within LE90"], trows,
                           ident=f"{prefix}truth-table"))
     if with_bars:
-        out.append(_img(_Later(rmse_bar_key(entries, colors),
-                               lambda: rmse_bar_figure(entries, colors=colors)),
-                        "RMSE per database",
+        out.append(_img(rmse_bar_figure(entries, colors=colors), "RMSE per database",
                         "Horizontal RMSE per road database: of the residuals V"
                         + (", of database \u2212 truth and of adjusted \u2212 truth."
                            if truth else ".")))
