@@ -113,3 +113,14 @@ def test_unreachable_scheduler_is_a_clear_error(projects, tmp_path):
     pytest.importorskip("distributed")
     with pytest.raises(VectorAdjustError, match="scheduler"):
         adjust_many(projects[0], tmp_path, scheduler=42)
+
+
+def test_a_memory_limit_dask_cannot_read_is_a_clear_error_before_any_worker(tmp_path):
+    pytest.importorskip("dask")
+    from vectoradjust.errors import VectorAdjustError
+    from vectoradjust.files.many import adjust_many
+
+    with pytest.raises(VectorAdjustError, match="'banana' is not a memory size") as info:
+        adjust_many(["p.toml"], tmp_path / "out", memory_limit="banana")
+    assert "--memory-limit 1GB" in info.value.mend
+    assert not (tmp_path / "out").exists()  # nothing started, nothing written

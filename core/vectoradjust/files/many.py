@@ -217,6 +217,24 @@ def _client(scheduler):
                                 "Check the address and that the scheduler is running") from exc
 
 
+def _check_memory_limit(memory_limit) -> None:
+    """A memory limit Dask can read (``"1GB"``, ``"700MB"``, bytes, a fraction of the
+    machine's memory, ``"auto"``), before any worker starts: else a clear error."""
+    if memory_limit is None or memory_limit == "auto":
+        return
+    from dask.utils import parse_bytes
+
+    try:
+        ok = float(memory_limit) > 0 if not isinstance(memory_limit, str) \
+            else parse_bytes(memory_limit) > 0
+    except (ValueError, TypeError):
+        ok = False
+    if not ok:
+        raise VectorAdjustError(f"--memory-limit {memory_limit!r} is not a memory size",
+                                "Give the memory of each worker as a size, e.g. "
+                                "--memory-limit 1GB or 700MB")
+
+
 def _local_cluster(workers: Optional[int], memory_limit, n_projects: int):
     """A ``distributed.LocalCluster`` of worker processes (one thread each) and its
     client; ``(None, None)`` when distributed is not installed."""
@@ -285,6 +303,7 @@ def adjust_many(projects: Sequence, out_dir, *, scheduler: Any = None,
     from vectoradjust.files.outputs import DirLock
 
     dask = _dask()
+    _check_memory_limit(memory_limit)
     projects = [str(p) for p in projects]
     if not projects:
         raise VectorAdjustError("adjust-many was given no project", "Name project files")
